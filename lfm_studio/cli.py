@@ -1,0 +1,48 @@
+"""The ``lfm-studio`` command line.
+
+``lfm-studio`` (or ``lfm-studio gui``) opens the desktop studio; further
+sub-commands (simulate, image, info, reconstruct, bench) run headless.
+GUI packages are imported only by the ``gui`` sub-command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from lfm_studio import __version__
+
+
+def _run_gui(args: argparse.Namespace) -> int:
+    from lfm_studio.ui.app import run_studio  # Qt is imported only here
+
+    return run_studio(design=args.design)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every sub-command."""
+    parser = argparse.ArgumentParser(
+        prog="lfm-studio",
+        description="Design studio for light-field microscopes (simulation, reconstruction, design).",
+    )
+    parser.add_argument("--version", action="version", version=f"lfm-studio {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
+    gui.add_argument("design", nargs="?", default=None, help="design file or preset name to open")
+    gui.set_defaults(handler=_run_gui)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``lfm-studio`` and ``python -m lfm_studio``; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        args = parser.parse_args(["gui", *(argv if argv is not None else sys.argv[1:])])
+    return int(args.handler(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

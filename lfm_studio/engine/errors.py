@@ -1,0 +1,54 @@
+"""Exceptions and warnings raised by the engine, and the checks that raise them.
+
+Every message names the parameter, the value it got (with its unit), the limit
+and a fix, so a user can correct a design without reading the source.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+
+class SamplingWarning(UserWarning):
+    """A sampling criterion is violated; the result may be aliased or inaccurate."""
+
+
+class SamplingError(ValueError):
+    """A computation cannot be sampled on the given grid; raised before heavy work."""
+
+
+def require_positive(name: str, value: float | torch.Tensor, unit: str, fix: str = "") -> None:
+    """Raise ``ValueError`` unless ``value`` is a finite number > 0.
+
+    Parameters
+    ----------
+    name : parameter name as the caller knows it (e.g. ``"wavelength"``).
+    value : the value to check; a 0-d tensor is accepted (trainable parameters).
+    unit : unit of ``value`` as written in the message (e.g. ``"m"``).
+    fix : a hint appended to the message.
+    """
+    number = float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
+    if not (math.isfinite(number) and number > 0.0):
+        hint = f" Fix: {fix}" if fix else ""
+        raise ValueError(f"{name} must be a finite number > 0 {unit}; got {number!r} {unit}.{hint}")
+
+
+def require_finite(name: str, value: float | torch.Tensor, unit: str, fix: str = "") -> None:
+    """Raise ``ValueError`` unless ``value`` (a number or 0-d tensor) is finite."""
+    number = float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
+    if not math.isfinite(number):
+        hint = f" Fix: {fix}" if fix else ""
+        raise ValueError(f"{name} must be finite; got {number!r} {unit}.{hint}")
+
+
+def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
+    """Raise ``ValueError`` if ``tensor`` holds NaN or Inf, saying how many."""
+    finite = torch.isfinite(tensor)
+    if not bool(finite.all()):
+        bad = int((~finite).sum())
+        raise ValueError(
+            f"{name} contains {bad} NaN/Inf value(s) of {tensor.numel()}. "
+            "Fix: check the input data or the upstream computation that produced it."
+        )

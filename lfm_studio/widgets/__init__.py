@@ -1,0 +1,1 @@
+"""Reusable Qt widgets (MLA layout editor, PSF viewer), importable inside napari."""

@@ -1,0 +1,1 @@
+"""Bundled data (preset designs, icons), installed as ``lfm_studio.resources``."""

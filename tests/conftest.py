@@ -1,0 +1,1 @@
+"""Shared test settings: our own warnings are errors unless a test expects them."""
