@@ -32,7 +32,7 @@ def require_positive(name: str, value: float | torch.Tensor, unit: str, fix: str
     number = float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
     if not (math.isfinite(number) and number > 0.0):
         hint = f" Fix: {fix}" if fix else ""
-        raise ValueError(f"{name} must be a finite number > 0 {unit}; got {number!r} {unit}.{hint}")
+        raise ValueError(f"{name} must be a finite number > 0 {unit}; got {number:.6g} {unit}.{hint}")
 
 
 def require_finite(name: str, value: float | torch.Tensor, unit: str, fix: str = "") -> None:
@@ -40,7 +40,7 @@ def require_finite(name: str, value: float | torch.Tensor, unit: str, fix: str =
     number = float(value.detach()) if isinstance(value, torch.Tensor) else float(value)
     if not math.isfinite(number):
         hint = f" Fix: {fix}" if fix else ""
-        raise ValueError(f"{name} must be finite; got {number!r} {unit}.{hint}")
+        raise ValueError(f"{name} must be finite; got {number:.6g} {unit}.{hint}")
 
 
 def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
