@@ -50,7 +50,9 @@ class Field:
                 f"Field.data shape {tuple(self.data.shape)} does not end in the grid shape "
                 f"{self.grid.shape}. Fix: pass a Grid matching the last two dimensions."
             )
-        require_positive("wavelength", self.wavelength, "m", "pass the vacuum wavelength in metres, e.g. 525 * nm.")
+        require_positive(
+            "wavelength", self.wavelength, "m", "pass the vacuum wavelength in metres, e.g. 525 * nm."
+        )
         require_positive("refractive_index", self.refractive_index, "", "use 1.0 for air, 1.33 for water.")
         require_finite_tensor("Field.data", self.data.detach())
 

@@ -141,5 +141,5 @@ class Grid:
     def same_as(self, other: Grid, rtol: float = 1e-9) -> bool:
         """True when shapes match and spacings agree to ``rtol``."""
         return self.shape == other.shape and all(
-            math.isclose(a, b, rel_tol=rtol) for a, b in zip(self.spacing, other.spacing)
+            math.isclose(a, b, rel_tol=rtol) for a, b in zip(self.spacing, other.spacing, strict=True)
         )
