@@ -44,7 +44,17 @@ def require_finite(name: str, value: float | torch.Tensor, unit: str, fix: str =
 
 
 def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
-    """Raise ``ValueError`` if ``tensor`` holds NaN or Inf, saying how many."""
+    """Raise ``ValueError`` if ``tensor`` holds NaN or Inf, saying how many.
+
+    Fast path: one reduction (a NaN or Inf makes the sum non-finite); the
+    element-wise count runs only when that sum is not finite, so huge-but-finite data
+    whose sum overflows is still accepted.
+    """
+    if tensor.numel() == 0:
+        return
+    total = tensor.sum()
+    if bool(torch.isfinite(total)):
+        return
     finite = torch.isfinite(tensor)
     if not bool(finite.all()):
         bad = int((~finite).sum())

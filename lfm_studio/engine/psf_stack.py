@@ -69,7 +69,7 @@ class PSFStack:
         require_positive("magnification", self.magnification, "", "give the sample-to-sensor magnification.")
         require_positive("wavelength", self.wavelength, "m", "give the emission wavelength, e.g. 525 * nm.")
         require_finite_tensor("PSFStack.data", self.data.detach())
-        if bool((self.data.detach() < 0).any()):
+        if self.data.numel() and float(self.data.detach().min()) < 0:
             raise ValueError("PSFStack.data must be non-negative (intensities). Fix: clip or re-measure.")
 
     @property

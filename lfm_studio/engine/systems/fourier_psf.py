@@ -1,0 +1,265 @@
+"""Fourier-LFM PSF stack (thesis eq. 3.23): per-lenslet small grids, or the full sensor field.
+
+``per_lenslet`` (default when the lenslets' light footprints do not overlap on the
+sensor): each lenslet on its own ``N x N`` grid (:mod:`fourier_lenslet`), results
+placed on the sensor and cached per lenslet, so editing one lenslet recomputes one.
+``full_field``: the relayed pupil on one MLA-plane grid covering the sensor, times the
+whole MLA transmission, propagated with :func:`propagate` and integrated on pixels:
+the straightforward reference, and the fallback when sub-images overlap (their fields
+interfere, which separate lenslets cannot represent).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import torch
+
+from lfm_studio.engine.dtypes import complex_dtype
+from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.mla import mla_transmission
+from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
+from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.optics.propagation import propagate
+from lfm_studio.engine.optics.pupil_field import pupil_field
+from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.fourier_lenslet import bin_pixels, lenslet_psf
+from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
+from lfm_studio.engine.systems.fourier_windows import LensletWindow, plan_window, windows_overlap
+from lfm_studio.engine.systems.lenslet_cache import LensletCache, stable_key
+
+_METHODS = ("auto", "per_lenslet", "full_field")
+
+
+@dataclass(frozen=True)
+class FourierAccuracy:
+    """Accuracy knobs of the Fourier-LFM PSF (each is benchmarked, run time against error).
+
+    Attributes
+    ----------
+    oversampling : sub-samples per sensor pixel per axis (pixel integration by exact binning).
+    margin_airy : diffraction margin of each lenslet window in ``lambda d / D`` (per-lenslet path).
+    model : objective model, ``"debye"`` (exact defocus phase) or ``"paraxial"``.
+    antialias : area-weighted lenslet aperture edges.
+    dtype : ``torch.float32`` or ``torch.float64`` (fields in the matching complex dtype).
+    method : ``"auto"``, ``"per_lenslet"`` or ``"full_field"``.
+    depth_chunk : depths per batch (bounds memory; on CPU small chunks are also faster).
+    propagator : propagation method of the full-field path (see :func:`propagate`).
+    """
+
+    oversampling: int = 3
+    margin_airy: float = 32.0
+    model: str = "debye"
+    antialias: bool = True
+    dtype: torch.dtype = torch.float32
+    method: str = "auto"
+    depth_chunk: int = 8
+    propagator: str = "auto"
+
+    def __post_init__(self) -> None:
+        if int(self.oversampling) != self.oversampling or self.oversampling < 1:
+            raise ValueError(
+                f"oversampling must be an integer >= 1; got {self.oversampling!r}. Fix: use 2 or 3."
+            )
+        if self.method not in _METHODS:
+            raise ValueError(f"method must be one of {_METHODS}; got {self.method!r}.")
+        if self.margin_airy <= 0:
+            raise ValueError(
+                f"margin_airy must be > 0 (in lambda d / D); got {self.margin_airy!r}. Fix: use 32."
+            )
+        if self.depth_chunk < 1:
+            raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
+
+
+@dataclass
+class FourierPSFReport:
+    """What a PSF computation did (for tests, the GUI and benchmarks)."""
+
+    method: str = ""
+    lenslets_computed: list[int] = field(default_factory=list)
+    lenslets_cached: list[int] = field(default_factory=list)
+
+
+def _lenslet_key(
+    system: FourierLFMSystem, lens: Lenslet, depths: tuple[float, ...], acc: FourierAccuracy, device
+) -> str:
+    obj = system.objective
+    optics = (
+        _value(obj.magnification), _value(obj.numerical_aperture), _value(obj.immersion_index),
+        _value(obj.tube_lens_focal_length), system.fourier_focal_length, system.mla_to_camera,
+        system.pixel_pitch, system.sensor_shape, system.wavelength,
+    )  # fmt: skip
+    lens_key = (lens.center, lens.aperture_diameter, float(_value(lens.focal_length)), lens.shape)
+    knobs = (acc.oversampling, acc.margin_airy, acc.model, acc.antialias, str(acc.dtype))
+    return stable_key(optics, lens_key, depths, knobs, str(torch.device(device)))
+
+
+def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) -> None:
+    """Add ``patch (Z, h, w)`` into ``target (Z, H, W)`` at pixel ``first`` (clipped to the sensor)."""
+    _, h, w = patch.shape
+    _, big_h, big_w = target.shape
+    r0, c0 = first
+    rs, cs = max(r0, 0), max(c0, 0)
+    re, ce = min(r0 + h, big_h), min(c0 + w, big_w)
+    if rs >= re or cs >= ce:
+        return
+    target[:, rs:re, cs:ce] += patch[:, rs - r0 : re - r0, cs - c0 : ce - c0]
+
+
+def _any_overlap(system: FourierLFMSystem, windows: list[LensletWindow]) -> bool:
+    lenslets = system.mla.lenslets
+    return any(
+        windows_overlap(windows[i], windows[j], lenslets[i].center, lenslets[j].center)
+        for i in range(len(windows))
+        for j in range(i + 1, len(windows))
+    )
+
+
+def fourier_psf_stack(
+    system: FourierLFMSystem,
+    depths: tuple[float, ...],
+    *,
+    accuracy: FourierAccuracy | None = None,
+    device: torch.device | str = "cpu",
+    cache: LensletCache | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+    report: FourierPSFReport | None = None,
+    design: object | None = None,
+    source_position: tuple[float, float] = (0.0, 0.0),
+) -> PSFStack:
+    """PSF stack of a Fourier LFM: power per sensor pixel of a unit-power on-axis emitter per depth.
+
+    Parameters
+    ----------
+    system : the microscope (SI units).
+    depths : source depths in metres (sample side, positive away from the objective).
+    accuracy : knobs (:class:`FourierAccuracy`); default = standard.
+    device : where to compute.
+    cache : per-lenslet cache (per-lenslet path); ``None`` computes everything.
+    progress, cancel : see :mod:`lfm_studio.engine.progress`.
+    report : filled with what was computed (method, lenslets computed / from cache).
+    design : provenance stored in the stack.
+    source_position : lateral emitter position (x0, y0) in metres; the stack of a
+        shift-invariant system uses the on-axis source (the default). Off-axis sources
+        are for checks (every sub-image moves by ``magnification * x0``) and are not cached.
+
+    Returns
+    -------
+    PSFStack with data ``(Z, ny, nx)`` on ``device``.
+    """
+    acc = accuracy or FourierAccuracy()
+    depths = tuple(float(z) for z in depths)
+    if not depths:
+        raise ValueError("depths is empty. Fix: give at least one depth in metres.")
+    report = report if report is not None else FourierPSFReport()
+    windows = [
+        plan_window(system, lens, depths, oversampling=acc.oversampling, margin_airy=acc.margin_airy)
+        for lens in system.mla.lenslets
+    ]
+    method = acc.method
+    if method == "auto":
+        method = "full_field" if _any_overlap(system, windows) else "per_lenslet"
+    report.method = method
+    z = torch.tensor(depths, dtype=torch.float64, device=device)
+    if method == "per_lenslet":
+        if source_position != (0.0, 0.0):
+            cache = None
+        data = _per_lenslet(
+            system, windows, depths, z, acc, device, cache, progress, cancel, report, source_position
+        )
+    else:
+        data = _full_field(system, z, acc, device, progress, cancel, source_position)
+    return PSFStack(
+        data,
+        depths,
+        system.pixel_pitch,
+        system.magnification,
+        system.wavelength,
+        design=design,
+        metadata={"method": method, "oversampling": acc.oversampling, "model": acc.model},
+    )
+
+
+def _per_lenslet(
+    system, windows, depths, z, acc, device, cache, progress, cancel, report, source
+) -> torch.Tensor:
+    out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
+    total = len(windows)
+    for index, (lens, window) in enumerate(zip(system.mla.lenslets, windows, strict=True)):
+        checkpoint(cancel, progress, index, total, f"lenslet {index + 1}/{total}")
+        key = _lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
+        patch = cache.get(key) if cache is not None else None
+        if patch is None:
+            patch = lenslet_psf(
+                system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
+                antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
+            )  # fmt: skip
+            report.lenslets_computed.append(index)
+            if cache is not None:
+                cache.put(key, patch)
+        else:
+            report.lenslets_cached.append(index)
+        _place(out, patch, window.first_pixel)
+    checkpoint(cancel, progress, total, total, "done")
+    return out
+
+
+def _shifted_mla(mla: MicrolensArray, shift: tuple[float, float]) -> MicrolensArray:
+    """The array moved by ``-shift`` (x, y) metres, without an aperture check (a sub-pixel move)."""
+    moved = tuple(
+        Lenslet(
+            (lens.center[0] - shift[0], lens.center[1] - shift[1]),
+            lens.aperture_diameter,
+            lens.focal_length,
+            lens.shape,
+        )
+        for lens in mla.lenslets
+    )
+    return MicrolensArray(moved)
+
+
+def _mla_half_extent(mla: MicrolensArray) -> tuple[float, float]:
+    """Half-extent (y, x) in metres of the bounding box of all lenslet apertures."""
+    ys = [abs(lens.center[1]) + lens.aperture_diameter / 2.0 for lens in mla.lenslets]
+    xs = [abs(lens.center[0]) + lens.aperture_diameter / 2.0 for lens in mla.lenslets]
+    return max(ys), max(xs)
+
+
+def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tensor:
+    s = acc.oversampling
+    step = system.pixel_pitch / s
+    ny, nx = system.sensor_shape
+    # Whole pixels around the sensor so the MLA-plane grid holds every lenslet too, with a
+    # 10 % margin (same parity as the sensor, so the sensor stays centred in it).
+    half_y, half_x = (1.1 * h for h in _mla_half_extent(system.mla))  # clear of the window edge
+    pad_y = max(0, math.ceil(half_y / system.pixel_pitch - ny / 2.0) + 1)
+    pad_x = max(0, math.ceil(half_x / system.pixel_pitch - nx / 2.0) + 1)
+    big_y, big_x = ny + 2 * pad_y, nx + 2 * pad_x
+    grid = Grid((big_y * s, big_x * s), step)
+    # Evaluate at sub-pixel centres: grid sample q sits at (q - Q//2) step; pixel j's
+    # sub-sample m must sit at (j - P//2) p - p/2 + (m + 1/2) step (q = j s + m).
+    eps_y = (grid.ny // 2 - s * (big_y // 2) - (s - 1) / 2.0) * step
+    eps_x = (grid.nx // 2 - s * (big_x // 2) - (s - 1) / 2.0) * step
+    m_r = system.relay_magnification
+    cdtype = complex_dtype(acc.dtype)
+    mla = mla_transmission(
+        _shifted_mla(system.mla, (eps_x, eps_y)), grid, system.wavelength,
+        antialias=acc.antialias, dtype=cdtype, device=device,
+    )  # fmt: skip
+    out = torch.zeros((z.numel(), ny, nx), dtype=acc.dtype, device=device)
+    for i in range(z.numel()):
+        checkpoint(cancel, progress, i, z.numel(), f"depth {i + 1}/{z.numel()} (full field)")
+        relayed = pupil_field(
+            system.objective, Grid(grid.shape, step / m_r), system.wavelength, z[i : i + 1],
+            position=(-source[0], -source[1]), model=acc.model, center=(eps_x / m_r, eps_y / m_r),
+            check_sampling=False, dtype=cdtype, device=device,
+        )  # fmt: skip
+        field = relayed.with_data(relayed.data / m_r * mla, grid=grid)
+        at_sensor = propagate(field, system.mla_to_camera, method=acc.propagator)
+        power = bin_pixels(at_sensor.intensity() * (step * step), s)[0]
+        out[i] = power[pad_y : pad_y + ny, pad_x : pad_x + nx].to(acc.dtype)
+    checkpoint(cancel, progress, z.numel(), z.numel(), "done")
+    return out

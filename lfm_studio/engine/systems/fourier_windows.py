@@ -1,0 +1,118 @@
+"""Where each lenslet's light lands on the sensor, and the small grid that computes it.
+
+For lenslet ``i`` (centre ``c``, aperture half-width ``a``, focal length ``f``) at
+distance ``d`` from the sensor, a ray leaving the aperture at ``r`` with slope ``s(r)``
+lands at ``u - c = (r - c)(1 - d/f) + d s(r)``; over the depths that bounds the
+footprint radius by ``a |1 - d/f| + d max|s|``. A diffraction margin of
+``margin_airy * lambda d / D`` is added: the Airy pattern keeps about
+``2 / (pi^2 margin_airy)`` of its power beyond that radius (0.6 % at 32).
+
+The lenslet is then computed with one single-FFT Fresnel transform (thesis eq. 3.12)
+on ``N x N`` samples: output spacing ``p / s`` (``s`` sub-samples per sensor pixel per
+axis) needs an input spacing ``lambda d s / (N p)``; the output window of ``N p / s``
+covers the footprint. ``N`` is a multiple of ``s`` and the window starts on a pixel
+edge, so ``s x s`` binning is the exact area integral over each pixel.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from lfm_studio.engine.operators.fft_sizes import next_fast_length
+from lfm_studio.engine.optics.mla_layout import Lenslet
+from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
+
+
+def rim_radius(lens: Lenslet) -> float:
+    """Largest distance from a lenslet's centre to its aperture edge, metres."""
+    half = lens.aperture_diameter / 2.0
+    return half * math.sqrt(2.0) if lens.shape == "square" else half
+
+
+@dataclass(frozen=True)
+class LensletWindow:
+    """The small grid of one lenslet and where its result goes on the sensor.
+
+    Attributes
+    ----------
+    samples : N, samples per side of the input patch and of the output window.
+    input_spacing : MLA-plane sample spacing of the patch, metres.
+    first_pixel : (row, col) sensor pixel of the window's top-left corner (may lie off the sensor).
+    shift : (dy, dx) offset of output sample ``N // 2`` from the lenslet centre, metres.
+    footprint_radius : geometric + diffraction radius of the light on the sensor, metres.
+    """
+
+    samples: int
+    input_spacing: float
+    first_pixel: tuple[int, int]
+    shift: tuple[float, float]
+    footprint_radius: float
+
+    def pixels(self, oversampling: int) -> int:
+        """Sensor pixels per side of the window."""
+        return self.samples // oversampling
+
+
+def footprint_radius(
+    system: FourierLFMSystem, lens: Lenslet, depths: tuple[float, ...], margin_airy: float
+) -> float:
+    """Radius (m) around the lenslet centre that holds its light on the sensor for ``depths``."""
+    d = system.mla_to_camera
+    a = rim_radius(lens)
+    f = float(_value(lens.focal_length))
+    reach = math.hypot(*lens.center) + a
+    slope = max(system.max_slope(z, reach) for z in depths)
+    geometric = a * abs(1.0 - d / f) + d * slope
+    diffraction = margin_airy * system.wavelength * d / lens.aperture_diameter
+    return geometric + diffraction
+
+
+def _axis_placement(
+    center: float, samples: int, oversampling: int, pitch: float, sensor: int
+) -> tuple[int, float]:
+    """First pixel index and output shift along one axis (see module docstring)."""
+    step = pitch / oversampling
+    # Output sample k sits at center + (k - N//2) step + shift and must be the centre of
+    # sub-sample k of pixel first + k // s: (first - P//2) p - p/2 + (k + 1/2) step.
+    first = round((center + pitch / 2.0 - (samples // 2 + 0.5) * step) / pitch) + sensor // 2
+    shift = (first - sensor // 2) * pitch - pitch / 2.0 + (samples // 2 + 0.5) * step - center
+    return first, shift
+
+
+def plan_window(
+    system: FourierLFMSystem,
+    lens: Lenslet,
+    depths: tuple[float, ...],
+    *,
+    oversampling: int,
+    margin_airy: float,
+) -> LensletWindow:
+    """Choose ``N``, the input spacing and the sensor placement for one lenslet."""
+    radius = footprint_radius(system, lens, depths, margin_airy)
+    p, s = system.pixel_pitch, oversampling
+    # The window must hold the footprint wherever the sub-pixel shift (<= p/2) puts it.
+    pixels = math.ceil((2.0 * radius + system.pixel_pitch) / p) + 1
+    samples = pixels * s
+    while samples % 2 or next_fast_length(samples) != samples:  # even: see fourier_lenslet
+        samples += s
+    spacing = system.wavelength * system.mla_to_camera * s / (samples * p)
+    patch = samples * spacing
+    if patch < 2.0 * rim_radius(lens):
+        needed = math.ceil(2.0 * rim_radius(lens) * p / (system.wavelength * system.mla_to_camera))
+        raise ValueError(
+            f"oversampling {s} is too small for lenslet at {lens.center} m: the input patch "
+            f"({patch * 1e6:.4g} um) cannot hold its aperture ({2e6 * rim_radius(lens):.4g} um). "
+            f"Fix: use oversampling >= {needed}."
+        )
+    (ry, cy) = _axis_placement(lens.center[1], samples, s, p, system.sensor_shape[0])
+    (rx, cx) = _axis_placement(lens.center[0], samples, s, p, system.sensor_shape[1])
+    return LensletWindow(samples, spacing, (ry, rx), (cy, cx), radius)
+
+
+def windows_overlap(
+    a: LensletWindow, b: LensletWindow, ca: tuple[float, float], cb: tuple[float, float]
+) -> bool:
+    """True when the light footprints (discs) of two lenslets overlap on the sensor."""
+    return math.hypot(ca[0] - cb[0], ca[1] - cb[1]) < a.footprint_radius + b.footprint_radius
