@@ -1,6 +1,7 @@
-"""Forward-model speed: the XLFM-like preset's PSF stack, per-lenslet vs full sensor grid.
+"""Forward-model speed: Fourier-LFM PSF stack (per-lenslet vs full sensor grid) and the
+conventional-LFM operator (build, forward + back projection).
 
-    python benchmarks/forward.py [--depths 64] [--reference-depths 2] [--quick]
+    python benchmarks/forward.py [--depths 64] [--reference-depths 2] [--quick] [--skip-fourier]
 
 Both paths run in this process on the same design. The full-sensor-grid computation
 (relayed pupil x whole MLA on one grid covering the 2048 x 2048 sensor at the same
@@ -29,6 +30,44 @@ def _depths(design, count: int) -> tuple[float, ...]:
     return tuple(start + (stop - start) * i / (count - 1) for i in range(count))
 
 
+def conventional_section(quick: bool) -> None:
+    """10x/0.3 preset, 41 x 41 lenslets, 15 px per lenslet, 5x lateral super-sampling, 31 depths +-150 um."""
+    from lfm_studio.engine.systems.conventional_psf import conventional_projector
+    from lfm_studio.engine.systems.from_design import conventional_system_of
+
+    design = load_preset("lfm_10x_na03")
+    lenslets = (15, 15) if quick else (41, 41)
+    system = conventional_system_of(design, lenslets=lenslets, pixels_per_lenslet=15, voxels_per_lenslet=5)
+    depths = tuple((-150 + 10 * i) * 1e-6 for i in range(31))
+    t0 = time.perf_counter()
+    projector, _ = conventional_projector(system, depths)
+    t_build = time.perf_counter() - t0
+    gen = torch.Generator().manual_seed(0)
+    volume = torch.rand(projector.volume_shape, generator=gen)
+    image = torch.rand(projector.image_shape, generator=gen)
+    projector.forward(volume)  # warm-up (allocator, oneDNN kernels)
+    t0 = time.perf_counter()
+    forward = projector.forward(volume)
+    t_forward = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    back = projector.adjoint(image)
+    t_back = time.perf_counter() - t0
+    lhs, rhs = (
+        float((forward.double() * image.double()).sum()),
+        float((volume.double() * back.double()).sum()),
+    )
+    print(
+        f"# conventional {design.name}: {lenslets[0]} x {lenslets[1]} lenslets, 15 px and 5 voxels per lenslet, "
+        f"{len(depths)} depths, volume {tuple(projector.volume_shape)}, image {projector.image_shape}"
+    )
+    print(f"{'stage':<34} {'time (s)':>10}")
+    print(f"{'operator build (patterns)':<34} {t_build:>10.2f}")
+    print(f"{'forward projection':<34} {t_forward:>10.2f}")
+    print(f"{'back projection (adjoint)':<34} {t_back:>10.2f}")
+    print(f"{'forward + back':<34} {t_forward + t_back:>10.2f}")
+    print(f"(adjoint check <Ax,y>/<x,A^T y> - 1 = {lhs / rhs - 1:.1e})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -36,11 +75,17 @@ def main() -> None:
     parser.add_argument("--preset", default="xlfm_cong2017")
     parser.add_argument("--depths", type=int, default=64)
     parser.add_argument("--reference-depths", type=int, default=2)
-    parser.add_argument("--quick", action="store_true", help="8 depths, 1 reference depth")
+    parser.add_argument("--quick", action="store_true", help="8 depths, 1 reference depth, 15 x 15 lenslets")
+    parser.add_argument("--skip-fourier", action="store_true")
+    parser.add_argument("--skip-conventional", action="store_true")
     args = parser.parse_args()
+    torch.set_num_threads(2)
+    if not args.skip_conventional:
+        conventional_section(args.quick)
+    if args.skip_fourier:
+        return
     if args.quick:
         args.depths, args.reference_depths = 8, 1
-    torch.set_num_threads(2)
     design = load_preset(args.preset)
     system = fourier_system_of(design)
     accuracy = fourier_accuracy_of(design)

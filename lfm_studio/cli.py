@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from lfm_studio import __version__
+from lfm_studio.cli_simulate import add_simulate_parsers
 
 
 def _run_gui(args: argparse.Namespace) -> int:
@@ -32,6 +33,7 @@ def build_parser() -> argparse.ArgumentParser:
     gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
     gui.add_argument("design", nargs="?", default=None, help="design file or preset name to open")
     gui.set_defaults(handler=_run_gui)
+    add_simulate_parsers(sub)
     return parser
 
 
@@ -41,7 +43,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command is None:
         args = parser.parse_args(["gui", *(argv if argv is not None else sys.argv[1:])])
-    return int(args.handler(args))
+    try:
+        return int(args.handler(args))
+    except (ValueError, FileNotFoundError, FileExistsError) as error:
+        # Named engine errors (bad design values, missing metadata, ...) without a traceback.
+        print(f"lfm-studio {args.command}: error: {error}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

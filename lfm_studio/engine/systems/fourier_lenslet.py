@@ -83,22 +83,18 @@ def lenslet_psf(
         position=(-source_position[0], -source_position[1]), center=(cx / m_r, cy / m_r), model=model, device=device,
     )  # fmt: skip
     aperture, static_phase = _lenslet_transmission(system, lens, window, antialias=antialias, device=device)
-    # Only |FFT|^2 is kept: for even N the centring shifts reduce to a (-1)^(i+j) sign,
-    # folded into the amplitude (the input shift only changes the output phase).
-    checker = 1.0 - 2.0 * (
-        (torch.arange(n, device=device)[:, None] + torch.arange(n, device=device)[None, :]) % 2
-    )
     step = system.pixel_pitch / oversampling
     scale = (dx * dx / (system.wavelength * system.mla_to_camera)) ** 2 * step * step / (m_r * m_r)
-    amplitude = (amplitude * aperture * checker * math.sqrt(scale)).to(real_dtype(dtype))
+    amplitude = (amplitude * aperture * math.sqrt(scale)).to(real_dtype(dtype))
     static_phase = static_phase + tilt
     parts = []
     for start in range(0, depths.numel(), depth_chunk):
         phase = depths[start : start + depth_chunk, None, None] * defocus + static_phase  # float64
         if dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
             phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
-        spectrum = fft.fft2(torch.polar(amplitude.expand_as(phase), phase))
-        parts.append(bin_pixels(spectrum.real**2 + spectrum.imag**2, oversampling))
+        parts.append(
+            bin_pixels(fft.centered_power(torch.polar(amplitude.expand_as(phase), phase)), oversampling)
+        )
     return torch.cat(parts, dim=0)
 
 

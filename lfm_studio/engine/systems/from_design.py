@@ -11,6 +11,7 @@ import torch
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
+from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 
@@ -59,4 +60,51 @@ def fourier_accuracy_of(design: Design) -> FourierAccuracy:
         method="auto" if spec.per_lenslet else "full_field",
         depth_chunk=spec.depth_chunk,
         propagator=spec.propagator,
+    )
+
+
+def conventional_system_of(
+    design: Design,
+    *,
+    lenslets: tuple[int, int] | None = None,
+    pixels_per_lenslet: int | None = None,
+    voxels_per_lenslet: int = 5,
+) -> ConventionalLFMSystem:
+    """The conventional LFM described by ``design`` (``kind == "conventional"``).
+
+    Parameters
+    ----------
+    lenslets : lenslets imaged, ``(ny, nx)``; default: those the sensor covers (at most the array).
+    pixels_per_lenslet : rectified pixels per lenslet (odd); default: pitch / pixel pitch
+        rounded to the nearest odd integer.
+    voxels_per_lenslet : lateral super-sampling of the volume (odd), default 5.
+    """
+    if design.kind != "conventional":
+        raise ValueError(f"design kind must be 'conventional' for a conventional LFM; got {design.kind!r}.")
+    mla = design.mla
+    pitch = getattr(mla, "pitch_um", None)
+    if pitch is None or getattr(mla, "lattice", None) != "square":
+        raise ValueError(
+            "conventional LFM needs a regular square MLA (layout 'regular', lattice 'square'); "
+            f"got layout {mla.layout!r}. Fix: use MLASpec square_grid / a RegularMLASpec."
+        )
+    pitch_m = pitch * 1e-6
+    camera = design.camera
+    if pixels_per_lenslet is None:
+        ratio = pitch_m / camera.pixel_pitch
+        pixels_per_lenslet = max(1, 2 * round((ratio - 1) / 2) + 1)
+    if lenslets is None:
+        ny = min(mla.shape[0], int(camera.pixel_count[0] * camera.pixel_pitch / pitch_m))
+        nx = min(mla.shape[1], int(camera.pixel_count[1] * camera.pixel_pitch / pitch_m))
+        lenslets = (max(1, ny), max(1, nx))
+    return ConventionalLFMSystem(
+        objective=objective_of(design),
+        pitch=pitch_m,
+        lenslet_focal_length=mla.focal_length_mm * 1e-3,
+        lenslet_shape=mla.lenslet_shape,
+        mla_to_camera=design.mla_to_camera_distance,
+        lenslets=lenslets,
+        pixels_per_lenslet=pixels_per_lenslet,
+        voxels_per_lenslet=voxels_per_lenslet,
+        wavelength=design.wavelength,
     )

@@ -1,0 +1,163 @@
+"""The headless simulation pipeline shared by the CLI, the studio and the napari plugin.
+
+Design -> PSF stack (Fourier or conventional) -> projector -> phantom volume ->
+light-field image with camera noise. Each step is a plain function; none imports Qt.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.operators import ShiftInvariantProjector
+from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
+from lfm_studio.engine.optics.camera import Camera, simulate_sensor
+from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
+from lfm_studio.engine.progress import CancelToken, ProgressCallback
+from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
+from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, fourier_psf_stack
+from lfm_studio.engine.systems.from_design import (
+    conventional_system_of,
+    fourier_accuracy_of,
+    fourier_system_of,
+)
+
+Projector = ShiftInvariantProjector | LensletLatticeProjector
+_DTYPES = {"float32": torch.float32, "float64": torch.float64}
+
+
+def design_depths(design: Design, depths_um: tuple[float, float, float] | None = None) -> tuple[float, ...]:
+    """Depths in metres: ``depths_um = (start, stop, step)`` (stop included when on the grid) or the design's."""
+    if depths_um is None:
+        return tuple(design.depths.values)
+    start, stop, step = depths_um
+    if not step > 0 or stop < start:
+        raise ValueError(
+            f"depths must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
+        )
+    count = math.floor((stop - start) / step + 1e-9) + 1
+    return tuple((start + i * step) * 1e-6 for i in range(count))
+
+
+def simulate_psf(
+    design: Design,
+    *,
+    depths: tuple[float, ...] | None = None,
+    device: torch.device | str = "cpu",
+    dtype: str | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> PSFStack:
+    """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
+    ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached."""
+    depths = tuple(depths) if depths is not None else design_depths(design)
+    if design.kind == "fourier":
+        accuracy = fourier_accuracy_of(design)
+        if dtype is not None:
+            accuracy = FourierAccuracy(**{**accuracy.__dict__, "dtype": _DTYPES[dtype]})
+        return fourier_psf_stack(
+            fourier_system_of(design), depths, accuracy=accuracy, device=device,
+            progress=progress, cancel=cancel, design=design,
+        )  # fmt: skip
+    system = conventional_system_of(design)
+    real = _DTYPES[dtype or design.accuracy.dtype]
+    return conventional_psf_stack(
+        system, depths, dtype=real, device=device, progress=progress, cancel=cancel, design=design
+    )
+
+
+@dataclass(frozen=True)
+class ImagingSetup:
+    """A projector with the volume grid it expects (voxel size in metres, ``(dz, dy, dx)``)."""
+
+    projector: Projector
+    volume_shape: tuple[int, int, int]
+    voxel_size: tuple[float, float, float]
+
+
+def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
+    """Projector and volume grid for ``stack``.
+
+    Fourier: lateral voxel = sensor pixel / magnification; the volume spans
+    ``field_of_view`` metres (default: the design's, else a quarter of the sensor).
+    Conventional: the lattice of the stack's lenslets, ``voxels_per_lenslet`` per pitch.
+    """
+    depths = stack.depths
+    dz = abs(depths[1] - depths[0]) if len(depths) > 1 else stack.object_pixel_size
+    if stack.metadata.get("kind") == "conventional":
+        projector = lattice_projector(stack)
+        voxel = (
+            stack.pixel_size
+            * stack.metadata["pixels_per_lenslet"]
+            / (stack.magnification * stack.metadata["voxels_per_lenslet"])
+        )
+        return ImagingSetup(projector, projector.volume_shape, (dz, voxel, voxel))
+    voxel = stack.object_pixel_size
+    if (
+        field_of_view is None
+        and stack.design is not None
+        and getattr(stack.design, "field_of_view_diameter", None)
+    ):
+        field_of_view = stack.design.field_of_view_diameter
+    ny, nx = stack.data.shape[-2:]
+    lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
+    lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
+    projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
+    return ImagingSetup(projector, (len(depths), lateral, lateral), (dz, voxel, voxel))
+
+
+def make_phantom(
+    kind: str, setup: ImagingSetup, *, seed: int, count: int = 50, dtype: torch.dtype = torch.float32
+) -> tuple[torch.Tensor, dict]:
+    """A seeded volume on the setup's grid: ``"beads"`` (``count`` points) or ``"cells"``
+    (cell-like spheres filling the largest ellipsoid that fits, 3 um radius)."""
+    shape, voxel = setup.volume_shape, setup.voxel_size
+    if kind == "beads":
+        phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
+    elif kind == "cells":
+        semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
+        phantom = cells_in_ellipsoid(shape, voxel_size=voxel, seed=seed, semi_axes=semi, dtype=dtype)
+    else:
+        raise ValueError(f"phantom must be 'beads', 'cells' or a TIFF volume path; got {kind!r}.")
+    info = {"phantom": kind, "seed": seed, "objects": int(phantom.count)}
+    return phantom.data, info
+
+
+def camera_of(design: Design) -> Camera:
+    """The engine camera of ``design`` (noise parameters; SI pixel pitch)."""
+    spec = design.camera
+    return Camera(
+        pixel_pitch=spec.pixel_pitch,
+        quantum_efficiency=spec.quantum_efficiency,
+        read_noise=spec.read_noise_e,
+        gain=spec.gain_adu_per_e,
+        bit_depth=spec.bit_depth,
+        baseline=spec.baseline_adu,
+        full_well=spec.full_well_e,
+    )
+
+
+def light_field_image(
+    setup: ImagingSetup,
+    volume: torch.Tensor,
+    camera: Camera,
+    *,
+    photons: float | None,
+    seed: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(counts, expected)``: camera counts (ADU) with shot and read noise, and the noise-free image.
+
+    ``photons`` is the expected number of photons reaching the camera in the image;
+    ``None`` gives the noise-free expected image (also returned as ``counts``).
+    """
+    expected = setup.projector.forward(volume).clamp_min(0.0)
+    if photons is None:
+        return expected, expected
+    if not photons > 0:
+        raise ValueError(f"photons must be > 0 (expected photons in the image); got {photons!r}.")
+    counts = simulate_sensor(expected, camera, photons=photons, generator=seed)
+    return counts, expected

@@ -1,0 +1,95 @@
+"""Engine-side description of a conventional light-field microscope (SI units).
+
+Light path (Levoy 2006, Broxton 2013; thesis eqs. 3.21-3.22): objective and tube lens
+image the sample onto the native image plane (NIP), inverted and magnified ``M``; a
+square microlens array of pitch ``P`` sits on the NIP; the camera is
+``mla_to_camera`` behind it (usually the lenslet focal length).
+
+The raw camera image is rectified (resampled) so that each lenslet covers exactly
+``pixels_per_lenslet`` (odd) pixels per axis, the usual first step of LFM processing;
+the volume has ``voxels_per_lenslet`` (odd) voxels per lenslet pitch laterally, i.e.
+a lateral voxel of ``P / (M * voxels_per_lenslet)`` in the sample. Both odd counts
+put a pixel and a voxel on each lenslet axis, which keeps the array's symmetries.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from lfm_studio.engine.errors import require_positive
+from lfm_studio.engine.optics.objective import ObjectiveLens, _value
+
+
+@dataclass(frozen=True)
+class ConventionalLFMSystem:
+    """A conventional LFM on a square lenslet lattice, lengths in metres.
+
+    Attributes
+    ----------
+    objective : ObjectiveLens.
+    pitch : lenslet pitch on the NIP, m.
+    lenslet_focal_length : m.
+    lenslet_shape : ``"square"`` (fill factor 1) or ``"circle"`` (diameter = pitch).
+    mla_to_camera : MLA-to-sensor distance, m.
+    lenslets : (ny, nx) lenslets imaged (the sensor region used).
+    pixels_per_lenslet : rectified sensor pixels per lenslet per axis (odd).
+    voxels_per_lenslet : volume voxels per lenslet pitch per axis (odd; lateral super-sampling).
+    wavelength : emission wavelength, m.
+    """
+
+    objective: ObjectiveLens
+    pitch: float
+    lenslet_focal_length: float
+    lenslet_shape: str
+    mla_to_camera: float
+    lenslets: tuple[int, int]
+    pixels_per_lenslet: int
+    voxels_per_lenslet: int
+    wavelength: float
+
+    def __post_init__(self) -> None:
+        require_positive("pitch", self.pitch, "m", "e.g. 125 * um.")
+        require_positive("lenslet_focal_length", self.lenslet_focal_length, "m", "e.g. 1.875 * mm.")
+        require_positive("mla_to_camera", self.mla_to_camera, "m", "usually the lenslet focal length.")
+        require_positive("wavelength", self.wavelength, "m", "e.g. 525 * nm.")
+        if self.lenslet_shape not in ("square", "circle"):
+            raise ValueError(f"lenslet_shape must be 'square' or 'circle'; got {self.lenslet_shape!r}.")
+        for name in ("pixels_per_lenslet", "voxels_per_lenslet"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1 or value % 2 == 0:
+                raise ValueError(f"{name} must be an odd integer >= 1; got {value!r}. Fix: use e.g. 15 or 5.")
+        ny, nx = self.lenslets
+        if int(ny) != ny or int(nx) != nx or ny < 1 or nx < 1:
+            raise ValueError(f"lenslets must be two positive integers (ny, nx); got {self.lenslets!r}.")
+        object.__setattr__(self, "lenslets", (int(ny), int(nx)))
+
+    @property
+    def magnification(self) -> float:
+        """Lateral magnification sample -> NIP (the image is inverted)."""
+        return float(_value(self.objective.magnification))
+
+    @property
+    def pixel_size(self) -> float:
+        """Rectified sensor pixel pitch, ``P / pixels_per_lenslet``, m."""
+        return self.pitch / self.pixels_per_lenslet
+
+    @property
+    def voxel_size(self) -> float:
+        """Lateral voxel size in the sample, ``P / (M voxels_per_lenslet)``, m."""
+        return self.pitch / (self.magnification * self.voxels_per_lenslet)
+
+    def blur_radius(self, depth: float) -> float:
+        """Geometric radius on the NIP of the defocused image of a point at ``depth``, m.
+
+        Image-side defocus ``M^2 z / n`` times the image-side aperture slope
+        ``tan(asin(NA / M))``.
+        """
+        m = self.magnification
+        n = float(_value(self.objective.immersion_index))
+        na = float(_value(self.objective.numerical_aperture))
+        return abs(depth) * m * m / n * math.tan(math.asin(min(na / m, 0.999)))
+
+    def support(self, depth: float) -> int:
+        """Lenslets on each side of the source's lenslet that receive its light at ``depth``."""
+        return math.ceil(self.blur_radius(depth) / self.pitch + 0.5) + 1
