@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from lfm_studio import __version__
+from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_simulate import add_simulate_parsers
 
 
@@ -34,6 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     gui.add_argument("design", nargs="?", default=None, help="design file or preset name to open")
     gui.set_defaults(handler=_run_gui)
     add_simulate_parsers(sub)
+    add_info_parser(sub)
     return parser
 
 

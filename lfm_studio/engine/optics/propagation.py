@@ -30,6 +30,7 @@ from lfm_studio.engine.errors import require_finite
 from lfm_studio.engine.fft import fft2
 from lfm_studio.engine.optics import sampling
 from lfm_studio.engine.optics.asm import asm_transfer_function
+from lfm_studio.engine.optics.band_loss import check_band_loss
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.fresnel import (
     fresnel_ir_factors,
@@ -89,9 +90,8 @@ def choose_method(field: Field, distance: Scalar, *, padding: float = 2.0) -> st
     wavelength = field.medium_wavelength
     grid = field.grid.with_shape(padded_shape(field.grid.shape, padding))
     nyquist = max(sampling.nyquist_frequency(field.grid))
-    if sampling.fresnel_phase_error(
-        nyquist, wavelength, z
-    ) <= AUTO_FRESNEL_PHASE_TOLERANCE and z <= sampling.critical_distance(grid, wavelength):
+    fresnel_exact = sampling.fresnel_phase_error(nyquist, wavelength, z) <= AUTO_FRESNEL_PHASE_TOLERANCE
+    if fresnel_exact and z <= sampling.critical_distance(grid, wavelength):
         return "fresnel_tf"
     return "bandlimited_asm"
 
@@ -178,9 +178,11 @@ def propagate(
     cache : bool or KernelCache
         Reuse transfer functions (:mod:`kernel_cache`; ``True`` = the shared cache).
     include_constant_phase : bool
-        Include ``exp(j k z)`` (``True``, physical), or drop this global phase.
+        Include ``exp(j k z)`` (``True``: physical, so that fields propagated over
+        different distances add coherently with the right relative phase), or drop it
+        (the convention of :mod:`sources`, e.g. to compare with ``gaussian_beam``).
     check_sampling : bool
-        Run the sampling checks of :mod:`sampling` (warnings, and the
+        Run the sampling checks of :mod:`sampling` and :mod:`band_loss` (warnings, and the
         :class:`SamplingError` for far-field and Fresnel-IR windows). ``False`` for
         periodic fields (``padding=1``, where the circular convolution is exact) or
         when the caller has checked.
@@ -240,5 +242,5 @@ def propagate(
 
     spectrum = fft2(pad_to(field.data, shape))
     if check_sampling:
-        sampling.check_band_loss(spectrum, grid, wavelength, z, method=method)
+        check_band_loss(spectrum, grid, wavelength, z, method=method)
     return field.with_data(crop_reversed(fft2(_apply(spectrum, kernel, in_place=True)), field.grid.shape))

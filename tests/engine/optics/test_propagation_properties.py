@@ -9,10 +9,11 @@ import pytest
 import torch
 
 from lfm_studio.engine import fft
+from lfm_studio.engine.optics.asm import asm_transfer_function
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.propagation import METHODS, propagate
-from lfm_studio.engine.optics.sampling import fft_frequencies
+from lfm_studio.engine.optics.sampling import bandlimit_frequency, fft_frequencies
 from lfm_studio.engine.optics.sources import gaussian_beam
 from lfm_studio.engine.units import mm, nm, um
 
@@ -98,6 +99,38 @@ def test_localised_field_round_trip_with_padding_and_band_limit():
     assert _rel_l2(back.data, field.data) < 1e-10
 
 
+def test_band_limited_kernel_is_unit_modulus_inside_the_limit_zero_outside_and_conjugate_for_minus_z():
+    wavelength = 500 * nm
+    grid = Grid((96, 128), (0.4 * wavelength, 0.3 * wavelength))
+    z = 40 * wavelength
+    kernel = asm_transfer_function(grid, wavelength, z, bandlimit=True)
+    limit_y, limit_x = bandlimit_frequency(grid, wavelength, z)
+    fy, fx = (fft_frequencies(n, d) for n, d in zip(grid.shape, grid.spacing, strict=True))
+    inside = (fy.abs() <= limit_y)[:, None] & (fx.abs() <= limit_x)[None, :]
+    inside &= (fy[:, None] ** 2 + fx[None, :] ** 2) < 1 / wavelength**2
+    assert limit_x < 0.5 / grid.dx  # the limit really cuts inside the grid's band
+    assert torch.allclose(kernel.abs(), inside.to(torch.float64), rtol=0, atol=1e-15)
+    back = asm_transfer_function(grid, wavelength, -z, bandlimit=True)
+    assert torch.equal(back, kernel.conj())
+
+
+def test_band_limit_suppresses_the_aliasing_of_the_unlimited_kernel():
+    wavelength = 500 * nm
+    grid = Grid(64, 1 * um)
+    y, x = grid.axes()
+    aperture = Field(
+        ((x.abs() < 2.5 * um)[None, :] & (y.abs() < 2.5 * um)[:, None]).to(C128), grid, wavelength
+    )
+    z = 500 * um  # twice the padded critical distance (256 um)
+    reference = propagate(aperture, z, method="asm", padding=16.0, check_sampling=False).data  # z_c = 2 mm
+    unlimited = propagate(aperture, z, method="asm", check_sampling=False).data
+    limited = propagate(aperture, z, method="bandlimited_asm", check_sampling=False).data
+    # The unlimited kernel wraps the high angles back into the window (measured 22% L2); the
+    # band limit removes them, leaving the ringing of its sharp cut-off (measured 3.8%).
+    assert _rel_l2(unlimited, reference) > 0.15
+    assert _rel_l2(limited, reference) < 0.06
+
+
 # -- paraxial limit -------------------------------------------------------------------------
 def test_asm_equals_fresnel_in_the_paraxial_limit_with_the_predicted_difference():
     wavelength = 500 * nm
@@ -131,11 +164,12 @@ def test_float32_agrees_with_float64_over_26_mm_at_488_nm(method):
     f64 = gaussian_beam(grid, wavelength, 100 * um, dtype=C128)
     out64 = propagate(f64, z, method=method)
     out32 = propagate(f64.to(dtype=C64), z, method=method)
-    # Budget: complex64 rounding of the input and kernel (6e-8 each) and two FFTs of 512^2
-    # (~eps32 * log2(512^2) ~ 1e-6 RMS). 1e-5 keeps 5x margin; the measured error is ~1e-7.
-    # A phase k z formed in float32 (3.3e5 rad, ulp 0.03 rad) would fail it (shown below).
+    # Budget: complex64 rounding of the input and of the kernel (6e-8 RMS each) plus two
+    # FFTs of 512^2 (pocketfft/MKL error grows like eps32 * sqrt(log2(512^2)) ~ 2.5e-7 RMS);
+    # measured 1.0-1.6e-7, bound 1e-6. A kernel phase k z formed in float32 (3.3e5 rad, ulp
+    # 0.03 rad) would exceed it 1000-fold (next test).
     error = _rel_l2(out32.data.to(C128), out64.data)
-    assert error < 1e-5
+    assert error < 1e-6
 
 
 def test_float32_phase_would_fail_the_precision_bound():
@@ -145,7 +179,7 @@ def test_float32_phase_would_fail_the_precision_bound():
     phase64 = torch.tensor(k * z, dtype=torch.float64) + torch.linspace(0, 1, 1000, dtype=torch.float64)
     exact = torch.polar(torch.ones_like(phase64), phase64)
     naive = torch.polar(torch.ones(1000), phase64.to(torch.float32)).to(C128)
-    assert _rel_l2(naive, exact) > 1e-3  # 100x the 1e-5 bound above
+    assert _rel_l2(naive, exact) > 1e-3  # 1000x the 1e-6 bound above
 
 
 # -- gradients --------------------------------------------------------------------------------

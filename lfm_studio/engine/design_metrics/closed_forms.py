@@ -1,0 +1,101 @@
+"""Closed-form design metrics of a light-field microscope (thesis section 2.3.1), SI units.
+
+:func:`closed_form_metrics` picks the formulas of the design's kind:
+:mod:`.fourier_closed_forms` (MLA on the Fourier plane: FLFM, XLFM) or
+:mod:`.conventional_closed_forms` (MLA on the native image plane). Both fill the same
+:class:`ClosedFormMetrics`, so reports and requirement checks treat them alike; each
+field's docstring says what it means, and the two modules say how it is computed,
+from which source, under which assumptions.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from lfm_studio.engine.design import Design
+
+UM = {"unit": "um"}
+"""Field metadata: a length shown and saved in micrometres (SI metres in the object)."""
+
+
+@dataclass(frozen=True)
+class ClosedFormMetrics:
+    """Design metrics from closed-form expressions (lengths in metres, sample side).
+
+    Attributes
+    ----------
+    magnification : float
+        Lateral magnification sample -> sensor (``M_obj d / f_relay`` for a Fourier
+        LFM, ``M_obj`` at the MLA for a conventional LFM).
+    sample_pixel_size : float
+        One sensor pixel projected into the sample, m.
+    numerical_aperture : float
+        Objective NA.
+    effective_numerical_aperture : float or None
+        NA of one view (the part of the pupil one lenslet or one pixel sees).
+    number_of_views : int
+        Perspective views recorded at once (lenslets that see the pupil, or pixels
+        behind a lenslet that see it).
+    views_across : float
+        Views across the pupil diameter (``N`` of Guo 2019, ``N_u`` of Levoy 2006).
+    lateral_resolution : float or None
+        ``max(lateral_resolution_diffraction, lateral_resolution_sampling)``, m.
+    lateral_resolution_diffraction, lateral_resolution_sampling : float or None
+        The optical (diffraction) and the sampling (pixel or lenslet) limits, m.
+    axial_resolution : float or None
+        Best axial resolution (the view with the largest parallax), m; None when no view
+        has parallax (a single on-axis lenslet).
+    axial_resolution_mean : float or None
+        Mean over the views with parallax, m.
+    depth_of_field : float
+        Total depth over which the lateral resolution holds, m (union over lenslet
+        groups focused at different depths).
+    depth_range : (float, float)
+        Lowest and highest depth of that union, m (0 = native focal plane, + away
+        from the objective).
+    field_of_view : float or None
+        Diameter of the imaged field at the sample, m (None: no limit known).
+    field_of_view_limit : str
+        Which limit sets ``field_of_view`` (e.g. "field stop", "lenslet spacing").
+    notes : tuple of str
+        Assumptions and caveats that apply to this design.
+    """
+
+    magnification: float
+    sample_pixel_size: float = field(metadata=UM)
+    numerical_aperture: float
+    effective_numerical_aperture: float | None
+    number_of_views: int
+    views_across: float
+    lateral_resolution: float | None = field(metadata=UM)
+    lateral_resolution_diffraction: float | None = field(metadata=UM)
+    lateral_resolution_sampling: float | None = field(metadata=UM)
+    axial_resolution: float | None = field(metadata=UM)
+    axial_resolution_mean: float | None = field(metadata=UM)
+    depth_of_field: float = field(metadata=UM)
+    depth_range: tuple[float, float] = field(metadata=UM)
+    field_of_view: float | None = field(metadata=UM)
+    field_of_view_limit: str
+    notes: tuple[str, ...] = ()
+
+
+def tightest_limit(limits: dict[str, float | None]) -> tuple[float | None, str]:
+    """The smallest known limit and its name (``(None, "none")`` when none is known)."""
+    known = {name: value for name, value in limits.items() if value is not None}
+    if not known:
+        return None, "none"
+    name = min(known, key=known.__getitem__)
+    return known[name], name
+
+
+def closed_form_metrics(design: Design) -> ClosedFormMetrics:
+    """The closed-form metrics of ``design`` (Fourier or conventional LFM)."""
+    if design.kind == "fourier":
+        from lfm_studio.engine.design_metrics.fourier_closed_forms import fourier_closed_forms
+
+        return fourier_closed_forms(design)
+    if design.kind == "conventional":
+        from lfm_studio.engine.design_metrics.conventional_closed_forms import conventional_closed_forms
+
+        return conventional_closed_forms(design)
+    raise ValueError(f"design.kind must be 'fourier' or 'conventional'; got {design.kind!r}.")
