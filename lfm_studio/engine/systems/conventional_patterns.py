@@ -34,6 +34,18 @@ from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 OUTPUT_OVERSAMPLING = 1.4  # sensor-field samples per Nyquist interval of the sub-image intensity
 
 
+def light_radius(system: ConventionalLFMSystem, depths: tuple[float, ...], margin: float = 12.0) -> float:
+    """NIP radius (m) around a source's image that holds its light at ``depths``:
+    the geometric blur plus ``margin`` diffraction lengths ``lambda / NA_img``.
+
+    The Debye field's Airy tails fall off slowly: lenslets beyond this radius change a
+    pattern by 0.25 % (margin 8), 0.1 % (12, default) or < 0.02 % (20), measured on the
+    10x/0.3 test system.
+    """
+    na_image = float(system.objective.numerical_aperture) / system.magnification
+    return max(system.blur_radius(z) for z in depths) + margin * system.wavelength / na_image
+
+
 def samples_per_pitch(system: ConventionalLFMSystem) -> int:
     """NIP samples per pitch ``Ns``: a multiple of ``S`` (odd), at Nyquist for the image-side NA,
     and alias-free for the three-pitch lenslet window.
@@ -173,10 +185,11 @@ def conventional_patterns(
         raise ValueError(f"nip_field is {nip_field.shape[-1]} samples wide; reach {reach} needs {field_n}.")
     base = nip_field[:, cut : cut + field_n, cut : cut + field_n]
     unique = {}
+    radius = light_radius(system, depths)
     offsets = _unique_offsets(s // 2)
     for done, (a, b) in enumerate(offsets):
         checkpoint(cancel, progress, done, len(offsets), f"pattern {done + 1}/{len(offsets)}")
-        unique[(a, b)] = offset_pattern(system, base, a, b, reach=reach, dtype=dtype)
+        unique[(a, b)] = offset_pattern(system, base, a, b, reach=reach, dtype=dtype, light_radius=radius)
     checkpoint(cancel, progress, len(offsets), len(offsets), "patterns done")
     return _expand_symmetric(unique, s)
 
@@ -190,6 +203,7 @@ def offset_pattern(
     reach: int,
     dtype: torch.dtype,
     oversampling: float = OUTPUT_OVERSAMPLING,
+    light_radius: float | None = None,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -197,7 +211,9 @@ def offset_pattern(
     Each lenslet within ``reach`` is transformed onto its window (its own pitch and one
     neighbour on each side, at ``sub_samples`` per pixel), the windows are added as
     complex fields on one sensor grid, and ``|U|^2`` is integrated on the pixels
-    (:func:`sub_samples` samples per pixel, from ``oversampling``).
+    (:func:`sub_samples` samples per pixel, from ``oversampling``). Lenslets farther than
+    ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
+    light and are skipped; ``None`` computes them all.
     """
     m = sub_samples(system, oversampling)
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
@@ -217,6 +233,14 @@ def offset_pattern(
     else:
         aperture = None
     lenslets = [(i, j) for i in range(-reach, reach + 1) for j in range(-reach, reach + 1)]
+    if light_radius is not None:
+        p, ya, xb = system.pitch, a * system.pitch / s, b * system.pitch / s
+        lenslets = [
+            (i, j)
+            for i, j in lenslets
+            if math.hypot(max(abs(i * p - ya) - p / 2, 0.0), max(abs(j * p - xb) - p / 2, 0.0))
+            <= light_radius
+        ]
     # The source's field is the on-axis field moved by (a, b) sub-positions: lenslet (i, j)
     # sees the base field around (i ns - a step, j ns - b step) from the axis.
     oy, ox = field_n // 2 - a * step, field_n // 2 - b * step
