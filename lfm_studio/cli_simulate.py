@@ -60,12 +60,14 @@ def run_image(args: argparse.Namespace) -> int:
     for path in (args.out, args.truth):
         if path and Path(path).exists() and not args.overwrite:
             raise SystemExit(f"{path} exists. Fix: choose another file name or pass --overwrite.")
-    stack = read_psf_stack(args.psf)
+    device = _device(args.device)
+    stack = read_psf_stack(args.psf, device=device)
     setup = imaging_setup(stack)
     if args.phantom in ("beads", "cells"):
         volume, info = make_phantom(args.phantom, setup, seed=args.seed, count=args.count)
+        volume = volume.to(device)
     else:
-        loaded = read_volume(args.phantom)
+        loaded = read_volume(args.phantom, device=device)
         volume, info = loaded.data, {"phantom": str(args.phantom)}
         if tuple(volume.shape) != setup.volume_shape:
             raise SystemExit(
@@ -78,6 +80,7 @@ def run_image(args: argparse.Namespace) -> int:
         counts, _ = light_field_image(setup, volume, camera_of(design), photons=args.photons, seed=args.seed)
         progress(1, 1, "done")
     meta = {**info, "photons": args.photons, "psf": str(args.psf), "design": design.name}
+    counts, volume = counts.cpu(), volume.cpu()
     write_image(args.out, counts, pixel_size=stack.pixel_size, metadata=meta, overwrite=args.overwrite)
     print(f"wrote {args.out}: light-field image {tuple(counts.shape)}")
     if args.truth:
