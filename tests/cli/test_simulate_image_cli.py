@@ -77,3 +77,29 @@ def test_bad_design_gives_a_named_error_without_traceback(tmp_path, capsys):
     bad.write_text('{"schema_version": 1, "kind": "fourier"}')
     assert main(["simulate", str(bad), "--out", str(tmp_path / "x.tif")]) == 2
     assert "lfm-studio simulate: error:" in capsys.readouterr().err
+
+
+def test_conventional_design_round_trips_patterns_through_tiff(tmp_path):
+    # A 10x/0.3 conventional design on a small sensor: 6 x 6 lenslets, 3 depths.
+    design = load_preset("lfm_10x_na03")
+    camera = type(design.camera)(**{**design.camera.model_dump(), "pixel_count": (130, 130)})
+    small = design.updated(
+        camera=camera, depths=type(design.depths)(depth_range_um=(-20.0, 20.0), depth_step_um=20.0)
+    )
+    path = tmp_path / "conventional.json"
+    save_design(small, path)
+    psf_path, lf_path = tmp_path / "patterns.tif", tmp_path / "lf.tif"
+    assert main(["simulate", str(path), "--out", str(psf_path), "--dtype", "float64"]) == 0
+    stack = read_psf_stack(psf_path)
+    assert stack.data.ndim == 5 and stack.metadata["kind"] == "conventional"
+    assert stack.metadata["lenslets"] == [6, 6] and len(stack.metadata["reach"]) == 3
+    assert (
+        main(
+            ["image", str(path), "--psf", str(psf_path), "--count", "2", "--seed", "3", "--out", str(lf_path)]
+        )
+        == 0
+    )
+    image = read_image(lf_path)
+    q = stack.metadata["pixels_per_lenslet"]
+    assert image.data.shape == (6 * q, 6 * q)
+    assert float(image.data.sum()) > 0
