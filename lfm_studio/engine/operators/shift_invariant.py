@@ -35,7 +35,7 @@ class ShiftInvariantProjector:
     ----------
     psf : tensor, shape ``(Z, Py, Px)``
         Non-negative PSF per depth on the sensor grid (the image has this lateral shape).
-    volume_shape : (Vy, Vx)
+    lateral_shape : (Vy, Vx)
         Lateral shape of the volumes this projector accepts (sample side, in voxels).
     depth_chunk : int or None
         Depths per FFT batch; ``None`` picks a cache-sized chunk on CPU and all depths on CUDA.
@@ -45,7 +45,7 @@ class ShiftInvariantProjector:
     """
 
     def __init__(
-        self, psf: torch.Tensor, volume_shape: tuple[int, int], *, depth_chunk: int | None = None
+        self, psf: torch.Tensor, lateral_shape: tuple[int, int], *, depth_chunk: int | None = None
     ) -> None:
         if psf.ndim != 3 or psf.is_complex():
             raise ValueError(f"psf must be a real tensor of shape (Z, Py, Px); got shape {tuple(psf.shape)}.")
@@ -54,11 +54,11 @@ class ShiftInvariantProjector:
             raise ValueError(
                 "psf is all zero (or negative): nothing reaches the camera. Fix: check the design."
             )
-        vy, vx = (int(v) for v in volume_shape)
+        vy, vx = (int(v) for v in lateral_shape)
         if vy < 1 or vx < 1:
-            raise ValueError(f"volume_shape must be positive; got {volume_shape!r}.")
+            raise ValueError(f"lateral_shape must be positive; got {lateral_shape!r}.")
         self.depths, self.psf_shape = psf.shape[0], (psf.shape[1], psf.shape[2])
-        self.volume_shape = (vy, vx)
+        self.lateral_shape = (vy, vx)
         self.full_shape = (vy + self.psf_shape[0] - 1, vx + self.psf_shape[1] - 1)
         self.fft_shape = (next_fast_length(self.full_shape[0]), next_fast_length(self.full_shape[1]))
         self.dtype, self.device = psf.dtype, psf.device
@@ -76,6 +76,11 @@ class ShiftInvariantProjector:
         return max(1, min(self.depths, _CPU_CHUNK_BYTES // max(1, spectrum_bytes)))
 
     @property
+    def volume_shape(self) -> tuple[int, int, int]:
+        """``(Z, Vy, Vx)`` of the volumes :meth:`forward` accepts."""
+        return (self.depths, *self.lateral_shape)
+
+    @property
     def image_shape(self) -> tuple[int, int]:
         """Lateral shape of the camera image, ``(Py, Px)``."""
         return self.psf_shape
@@ -86,13 +91,14 @@ class ShiftInvariantProjector:
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """``A x``: volume ``(Z, Vy, Vx)`` -> image ``(Py, Px)``."""
-        expected = (self.depths, *self.volume_shape)
-        if tuple(volume.shape) != expected:
-            raise ValueError(f"volume must have shape {expected} (Z, Vy, Vx); got {tuple(volume.shape)}.")
+        if tuple(volume.shape) != self.volume_shape:
+            raise ValueError(
+                f"volume must have shape {self.volume_shape} (Z, Vy, Vx); got {tuple(volume.shape)}."
+            )
         volume = volume.to(device=self.device, dtype=self.dtype)
         total = None
         for part in self._chunks():
-            spectrum = fft.rfft2(self._embed(volume[part], self.volume_shape))
+            spectrum = fft.rfft2(self._embed(volume[part], self.lateral_shape))
             term = (spectrum * self.otf[part]).sum(dim=0)
             total = term if total is None else total + term
         full = fft.irfft2(total, s=self.fft_shape)
@@ -113,7 +119,7 @@ class ShiftInvariantProjector:
         parts = []
         for part in self._chunks():
             corr = fft.irfft2(spectrum * self.otf[part].conj(), s=self.fft_shape)
-            parts.append(corr[:, : self.volume_shape[0], : self.volume_shape[1]])
+            parts.append(corr[:, : self.lateral_shape[0], : self.lateral_shape[1]])
         return torch.cat(parts, dim=0)
 
     def _embed(self, block: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
