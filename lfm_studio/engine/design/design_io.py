@@ -9,16 +9,15 @@ them), files from a newer lfm_studio, and migrates files from older versions
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import json
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 from pydantic import ValidationError
 
+from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.design.design import SCHEMA_VERSION, Design
 from lfm_studio.engine.design.errors import DesignFileError
 from lfm_studio.engine.design.file_keys import describe_unknown_keys
@@ -139,40 +138,7 @@ def save_design(design: Design, path: str | os.PathLike[str], *, overwrite: bool
             str(target),
         )
     text = design_to_json(design)  # serialise before touching the disk
-    folder = target.parent
-    if not folder.is_dir():
-        raise FileNotFoundError(
-            errno.ENOENT, f"folder {folder} does not exist. Fix: create it first", str(folder)
-        )
-    mode = target.stat().st_mode & 0o777 if target.exists() else 0o644
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
-    try:
-        os.chmod(tmp_name, mode)  # mkstemp makes it private (0600)
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp_name, target)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp_name)
-        raise
-    _fsync_folder(folder)
-    return target
-
-
-def _fsync_folder(folder: Path) -> None:
-    """Make the rename durable where the platform allows it (not on Windows)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
+    return atomic_write(target, lambda fh: fh.write(text.encode("utf-8")), overwrite=overwrite)
 
 
 def load_design(path: str | os.PathLike[str]) -> Design:

@@ -18,7 +18,7 @@ import numpy as np
 import tifffile
 import torch
 
-from lfm_studio.engine.io.atomic import atomic_write
+from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.io.calibration import Calibration, read_calibration
 from lfm_studio.engine.io.metadata import HeaderError
 from lfm_studio.engine.units import um

@@ -32,9 +32,7 @@ def atomic_write(
     """
     target = Path(path).expanduser()
     if target.is_dir():
-        raise IsADirectoryError(
-            errno.EISDIR, f"{target} is a folder. Fix: give a file name ending in .tif", str(target)
-        )
+        raise IsADirectoryError(errno.EISDIR, f"{target} is a folder. Fix: give a file name", str(target))
     if target.exists() and not overwrite:
         raise FileExistsError(
             errno.EEXIST, f"{target} already exists. Fix: pass overwrite=True to replace it", str(target)
