@@ -1,0 +1,48 @@
+"""Shared fixtures for the UI tests (pytest-qt under pytest-xvfb; ``QT_QPA_PLATFORM`` unset).
+
+``qapp`` (session)
+    Overrides pytest-qt's fixture (``qtbot`` uses it): the application comes from
+    :func:`lfm_studio.widgets.napari_embed.prepare_qt_app`, so OpenGL context sharing is on
+    before the QApplication exists, as in the studio.
+``close_napari_viewers`` (autouse)
+    After each test, closes any napari ``QtViewer`` still alive (e.g. a window the test
+    forgot to close, or a failing test) and runs the pending deletions, so napari's
+    ``make_napari_viewer`` leak check in a later test does not fail because of an earlier
+    one. It does not prove your widget cleans up: assert that in your test, e.g.
+    ``assert napari_embed.live_qt_viewers() == 0`` after closing and :func:`collect_widgets`.
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+
+import pytest
+
+from lfm_studio.widgets import napari_embed
+
+
+@pytest.fixture(scope="session")
+def qapp(qapp_args, pytestconfig):
+    return napari_embed.prepare_qt_app(qapp_args, name=pytestconfig.getini("qt_qapp_name"))
+
+
+def collect_widgets() -> None:
+    """Run pending ``deleteLater`` calls, then Python's garbage collector."""
+    napari_embed.flush_deletions()
+    gc.collect()
+
+
+@pytest.fixture(autouse=True)
+def close_napari_viewers():
+    yield
+    if "napari._qt.qt_viewer" not in sys.modules:
+        return
+    from napari.qt import QtViewer
+
+    if not QtViewer._instances:
+        return  # nothing alive: skip the (slow) garbage collection
+    collect_widgets()  # closed viewers waiting for deleteLater / gc go first
+    for qt_viewer in list(QtViewer._instances):
+        napari_embed.close_qt_viewer(qt_viewer)  # skips viewers already closed
+    collect_widgets()
