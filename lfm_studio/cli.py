@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from lfm_studio import __version__
 from lfm_studio.cli_info import add_info_parser
+from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
 
 
@@ -36,6 +37,7 @@ def build_parser() -> argparse.ArgumentParser:
     gui.set_defaults(handler=_run_gui)
     add_simulate_parsers(sub)
     add_info_parser(sub)
+    add_reconstruct_parsers(sub)
     return parser
 
 

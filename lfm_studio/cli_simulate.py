@@ -10,7 +10,7 @@ import torch
 from lfm_studio.cli_progress import progress_bar
 
 
-def _depths(text: str | None) -> tuple[float, float, float] | None:
+def parse_depths(text: str | None) -> tuple[float, float, float] | None:
     if text is None:
         return None
     parts = text.split(":")
@@ -24,7 +24,7 @@ def _depths(text: str | None) -> tuple[float, float, float] | None:
         raise argparse.ArgumentTypeError(f"--depths must hold three numbers in um; got {text!r}") from error
 
 
-def _device(name: str) -> str:
+def resolve_device(name: str) -> str:
     if name == "cuda" and not torch.cuda.is_available():
         raise SystemExit("--device cuda: no CUDA device is available here. Fix: use --device cpu.")
     return name
@@ -42,7 +42,7 @@ def run_simulate(args: argparse.Namespace) -> int:
         raise SystemExit(f"{out} exists. Fix: choose another --out or pass --overwrite.")
     with progress_bar(f"PSF stack ({design.kind}, {len(depths)} depths)") as progress:
         stack = simulate_psf(
-            design, depths=depths, device=_device(args.device), dtype=args.dtype, progress=progress
+            design, depths=depths, device=resolve_device(args.device), dtype=args.dtype, progress=progress
         )
     write_psf_stack(out, stack.to("cpu"), overwrite=args.overwrite)
     print(
@@ -60,7 +60,7 @@ def run_image(args: argparse.Namespace) -> int:
     for path in (args.out, args.truth):
         if path and Path(path).exists() and not args.overwrite:
             raise SystemExit(f"{path} exists. Fix: choose another file name or pass --overwrite.")
-    device = _device(args.device)
+    device = resolve_device(args.device)
     stack = read_psf_stack(args.psf, device=device)
     setup = imaging_setup(stack)
     if args.phantom in ("beads", "cells"):
@@ -103,7 +103,7 @@ def add_simulate_parsers(sub: argparse._SubParsersAction) -> None:
     sim.add_argument("design", help="design file (.json) or preset name")
     sim.add_argument("--out", required=True, help="output TIFF (ImageJ hyperstack with metadata)")
     sim.add_argument(
-        "--depths", type=_depths, default=None, help="START:STOP:STEP in um (default: the design's)"
+        "--depths", type=parse_depths, default=None, help="START:STOP:STEP in um (default: the design's)"
     )
     sim.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     sim.add_argument("--dtype", choices=("float32", "float64"), default=None)

@@ -1,0 +1,370 @@
+"""Reconstruction speed: one 3D Richardson-Lucy iteration against scipy loops, and time to quality.
+
+    python benchmarks/reconstruct.py [--quick] [--threads 2] [--depths 64] [--repeats 3]
+
+(a) XLFM preset (xlfm_cong2017), 2048 x 2048 camera, 64 depths, the design's field of view:
+    one RL iteration (forward projection, ratio, back projection, update) of
+    ``lfm_studio.engine.reconstruct`` against two baselines written here and run in the same
+    process on the same data, both with ``--threads`` FFT workers:
+    (i)  a cached-OTF ``scipy.fft`` loop: rfft2/irfft2 per depth on the same zero-padded FFT
+         window, OTFs precomputed (the projector's own, shared);
+    (ii) a per-depth ``scipy.signal.fftconvolve`` loop (full convolution, cropped; valid
+         correlation for the back projection), which recomputes every FFT.
+    Timings alternate between methods (other jobs share this machine); the table gives the
+    median over ``--repeats`` and the ratios of those medians. Goals: ours <= 1.2x (i) and
+    >= 3x faster than (ii). The baselines are checked against ours (relative difference).
+(b) Time to reach the PSNR that 30 (and 100) plain RL iterations reach, on a smaller problem
+    (FLFM preset, 512 x 512 camera, 9 depths over +-40 um, 6 beads, noise-free): plain,
+    Biggs-Andrews, Wiener-Butterworth back projector (its build timed too) and both.
+    Goal: <= 1/3 of plain RL's time for the 30-iteration target.
+(c) With CUDA: the (a) iteration on the GPU (goal <= 20 ms on an H100).
+
+``--quick`` (under a minute): (a) with 4 depths, (b) with a 256 px camera and the 30-iteration target.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+import warnings
+
+import numpy as np
+import scipy.fft
+import scipy.signal
+import torch
+
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.phantoms import beads
+from lfm_studio.engine.reconstruct import richardson_lucy_iterates, wiener_butterworth_backprojector
+from lfm_studio.engine.reconstruct.fourier_geometry import centre_offsets
+from lfm_studio.engine.simulation import imaging_setup, simulate_psf
+
+
+def _design(name: str, pixels: int, depth_range_um: tuple[float, float], count: int):
+    design = load_preset(name)
+    camera = type(design.camera)(**{**design.camera.model_dump(), "pixel_count": (pixels, pixels)})
+    step = (depth_range_um[1] - depth_range_um[0]) / max(1, count - 1)
+    depths = type(design.depths)(depth_range_um=depth_range_um, depth_step_um=step)
+    return design.updated(camera=camera, depths=depths)
+
+
+class ScipyOTFLoop:
+    """RL iteration with scipy.fft per depth on the projector's FFT window and cached OTFs."""
+
+    def __init__(self, projector, workers: int) -> None:
+        self.otf = projector.otf.numpy()  # shared memory, computed once
+        self.fft_shape = tuple(projector.fft_shape)
+        self.offsets = centre_offsets(projector)
+        self.image_shape = tuple(projector.image_shape)
+        self.volume_shape = tuple(projector.volume_shape)
+        self.workers = workers
+
+    def forward(self, volume: np.ndarray) -> np.ndarray:
+        _, vy, vx = self.volume_shape
+        total = None
+        padded = np.zeros(self.fft_shape, dtype=volume.dtype)
+        for z in range(volume.shape[0]):
+            padded[:vy, :vx] = volume[z]
+            term = scipy.fft.rfft2(padded, workers=self.workers) * self.otf[z]
+            total = term if total is None else total + term
+        full = scipy.fft.irfft2(total, s=self.fft_shape, workers=self.workers)
+        (oy, ox), (py, px) = self.offsets, self.image_shape
+        return full[oy : oy + py, ox : ox + px]
+
+    def adjoint(self, image: np.ndarray) -> np.ndarray:
+        (oy, ox), (py, px) = self.offsets, self.image_shape
+        embedded = np.zeros(self.fft_shape, dtype=image.dtype)
+        embedded[oy : oy + py, ox : ox + px] = image
+        spectrum = scipy.fft.rfft2(embedded, workers=self.workers)
+        z, vy, vx = self.volume_shape
+        out = np.empty((z, vy, vx), dtype=image.dtype)
+        for k in range(z):
+            out[k] = scipy.fft.irfft2(spectrum * self.otf[k].conj(), s=self.fft_shape, workers=self.workers)[
+                :vy, :vx
+            ]
+        return out
+
+
+class ScipyFFTConvolveLoop:
+    """RL iteration with scipy.signal.fftconvolve per depth (no cached spectra)."""
+
+    def __init__(self, psf: np.ndarray, projector, workers: int) -> None:
+        self.psf, self.flipped = psf, psf[:, ::-1, ::-1].copy()
+        self.offsets = centre_offsets(projector)
+        self.full_shape = tuple(projector.full_shape)
+        self.image_shape = tuple(projector.image_shape)
+        self.workers = workers
+
+    def forward(self, volume: np.ndarray) -> np.ndarray:
+        with scipy.fft.set_workers(self.workers):
+            full = sum(
+                scipy.signal.fftconvolve(volume[z], self.psf[z], mode="full") for z in range(len(volume))
+            )
+        (oy, ox), (py, px) = self.offsets, self.image_shape
+        return full[oy : oy + py, ox : ox + px]
+
+    def adjoint(self, image: np.ndarray) -> np.ndarray:
+        (oy, ox), (py, px) = self.offsets, self.image_shape
+        embedded = np.zeros(self.full_shape, dtype=image.dtype)
+        embedded[oy : oy + py, ox : ox + px] = image
+        with scipy.fft.set_workers(self.workers):
+            return np.stack([scipy.signal.fftconvolve(embedded, h, mode="valid") for h in self.flipped])
+
+
+class PrunedTransposedProjector:
+    """PROPOSAL for ShiftInvariantProjector (prototype, not used by the engine): same A and A^T.
+
+    Two changes, both exact: (1) pruned transforms: a volume slice fills only ``Vy`` of the
+    ``Fy`` rows of the FFT window, so its rfft runs over those rows only (``rfft`` along x of
+    ``Vy`` rows, then the column FFT); the back projection needs only rows ``< Vy`` after the
+    column inverse, so the row ``irfft`` runs on ``Vy`` rows. (2) spectra kept transposed,
+    ``(Z, Fx//2+1, Fy)``, so both 1D passes run along contiguous memory (torch's strided
+    column FFTs were the slow part). With ``Vy = 339`` of ``Fy = 2400`` (XLFM) this halves
+    the transform work and avoids torch's slow 2D ``irfft2``.
+    """
+
+    def __init__(self, projector) -> None:
+        self.volume_shape, self.image_shape = tuple(projector.volume_shape), tuple(projector.image_shape)
+        self.fft_shape, self.offsets = tuple(projector.fft_shape), centre_offsets(projector)
+        self.dtype, self.device = projector.dtype, projector.device
+        self.otf_t = projector.otf.transpose(1, 2).contiguous()  # (Z, Fx//2+1, Fy)
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        (fy, fx), (oy, ox), (py, px) = self.fft_shape, self.offsets, self.image_shape
+        total = None
+        for z in range(volume.shape[0]):
+            rows = torch.fft.rfft(volume[z], n=fx, dim=1).T.contiguous()  # (K, Vy)
+            term = torch.fft.fft(rows, n=fy, dim=1) * self.otf_t[z]  # (K, Fy)
+            total = term if total is None else total + term
+        columns = torch.fft.ifft(total, dim=1, norm="forward").T.contiguous()  # unscaled directions only
+        full = torch.fft.irfft(columns, n=fx, dim=1, norm="forward") * (1.0 / (fy * fx))
+        return full[oy : oy + py, ox : ox + px]
+
+    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
+        (fy, fx), (oy, ox), (py, px) = self.fft_shape, self.offsets, self.image_shape
+        _, vy, vx = self.volume_shape
+        rows = torch.fft.rfft(torch.nn.functional.pad(image, (ox, fx - ox - px)), dim=1).T.contiguous()
+        spectrum = torch.fft.fft(torch.nn.functional.pad(rows, (oy, fy - oy - py)), dim=1)  # (K, Fy)
+        out = torch.empty(self.volume_shape, dtype=image.dtype)
+        for z in range(self.volume_shape[0]):
+            columns = torch.fft.ifft(spectrum * self.otf_t[z].conj(), dim=1, norm="forward")[:, :vy]
+            out[z] = torch.fft.irfft(columns.T.contiguous(), n=fx, dim=1, norm="forward")[:, :vx]
+        return out * (1.0 / (fy * fx))
+
+
+def numpy_rl_iteration(op, volume: np.ndarray, image: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
+    """The same update as ours: x * max(A^T(y / max(Ax, floor)), 0) / max(A^T 1, floor)."""
+    floor = 16 * np.finfo(np.float32).eps
+    predicted = np.maximum(op.forward(volume), floor * image.max())
+    correction = np.maximum(op.adjoint(image / predicted), 0.0)
+    return volume * correction / np.maximum(sensitivity, floor * sensitivity.max())
+
+
+def section_iteration(args) -> None:
+    pixels, depths = 2048, (4 if args.quick else args.depths)
+    design = _design("xlfm_cong2017", pixels, (-200.0, 200.0), depths)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        stack = simulate_psf(design)
+    t_psf = time.perf_counter() - t0
+    setup = imaging_setup(stack)
+    projector = setup.projector
+    generator = torch.Generator().manual_seed(0)
+    # A sparse-ish random volume and its image with a faint floor (timings do not depend on the content).
+    truth = torch.rand(setup.volume_shape, generator=generator) ** 8
+    image = projector.forward(truth).clamp_min(0.0) + 1e-3 * torch.rand(
+        projector.image_shape, generator=generator
+    )
+    volume = torch.rand(setup.volume_shape, generator=generator) + 0.5
+    print(
+        f"# (a) {design.name}: camera {pixels} x {pixels}, {depths} depths, volume {tuple(setup.volume_shape)}, "
+        f"FFT window {tuple(projector.fft_shape)}, float32, {args.threads} thread(s); PSF stack {t_psf:.1f} s"
+    )
+
+    scipy_loop = ScipyOTFLoop(projector, args.threads)
+    convolve_loop = ScipyFFTConvolveLoop(stack.data.numpy(), projector, args.threads)
+    proposed = PrunedTransposedProjector(projector)
+    y, x = image.numpy(), volume.numpy()
+    sensitivity = scipy_loop.adjoint(np.ones_like(y))
+
+    # Same operators: A x and A^T y of each implementation against the engine's projector.
+    forward, back = projector.forward(volume).numpy(), projector.adjoint(image).numpy()
+
+    def difference(op) -> str:
+        a = np.asarray(op.forward(x if isinstance(op, (ScipyOTFLoop, ScipyFFTConvolveLoop)) else volume))
+        b = np.asarray(op.adjoint(y if isinstance(op, (ScipyOTFLoop, ScipyFFTConvolveLoop)) else image))
+        return f"{np.abs(a - forward).max() / np.abs(forward).max():.0e}/{np.abs(b - back).max() / np.abs(back).max():.0e}"
+
+    diffs = {"scipy": difference(scipy_loop), "proposed": difference(proposed)}
+    t0 = time.perf_counter()
+    numpy_rl_iteration(convolve_loop, x, y, sensitivity)
+    t_convolve = [time.perf_counter() - t0]
+    diffs["convolve"] = difference(convolve_loop)
+
+    ours_iterates = richardson_lucy_iterates(projector, image, initial=volume, iterations=10**6)
+    proposed_iterates = richardson_lucy_iterates(proposed, image, initial=volume, iterations=10**6)
+    next(ours_iterates), next(proposed_iterates)  # warm-up (and A^T 1, computed once per reconstruction)
+    times = {"ours": [], "scipy": [], "proposed": []}
+    for _ in range(args.repeats):
+        for key, step in (
+            ("ours", lambda: next(ours_iterates)),
+            ("scipy", lambda: numpy_rl_iteration(scipy_loop, x, y, sensitivity)),
+            ("proposed", lambda: next(proposed_iterates)),
+        ):
+            t0 = time.perf_counter()
+            step()
+            times[key].append(time.perf_counter() - t0)
+    if args.repeats > 1 and not args.quick:
+        t0 = time.perf_counter()
+        numpy_rl_iteration(convolve_loop, x, y, sensitivity)
+        t_convolve.append(time.perf_counter() - t0)
+    ours, ref, new = (statistics.median(times[k]) for k in ("ours", "scipy", "proposed"))
+    conv = statistics.median(t_convolve)
+    print(f"{'one RL iteration':<52} {'time (s)':>9} {'/ ours':>7} {'A x / A^T y rel. diff':>21}")
+    print(
+        f"{'ours: richardson_lucy_iterates, ShiftInvariantProjector':<52} {ours:>9.3f} {1.0:>7.2f} {'reference':>21}"
+    )
+    print(f"{'(i) cached-OTF scipy.fft loop':<52} {ref:>9.3f} {ref / ours:>7.2f} {diffs['scipy']:>21}")
+    print(
+        f"{'(ii) per-depth scipy.signal.fftconvolve loop':<52} {conv:>9.3f} {conv / ours:>7.2f} {diffs['convolve']:>21}"
+    )
+    print(
+        f"{'ours with the proposed projector (prototype)':<52} {new:>9.3f} {new / ours:>7.2f} {diffs['proposed']:>21}"
+    )
+    print(
+        f"goals: ours <= 1.2x (i): {'met' if ours <= 1.2 * ref else 'NOT met'} ({ours / ref:.2f}x; proposed "
+        f"{new / ref:.2f}x); >= 3x faster than (ii): {'met' if conv >= 3 * ours else 'NOT met'} ({conv / ours:.1f}x). "
+        f"Samples: ours {[round(t, 3) for t in times['ours']]}, (i) {[round(t, 3) for t in times['scipy']]}, "
+        f"proposed {[round(t, 3) for t in times['proposed']]}, (ii) {[round(t, 2) for t in t_convolve]}"
+    )
+    if torch.cuda.is_available():
+        section_cuda(stack, setup, image, volume)
+
+
+def section_cuda(stack, setup, image, volume) -> None:
+    from lfm_studio.engine.operators import ShiftInvariantProjector
+
+    projector = ShiftInvariantProjector(stack.data.cuda(), setup.volume_shape[1:])
+    iterates = richardson_lucy_iterates(projector, image.cuda(), initial=volume.cuda(), iterations=10**6)
+    for _ in range(3):
+        next(iterates)
+    samples = []
+    for _ in range(10):
+        torch.cuda.synchronize()
+        t0 = time.perf_counter()
+        next(iterates)
+        torch.cuda.synchronize()
+        samples.append(time.perf_counter() - t0)
+    print(
+        f"(c) CUDA {torch.cuda.get_device_name()}: one RL iteration {1e3 * statistics.median(samples):.1f} ms (median of 10)"
+    )
+
+
+def section_time_to_quality(args) -> None:
+    pixels = 256 if args.quick else 512
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        stack = simulate_psf(_design("flfm_guo2019", pixels, (-40.0, 40.0), 9))
+    setup = imaging_setup(stack)
+    projector = setup.projector
+    truth = beads(setup.volume_shape, count=6, voxel_size=setup.voxel_size, seed=2, intensity=1000.0).data
+    image = projector.forward(truth).clamp_min(0.0)
+
+    def psnr(estimate: torch.Tensor) -> float:
+        mse = float(((estimate.double() - truth.double()) ** 2).mean())
+        return 10 * float(np.log10(float(truth.max()) ** 2 / mse))
+
+    horizons = (30,) if args.quick else (30, 100)  # targets: PSNR after this many plain iterations
+
+    def run(build=None, targets=None, **options):
+        """Time the iterations (and any back-projector build) until every target PSNR is reached.
+
+        Returns ``{horizon: (iterations, seconds)}`` (plain: at each horizon; others: first reach)
+        and, for plain RL, the PSNR at each horizon.
+        """
+        t0 = time.perf_counter()
+        if build:
+            options["backprojector"] = build()
+        elapsed = time.perf_counter() - t0
+        iterates = richardson_lucy_iterates(projector, image, iterations=max(horizons), **options)
+        reached, values = {}, {}
+        for _ in range(max(horizons)):
+            t0 = time.perf_counter()
+            it = next(iterates)
+            elapsed += time.perf_counter() - t0
+            value = psnr(it.estimate)  # not timed
+            for horizon in horizons:
+                if targets is None and it.index == horizon:
+                    reached[horizon], values[horizon] = (it.index, elapsed), value
+                elif targets is not None and horizon not in reached and value >= targets[horizon]:
+                    reached[horizon] = (it.index, elapsed)
+            if len(reached) == len(horizons):
+                break
+        return reached, values
+
+    plain, targets = run()
+    rows = [
+        ("plain RL", plain),
+        ("Biggs-Andrews", run(targets=targets, acceleration="biggs-andrews")[0]),
+        (
+            "Wiener-Butterworth (alpha 1)",
+            run(build=lambda: wiener_butterworth_backprojector(projector), targets=targets)[0],
+        ),
+        (
+            "Wiener-Butterworth + Biggs-Andrews",
+            run(
+                build=lambda: wiener_butterworth_backprojector(projector),
+                targets=targets,
+                acceleration="biggs-andrews",
+            )[0],
+        ),
+    ]
+    print(
+        f"\n# (b) flfm_guo2019: camera {pixels} x {pixels}, volume {tuple(setup.volume_shape)}, 6 beads, "
+        f"noise-free, {args.threads} thread(s); targets: PSNR of plain RL after "
+        + ", ".join(f"{h} iterations ({targets[h]:.2f} dB)" for h in horizons)
+    )
+    header = "".join(f" {'its':>5} {'time (s)':>9} {'/ plain':>8}" for _ in horizons)
+    print(f"{'method':<36}{header}   (per target, left to right)")
+    ratios = []
+    for label, reached in rows:
+        cells = ""
+        for h in horizons:
+            if h in reached:
+                count, seconds = reached[h]
+                ratio = seconds / plain[h][1]
+                cells += f" {count:>5} {seconds:>9.3f} {ratio:>8.2f}"
+                if label != "plain RL" and h == 30:
+                    ratios.append(ratio)
+            else:
+                cells += f" {'-':>5} {'not reached':>9} {'':>8}"
+        print(f"{label:<36}{cells}")
+    best = min(ratios) if ratios else float("nan")
+    print(
+        f"goal (30-iteration target): accelerated <= 1/3 of plain RL's time: {'met' if best <= 1 / 3 else 'NOT met'} (best {best:.2f})"
+    )
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--quick", action="store_true", help="small sizes, under a minute")
+    parser.add_argument("--threads", type=int, default=2, help="torch threads and scipy FFT workers")
+    parser.add_argument("--depths", type=int, default=64)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--skip-iteration", action="store_true")
+    parser.add_argument("--skip-quality", action="store_true")
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    if not args.skip_iteration:
+        section_iteration(args)
+    if not args.skip_quality:
+        section_time_to_quality(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,352 @@
+"""``lfm-studio reconstruct`` and ``lfm-studio metrics``: volumes from light-field images, and their quality.
+
+``reconstruct`` reads a PSF stack (simulated, or bead-measured with ``--measured``) and
+a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one into a
+``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. The
+file is written once, atomically, after the last frame: a failed or interrupted run
+leaves no partial output. ``metrics`` compares a volume with a ground truth (PSNR,
+SSIM, optionally per depth and LPIPS). Register both with :func:`add_reconstruct_parsers`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import torch
+
+from lfm_studio.cli_progress import progress_bar
+from lfm_studio.cli_simulate import parse_depths, resolve_device
+
+METHODS = ("rl", "rl-accelerated", "wiener", "tikhonov")
+_READ_FLAGS = {
+    "pixel_size": "--pixel-size-um (sensor pixel pitch)",
+    "magnification": "--magnification",
+    "wavelength": "--wavelength-nm",
+    "depths": "--depths=START:STOP:STEP (um, one depth per slice)",
+}
+
+
+def _refuse_existing(path: str, overwrite: bool) -> None:
+    if Path(path).exists() and not overwrite:
+        raise SystemExit(f"{path} exists. Fix: choose another --out or pass --overwrite.")
+
+
+def _depth_list(depths_um: tuple[float, float, float] | None) -> tuple[float, ...] | None:
+    """START:STOP:STEP in um -> depths in metres (STOP included when on the grid)."""
+    if depths_um is None:
+        return None
+    start, stop, step = depths_um
+    if not step > 0 or stop < start:
+        raise ValueError(
+            f"--depths must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
+        )
+    count = math.floor((stop - start) / step + 1e-9) + 1
+    return tuple((start + i * step) * 1e-6 for i in range(count))
+
+
+def _read_psf(args: argparse.Namespace, device: str):
+    from lfm_studio.engine.io import MissingMetadataError, read_psf_stack
+
+    um, nm = 1e-6, 1e-9
+    try:
+        return read_psf_stack(
+            args.psf,
+            pixel_size=None if args.pixel_size_um is None else args.pixel_size_um * um,
+            magnification=args.magnification,
+            wavelength=None if args.wavelength_nm is None else args.wavelength_nm * nm,
+            depths=_depth_list(args.depths),
+            dtype=getattr(torch, args.dtype),
+            device=device,
+        )
+    except MissingMetadataError as error:
+        flags = ", ".join(_READ_FLAGS.get(name, name) for name in error.missing)
+        raise ValueError(f"{args.psf} has no {', '.join(error.missing)}. Fix: pass {flags}.") from error
+
+
+def _read_frames(args: argparse.Namespace, psf_pixel: float, device: str):
+    from lfm_studio.engine.io import MissingMetadataError, read_image
+
+    try:
+        return read_image(args.image, dtype=getattr(torch, args.dtype), device=device)
+    except MissingMetadataError:
+        print(
+            f"lfm-studio reconstruct: {args.image} has no pixel size; taking the PSF's {psf_pixel * 1e6:g} um.",
+            file=sys.stderr,
+        )
+        return read_image(args.image, pixel_size=psf_pixel, dtype=getattr(torch, args.dtype), device=device)
+
+
+def _prepare_stack(args: argparse.Namespace, stack, image):
+    """The PSF stack on the image's sampling: measured stacks are prepared, simulated ones are checked."""
+    from lfm_studio.engine.measured_psf import prepare_measured_psf
+
+    sensor = tuple(image.data.shape[-2:])
+    if args.measured:
+        return prepare_measured_psf(
+            stack, sensor_shape=sensor, pixel_size=image.pixel_size, energy=args.psf_energy
+        )
+    if stack.data.ndim == 3 and not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
+        raise ValueError(
+            f"{args.image} has {image.pixel_size * 1e6:g} um pixels but the PSF stack {args.psf} has "
+            f"{stack.pixel_size * 1e6:g} um pixels. Fix: pass --measured to resample the PSF to the image, "
+            "or simulate the PSF for this camera."
+        )
+    return stack
+
+
+def _reconstruct_frame(args: argparse.Namespace, projector, frame: torch.Tensor, report) -> torch.Tensor:
+    from lfm_studio.engine import reconstruct
+
+    if args.method in ("rl", "rl-accelerated"):
+        return reconstruct.richardson_lucy(
+            projector,
+            frame,
+            background=args.background,
+            iterations=args.iterations,
+            rtol=args.rtol,
+            acceleration="biggs-andrews" if args.method == "rl-accelerated" else None,
+            progress=report,
+        )
+    signal = (frame - args.background).clamp_min(0.0)  # Wiener/Tikhonov have no background term
+    if args.method == "wiener":
+        return reconstruct.wiener(projector, signal, **({} if args.snr is None else {"snr": args.snr}))
+    return reconstruct.tikhonov(projector, signal, **({} if args.snr is None else {"mu": 1.0 / args.snr}))
+
+
+def run_reconstruct(args: argparse.Namespace) -> int:
+    """Handler of ``reconstruct``: read, reconstruct every frame, write once; 0 on success."""
+    from lfm_studio.engine.io import write_volume
+    from lfm_studio.engine.simulation import imaging_setup
+
+    _refuse_existing(args.out, args.overwrite)
+    if args.iterations < 1:
+        raise ValueError(f"--iterations must be >= 1; got {args.iterations}.")
+    if args.background < 0 or not math.isfinite(args.background):
+        raise ValueError(
+            f"--background must be a finite number >= 0 (counts per pixel); got {args.background}."
+        )
+    device = resolve_device(args.device)
+    stack = _read_psf(args, device)
+    image = _read_frames(args, stack.pixel_size, device)
+    stack = _prepare_stack(args, stack, image)
+    fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
+    setup = imaging_setup(stack, field_of_view=fov)
+    if args.method in ("wiener", "tikhonov") and not hasattr(setup.projector, "otf"):
+        raise ValueError(
+            f"--method {args.method} needs a laterally shift-invariant (Fourier LFM) PSF stack; {args.psf} is a "
+            "conventional-LFM pattern stack. Fix: use --method rl or rl-accelerated."
+        )
+    frames = image.data if image.data.ndim == 3 else image.data[None]
+    if tuple(frames.shape[-2:]) != tuple(setup.projector.image_shape):
+        raise ValueError(
+            f"{args.image} has frames of {tuple(frames.shape[-2:])} pixels but the PSF stack {args.psf} images "
+            f"{tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, or "
+            "--measured to crop/resample a measured one."
+        )
+    iterative = args.method in ("rl", "rl-accelerated")
+    count, steps = frames.shape[0], args.iterations if iterative else 1
+    volumes = []
+    try:
+        with progress_bar(f"{args.method} ({count} frame{'s' if count > 1 else ''})") as progress:
+            for t, frame in enumerate(frames):
+
+                def report(done: int, total: int, message: str, t: int = t) -> None:
+                    progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
+
+                report(0, steps, "starting")
+                volumes.append(_reconstruct_frame(args, setup.projector, frame, report).detach().cpu())
+                report(steps, steps, "done")
+    except KeyboardInterrupt:
+        print(f"lfm-studio reconstruct: interrupted; {args.out} was not written.", file=sys.stderr)
+        return 130
+    volume = torch.stack(volumes) if image.data.ndim == 3 else volumes[0]
+    metadata = {
+        "method": args.method,
+        "iterations": args.iterations if iterative else None,
+        "background": args.background,
+        "snr": args.snr,
+        "psf": str(args.psf),
+        "image": str(args.image),
+        "measured_psf": bool(args.measured),
+    }
+    write_volume(
+        args.out,
+        volume,
+        voxel_size=setup.voxel_size,
+        depths=stack.depths,
+        metadata=metadata,
+        overwrite=args.overwrite,
+    )
+    voxel = ", ".join(f"{v * 1e6:.4g}" for v in setup.voxel_size)
+    print(f"wrote {args.out}: volume {tuple(volume.shape)}, voxels (dz, dy, dx) = ({voxel}) um")
+    return 0
+
+
+def _read_for_metrics(path: str):
+    from lfm_studio.engine.io import MissingMetadataError, read_volume
+
+    try:
+        return read_volume(path, dtype=torch.float64), True
+    except MissingMetadataError:  # metrics need no voxel size; only the consistency check is skipped
+        return read_volume(path, voxel_size=(1.0, 1.0, 1.0), dtype=torch.float64), False
+
+
+def run_metrics(args: argparse.Namespace) -> int:
+    """Handler of ``metrics``: print PSNR/SSIM (and per-depth curves, LPIPS) as text or JSON."""
+    from lfm_studio.engine.metrics import LPIPSUnavailableError, compare, lpips
+
+    (truth, truth_known), (estimate, estimate_known) = (
+        _read_for_metrics(args.truth),
+        _read_for_metrics(args.estimate),
+    )
+    if truth.data.ndim != 3:
+        raise ValueError(
+            f"--truth {args.truth} must be one volume (Z, Y, X); got shape {tuple(truth.data.shape)}."
+        )
+    if tuple(estimate.data.shape[-3:]) != tuple(truth.data.shape):
+        raise ValueError(
+            f"--estimate {args.estimate} has shape {tuple(estimate.data.shape)} but --truth {args.truth} has "
+            f"{tuple(truth.data.shape)} (Z, Y, X). Fix: reconstruct on the truth's grid (same PSF depths and "
+            "field of view)."
+        )
+    if truth_known and estimate_known:
+        for a, b in zip(truth.voxel_size, estimate.voxel_size, strict=True):
+            if not math.isclose(a, b, rel_tol=1e-6):
+                raise ValueError(
+                    f"--truth {args.truth} has voxels {tuple(v * 1e6 for v in truth.voxel_size)} um but "
+                    f"--estimate {args.estimate} has {tuple(v * 1e6 for v in estimate.voxel_size)} um. "
+                    "Fix: compare volumes on the same grid."
+                )
+    frames = estimate.data if estimate.data.ndim == 4 else estimate.data[None]
+    reports = []
+    for frame in frames:
+        report = compare(
+            truth.data,
+            frame,
+            data_range=args.data_range,
+            normalize=args.normalize,
+            per_depth=args.per_depth,
+            depths=truth.depth_values(),
+        ).to_dict()
+        if args.lpips:
+            try:
+                report["lpips"] = float(lpips(truth.data, frame, data_range=report["data_range"]))
+            except LPIPSUnavailableError as error:
+                raise ValueError(str(error)) from error
+        reports.append(report)
+    output = reports[0] if estimate.data.ndim == 3 else {"frames": reports}
+    if args.json:
+        print(json.dumps(output, indent=2, allow_nan=False))
+        return 0
+    for t, report in enumerate(reports):
+        prefix = f"frame {t}: " if len(reports) > 1 else ""
+        psnr = "inf" if report["psnr_db"] is None else f"{report['psnr_db']:.3f}"
+        sigma = ", ".join(f"{s:g}" for s in report["ssim_sigma_samples"])
+        print(
+            f"{prefix}PSNR {psnr} dB (data range {report['data_range']:.6g}, normalize {report['normalize']})"
+        )
+        print(f"{prefix}SSIM {report['ssim']:.4f} (Gaussian window sigma ({sigma}) voxels)")
+        if "lpips" in report:
+            print(f"{prefix}LPIPS {report['lpips']:.4f}")
+        if "per_depth" in report:
+            curves = report["per_depth"]
+            print(f"{prefix}{'depth (um)':>12} {'PSNR (dB)':>10} {'SSIM':>7}")
+            for z, p, s in zip(curves["depths_um"], curves["psnr_db"], curves["ssim"], strict=True):
+                print(f"{prefix}{z:12.3f} {'inf' if p is None else f'{p:.3f}':>10} {s:7.4f}")
+    return 0
+
+
+def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``reconstruct`` and ``metrics`` on ``subparsers`` (from ``parser.add_subparsers()``)."""
+    rec = subparsers.add_parser(
+        "reconstruct",
+        help="reconstruct a volume from a light-field image and a PSF stack",
+        description="Richardson-Lucy (plain or Biggs-Andrews accelerated), Wiener or Tikhonov reconstruction. "
+        "A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume.",
+    )
+    rec.add_argument(
+        "--psf", required=True, help="PSF stack TIFF (from 'lfm-studio simulate', or beads with --measured)"
+    )
+    rec.add_argument("--image", required=True, help="light-field image TIFF, (Y, X) or frames (T, Y, X)")
+    rec.add_argument(
+        "--out", required=True, help="output volume TIFF (ImageJ hyperstack with voxel size and depths)"
+    )
+    rec.add_argument("--method", choices=METHODS, default="rl", help="default: rl")
+    rec.add_argument("--iterations", type=int, default=30, help="RL iterations (default 30)")
+    rec.add_argument(
+        "--rtol", type=float, default=None, help="stop RL when the relative change falls below this"
+    )
+    rec.add_argument(
+        "--background",
+        type=float,
+        default=0.0,
+        help="background counts per pixel, e.g. the camera baseline (default 0)",
+    )
+    rec.add_argument(
+        "--snr",
+        type=float,
+        default=None,
+        help="wiener: power SNR (default 100); tikhonov: mu = 1/SNR (default mu 1e-3)",
+    )
+    rec.add_argument(
+        "--field-of-view-um",
+        type=float,
+        default=None,
+        help="lateral volume size in um (default: the design's, else a quarter of the sensor)",
+    )
+    rec.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    rec.add_argument("--dtype", choices=("float32", "float64"), default="float32")
+    rec.add_argument("--overwrite", action="store_true", help="replace an existing output file")
+    measured = rec.add_argument_group("measured (bead) PSF stacks, and PSF metadata a TIFF lacks")
+    measured.add_argument(
+        "--measured",
+        action="store_true",
+        help="background-subtract, centre, resample and normalise the PSF stack",
+    )
+    measured.add_argument(
+        "--psf-energy", type=float, default=1.0, help="mean per-depth sum after normalising (default 1)"
+    )
+    measured.add_argument(
+        "--pixel-size-um", type=float, default=None, help="sensor pixel pitch of the PSF TIFF (um)"
+    )
+    measured.add_argument(
+        "--magnification", type=float, default=None, help="sample-to-sensor magnification of the PSF"
+    )
+    measured.add_argument(
+        "--wavelength-nm", type=float, default=None, help="emission wavelength of the PSF (nm)"
+    )
+    measured.add_argument(
+        "--depths",
+        type=parse_depths,
+        default=None,
+        help="START:STOP:STEP in um, one depth per slice (write --depths=-20:20:5 for a negative START)",
+    )
+    rec.set_defaults(handler=run_reconstruct)
+
+    met = subparsers.add_parser(
+        "metrics",
+        help="PSNR / SSIM of a reconstructed volume against a ground truth",
+        description="PSNR and SSIM (Gaussian window, sigma 1.5; Wang et al. 2004) with an explicit data range "
+        "(default: the truth's max - min). A (T, Z, Y, X) estimate is scored frame by frame.",
+    )
+    met.add_argument("--truth", required=True, help="ground-truth volume TIFF (Z, Y, X)")
+    met.add_argument("--estimate", required=True, help="reconstructed volume TIFF (Z, Y, X) or (T, Z, Y, X)")
+    met.add_argument(
+        "--data-range", type=float, default=None, help="R of PSNR/SSIM (default: truth max - min)"
+    )
+    met.add_argument(
+        "--normalize",
+        choices=("none", "scale", "affine", "sum"),
+        default="none",
+        help="fit the estimate to the truth's scale first (least squares; default none)",
+    )
+    met.add_argument("--per-depth", action="store_true", help="also PSNR/SSIM of each z slice")
+    met.add_argument(
+        "--lpips", action="store_true", help="also LPIPS (needs lpips and its weights installed locally)"
+    )
+    met.add_argument("--json", action="store_true", help="print JSON (null = infinite PSNR)")
+    met.set_defaults(handler=run_metrics)

@@ -1,0 +1,45 @@
+"""Volume reconstruction from a light-field image: Richardson-Lucy (plain, accelerated, TV), Wiener, Tikhonov.
+
+Every method takes a projector (``forward``/``adjoint``/``volume_shape``/``image_shape``;
+Richardson-Lucy works with any, Wiener and Tikhonov need the shift-invariant one with
+cached OTFs) and a camera image in counts, and runs in the projector's dtype and on
+its device.
+
+Example::
+
+    from lfm_studio.engine.reconstruct import richardson_lucy, richardson_lucy_iterates
+
+    volume = richardson_lucy(setup.projector, image, iterations=30)
+    for it in richardson_lucy_iterates(setup.projector, image, acceleration="biggs-andrews",
+                                       iterations=50, rtol=1e-3, progress=report, cancel=event):
+        show(it.index, it.estimate, it.relative_change)
+
+    bp = wiener_butterworth_backprojector(setup.projector)      # Guo et al. 2020
+    fast = richardson_lucy(setup.projector, image, backprojector=bp, iterations=3)
+    stack = wiener(setup.projector, image, snr=100.0)           # per-depth Wiener (eq. 4.5)
+    solution = tikhonov(setup.projector, image, mu=1e-3)        # per-frequency 3D Tikhonov
+"""
+
+from lfm_studio.engine.reconstruct.backprojectors import (
+    FilteredBackProjector,
+    wiener_butterworth_backprojector,
+)
+from lfm_studio.engine.reconstruct.richardson_lucy import (
+    Iterate,
+    poisson_nll,
+    richardson_lucy,
+    richardson_lucy_iterates,
+)
+from lfm_studio.engine.reconstruct.tikhonov import tikhonov
+from lfm_studio.engine.reconstruct.wiener import wiener
+
+__all__ = [
+    "FilteredBackProjector",
+    "Iterate",
+    "poisson_nll",
+    "richardson_lucy",
+    "richardson_lucy_iterates",
+    "tikhonov",
+    "wiener",
+    "wiener_butterworth_backprojector",
+]

@@ -1,0 +1,173 @@
+"""Input checks and guarded divisions shared by every reconstruction method.
+
+Numerics rules (DESIGN.md section 4): divisions are guarded by a floor *relative to
+the data scale* (an absolute ``1e-12`` vanishes next to float32 counts of 1e4, and is
+below float32's smallest normal number times a typical PSF value), estimates stay
+non-negative, and NaN/Inf, negative or empty inputs are rejected with a ``ValueError``
+that names the parameter, the value, the limit and a fix.
+
+The relative floor is ``RELATIVE_FLOOR_ULPS * eps(dtype)``: an FFT convolution of a
+non-negative signal is exact to about ``eps * log2(N)`` of its largest value, so
+anything below that floor is rounding noise, not signal.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.errors import require_finite_tensor
+
+RELATIVE_FLOOR_ULPS = 16.0  # FFT rounding of a 2400^2 transform: log2(N) ~ 22 ulps at most, ~4 typical
+
+
+def relative_floor(dtype: torch.dtype) -> float:
+    """Floor relative to the data scale for ``dtype``: ``16 eps`` (1.9e-6 in float32, 3.6e-15 in float64)."""
+    return RELATIVE_FLOOR_ULPS * torch.finfo(dtype).eps
+
+
+def as_real_tensor(name: str, value: Any, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """``value`` (tensor or array-like) as a real floating tensor on ``device`` with ``dtype``."""
+    tensor = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
+    if tensor.is_complex():
+        raise ValueError(f"{name} must be real (intensities); got a complex {tensor.dtype} tensor.")
+    if tensor.dtype == torch.bool:
+        raise ValueError(f"{name} must hold numbers; got a boolean tensor.")
+    return tensor.to(device=device, dtype=dtype)
+
+
+def require_shape(name: str, tensor: torch.Tensor, shape: tuple[int, ...], meaning: str) -> None:
+    """Raise ``ValueError`` unless ``tensor.shape == shape``."""
+    if tuple(tensor.shape) != tuple(shape):
+        raise ValueError(
+            f"{name} must have shape {tuple(shape)} {meaning}; got {tuple(tensor.shape)}. "
+            "Fix: use the projector built for this image and volume grid."
+        )
+
+
+def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
+    """Raise ``ValueError`` naming the count and the minimum if ``tensor`` has negative values."""
+    require_finite_tensor(name, tensor.detach())
+    if tensor.numel() and bool((tensor.detach() < 0).any()):
+        bad = int((tensor.detach() < 0).sum())
+        low = float(tensor.detach().min())
+        raise ValueError(
+            f"{name} must be >= 0 (photon counts or intensities); got {bad} negative value(s), "
+            f"minimum {low:.6g}. Fix: {fix}"
+        )
+
+
+def check_image(
+    image: Any, shape: tuple[int, int], *, dtype: torch.dtype, device: torch.device, non_negative: bool = True
+) -> torch.Tensor:
+    """The camera image as a checked ``(Py, Px)`` tensor: finite, right shape and (for RL) non-negative.
+
+    Values that are negative only by rounding (``>= -16 eps max|image|``, e.g. a projector's
+    FFT output) are set to 0; anything more negative is rejected when ``non_negative``.
+    """
+    tensor = as_real_tensor("image", image, dtype=dtype, device=device)
+    require_shape("image", tensor, shape, "(Py, Px) camera pixels")
+    require_finite_tensor("image", tensor.detach())
+    if not non_negative or tensor.numel() == 0:
+        return tensor
+    rounding = relative_floor(dtype) * float(tensor.detach().abs().max())
+    if bool((tensor.detach() < 0).any()) and float(tensor.detach().min()) >= -rounding:
+        tensor = tensor.clamp_min(0.0)
+    require_non_negative(
+        "image",
+        tensor,
+        "subtract the camera baseline (offset) and clip at 0 with image.clamp(min=0), or pass the "
+        "offset as `background` instead of subtracting it.",
+    )
+    return tensor
+
+
+def check_background(
+    background: float | torch.Tensor, shape: tuple[int, int], *, dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
+    """Background ``b`` (counts per pixel; a number or a tensor broadcastable to ``shape``), >= 0."""
+    tensor = as_real_tensor("background", background, dtype=dtype, device=device)
+    try:
+        torch.broadcast_shapes(tuple(tensor.shape), tuple(shape))
+    except RuntimeError:
+        raise ValueError(
+            f"background must be a number or broadcast to the image shape {tuple(shape)}; "
+            f"got shape {tuple(tensor.shape)}."
+        ) from None
+    require_non_negative("background", tensor, "give the mean dark level per pixel (counts), e.g. 0.")
+    return tensor
+
+
+def check_signal(image: torch.Tensor, background: torch.Tensor) -> float:
+    """Total counts above the background; raise if there are none (a zero-photon image)."""
+    total = float((image.double() - background.double()).sum())
+    if not total > 0:
+        raise ValueError(
+            f"image has no signal above the background: sum(image - background) = {total:.6g} counts "
+            "(must be > 0). Fix: check that the image is not all zero (no photons reached the camera), "
+            "that it is the right frame, and that `background` is not larger than the image."
+        )
+    return total
+
+
+def check_sensitivity(sensitivity: torch.Tensor, what: str = "A^T 1") -> None:
+    """Raise if the back-projected ones (voxel sensitivity) are not finite or all zero (an all-zero PSF)."""
+    require_finite_tensor(f"sensitivity {what}", sensitivity.detach())
+    if not float(sensitivity.detach().double().sum()) > 0:
+        raise ValueError(
+            f"the projector's sensitivity {what} is zero everywhere: its PSF is all zero, so no voxel "
+            "reaches the camera. Fix: check the PSF stack (simulation output, or the measured TIFF "
+            "after background subtraction)."
+        )
+
+
+def check_estimate(name: str, value: Any, shape: tuple[int, int, int], *, dtype, device) -> torch.Tensor:
+    """A starting volume ``(Z, Y, X)``: finite, non-negative and not all zero (a fixed point of RL)."""
+    tensor = as_real_tensor(name, value, dtype=dtype, device=device)
+    require_shape(name, tensor, shape, "(Z, Y, X) voxels")
+    require_non_negative(name, tensor, "start from a non-negative volume (default: uniform).")
+    if not float(tensor.detach().double().sum()) > 0:
+        raise ValueError(
+            f"{name} is all zero: multiplicative updates can never leave zero. Fix: pass None for the "
+            "flux-matched uniform start, or a positive volume."
+        )
+    return tensor.clone()
+
+
+def floored(denominator: torch.Tensor, scale: float, dtype: torch.dtype) -> torch.Tensor:
+    """``denominator`` clamped below at ``relative_floor(dtype) * scale`` (``scale`` > 0: the data scale)."""
+    return denominator.clamp_min(relative_floor(dtype) * scale)
+
+
+def check_iterations(iterations: Any) -> int:
+    """A positive int iteration count."""
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"iterations must be an int >= 1; got {iterations!r}. Fix: e.g. iterations=30.")
+    return iterations
+
+
+def check_rtol(rtol: float | None) -> float | None:
+    """``None`` (run all iterations) or a finite relative-change threshold > 0."""
+    if rtol is None:
+        return None
+    value = float(rtol)
+    if not (value > 0 and value < float("inf")):
+        raise ValueError(
+            f"rtol must be a finite number > 0 (relative change ||x_k+1 - x_k|| / ||x_k||); got {rtol!r}. "
+            "Fix: e.g. rtol=1e-3, or None to run every iteration."
+        )
+    return value
+
+
+def working_dtype_device(projector: Any, image: Any) -> tuple[torch.dtype, torch.device]:
+    """dtype and device of the projector (its attributes, else the image's, else float32 on the CPU)."""
+    dtype = getattr(projector, "dtype", None)
+    device = getattr(projector, "device", None)
+    if isinstance(image, torch.Tensor):
+        dtype = dtype or (image.dtype if image.is_floating_point() else None)
+        device = device or image.device
+    dtype = dtype or torch.float32
+    if dtype not in (torch.float32, torch.float64):
+        raise ValueError(f"reconstruction runs in float32 or float64; the projector has {dtype}.")
+    return dtype, torch.device(device or "cpu")

@@ -1,0 +1,269 @@
+"""3D layered Richardson-Lucy (thesis eqs. 4.11-4.12) over any projector, as a generator of iterates.
+
+With ``y`` the camera image (counts), ``b`` the background and ``A`` the projector
+(``forward``: volume ``(Z, Y, X)`` -> image; ``adjoint``: image -> volume):
+
+    x_{k+1} = x_k * A^T( y / (A x_k + b) ) / A^T 1
+
+the EM algorithm for ``y ~ Poisson(A x + b)``: the Poisson negative log-likelihood
+(:func:`poisson_nll`) never increases. ``A^T 1`` (the voxel sensitivity) is computed
+once. Options (combinable):
+
+- ``acceleration="biggs-andrews"``: vector extrapolation (:mod:`.accelerated`);
+- ``backprojector=``: an unmatched back projector ``B`` replacing ``A^T``, e.g.
+  :func:`.wiener_butterworth_backprojector`. When ``B`` has the DC gain of ``A^T``
+  (attribute ``uses_adjoint_sensitivity``) the update is written in residual form,
+  ``x * (A^T 1 + B(y / (A x + b) - 1)) / A^T 1``: it equals RL for ``B = A^T`` and keeps
+  ``y = A x + b`` a fixed point although ``B 1 != A^T 1`` near the window edges (dividing by
+  ``B 1`` instead, as the plain form would, divided by values near 0 and diverged).
+  Any other callable ``B`` gives ``x * B(y / (A x + b)) / B 1``;
+- ``tv_weight=``: total-variation regularisation (:mod:`.total_variation`).
+
+Numerics: ``A x + b`` and the sensitivity are floored at ``16 eps`` times their data
+scale (:mod:`.guards`), the back-projected ratio is clipped at 0 (FFT rounding and the
+negative lobes of unmatched back projectors), so estimates stay >= 0.
+
+Start (``initial=None``): the uniform volume whose projection carries the image's
+counts, ``x_0 = sum(y - b) / sum(A^T 1)`` in every voxel (RL keeps that total after
+its first step when ``b = 0``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+from lfm_studio.engine.reconstruct.accelerated import BiggsAndrews
+from lfm_studio.engine.reconstruct.guards import (
+    check_background,
+    check_estimate,
+    check_image,
+    check_iterations,
+    check_rtol,
+    check_sensitivity,
+    check_signal,
+    floored,
+    working_dtype_device,
+)
+from lfm_studio.engine.reconstruct.total_variation import check_tv_weight, tv_denominator
+
+ACCELERATIONS = (None, "biggs-andrews")
+
+
+@dataclass(frozen=True)
+class Iterate:
+    """One Richardson-Lucy iterate.
+
+    Attributes
+    ----------
+    index : int
+        Number of updates done (1 for the first).
+    estimate : tensor ``(Z, Y, X)``
+        The volume after ``index`` updates (a fresh tensor; later iterations do not modify it).
+    relative_change : float
+        ``||x_index - x_(index-1)|| / ||x_(index-1)||``.
+    nll : float or None
+        Poisson negative log-likelihood of ``estimate`` (``track_nll=True``), else ``None``.
+    alpha : float
+        Biggs-Andrews extrapolation factor used for this update (0 without acceleration).
+    """
+
+    index: int
+    estimate: torch.Tensor
+    relative_change: float
+    nll: float | None = None
+    alpha: float = 0.0
+
+
+class _Problem:
+    """Checked inputs of one reconstruction: image, background, back projector, sensitivity."""
+
+    def __init__(self, projector: Any, image: Any, background: Any, backprojector: Any) -> None:
+        for name in ("forward", "adjoint", "volume_shape", "image_shape"):
+            if not hasattr(projector, name):
+                raise TypeError(
+                    f"projector must have forward, adjoint, volume_shape and image_shape; "
+                    f"{type(projector).__name__} has no {name}."
+                )
+        self.projector = projector
+        self.dtype, self.device = working_dtype_device(projector, image)
+        shape = tuple(projector.image_shape)
+        self.image = check_image(image, shape, dtype=self.dtype, device=self.device)
+        self.background = check_background(background, shape, dtype=self.dtype, device=self.device)
+        self.signal = check_signal(self.image, self.background)
+        self.volume_shape = tuple(projector.volume_shape)
+        self.backproject = backprojector if backprojector is not None else projector.adjoint
+        ones = torch.ones(shape, dtype=self.dtype, device=self.device)
+        matched = backprojector is None or getattr(backprojector, "uses_adjoint_sensitivity", False)
+        self.residual_form = backprojector is not None and matched
+        self.sensitivity = self._volume((projector.adjoint if matched else self.backproject)(ones))
+        check_sensitivity(self.sensitivity, "A^T 1" if matched else "B 1")
+        self.sensitivity_scale = float(self.sensitivity.detach().abs().max())
+        self.image_scale = max(float(self.image.max()), float(self.background.max()))
+        if backprojector is None:
+            self.flux = float(self.sensitivity.detach().double().sum())  # sum(A^T 1) = 1^T A 1
+        else:
+            self.flux = float(
+                self._image(projector.forward(torch.ones_like(self.sensitivity))).double().sum()
+            )
+        if not self.flux > 0:
+            raise ValueError(
+                f"the projector sends no light to the camera: sum(A 1) = {self.flux:.6g} (must be > 0). "
+                "Fix: check the PSF stack (it may be all zero)."
+            )
+
+    def _volume(self, volume: torch.Tensor) -> torch.Tensor:
+        if tuple(volume.shape) != self.volume_shape:
+            raise ValueError(
+                f"back projection gave shape {tuple(volume.shape)}; expected {self.volume_shape}."
+            )
+        return volume.to(device=self.device, dtype=self.dtype)
+
+    def _image(self, image: torch.Tensor) -> torch.Tensor:
+        return image.to(device=self.device, dtype=self.dtype)
+
+    def predicted(self, volume: torch.Tensor) -> torch.Tensor:
+        """``A x + b``, floored at the relative epsilon of the image scale."""
+        return floored(
+            self._image(self.projector.forward(volume)) + self.background, self.image_scale, self.dtype
+        )
+
+    def step(self, point: torch.Tensor, tv_weight: float, predicted: torch.Tensor | None) -> torch.Tensor:
+        """One RL update from ``point``: ``point * max(B(y / (A point + b)), 0) / (B 1 [* TV term])``.
+
+        ``predicted`` is ``A point + b`` when already known (saves a forward projection).
+        """
+        ratio = self.image / (self.predicted(point) if predicted is None else predicted)
+        if self.residual_form:
+            correction = (self.sensitivity + self._volume(self.backproject(ratio - 1.0))).clamp_min(0.0)
+        else:
+            correction = self._volume(self.backproject(ratio)).clamp_min(0.0)
+        denominator = self.sensitivity
+        if tv_weight:
+            denominator = denominator * tv_denominator(point, tv_weight)
+        return point * correction / floored(denominator, self.sensitivity_scale, self.dtype)
+
+    def initial(self) -> torch.Tensor:
+        """Uniform volume at the flux-matching level ``sum(y - b) / sum(A^T 1)``."""
+        level = self.signal / self.flux
+        return torch.full(self.volume_shape, level, dtype=self.dtype, device=self.device)
+
+    def nll(self, predicted: torch.Tensor) -> float:
+        """Poisson NLL ``sum(Ax + b - y log(Ax + b))`` from ``predicted = Ax + b`` (``log y!`` dropped), float64."""
+        mean = predicted.detach().double()
+        y = self.image.double()
+        return float((mean - torch.xlogy(y, mean)).sum())
+
+
+def _norm(tensor: torch.Tensor) -> float:
+    """L2 norm, in the tensor's dtype (fast) unless its squares may over/underflow there."""
+    value = float(torch.linalg.vector_norm(tensor.detach()))
+    if not 1e-15 < value < 1e15:  # float32 squares leave the normal range near 1e+-19
+        value = float(torch.linalg.vector_norm(tensor.detach(), dtype=torch.float64))
+    return value
+
+
+def poisson_nll(projector: Any, volume: Any, image: Any, *, background: Any = 0.0) -> float:
+    """Poisson negative log-likelihood ``sum(A x + b - y log(A x + b))`` of ``volume`` given ``image``.
+
+    The constant ``sum(log y!)`` is dropped; ``A x + b`` is floored as in the RL update.
+    """
+    problem = _Problem(projector, image, background, None)
+    x = check_estimate("volume", volume, problem.volume_shape, dtype=problem.dtype, device=problem.device)
+    return problem.nll(problem.predicted(x))
+
+
+def richardson_lucy_iterates(
+    projector: Any,
+    image: Any,
+    *,
+    background: float | torch.Tensor = 0.0,
+    initial: torch.Tensor | None = None,
+    iterations: int = 30,
+    rtol: float | None = None,
+    acceleration: str | None = None,
+    backprojector: Any = None,
+    tv_weight: float = 0.0,
+    track_nll: bool = False,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> Iterator[Iterate]:
+    """Yield Richardson-Lucy iterates of ``image`` through ``projector``.
+
+    Parameters
+    ----------
+    projector : object with ``forward``, ``adjoint``, ``volume_shape`` ``(Z, Y, X)``, ``image_shape``
+        Any projector (shift-invariant Fourier LFM, conventional lenslet lattice, ...); the
+        reconstruction runs on its device and in its dtype (float32 or float64).
+    image : tensor or array ``(Py, Px)``
+        Camera image in photon counts (>= 0, baseline removed).
+    background : float or tensor broadcastable to ``(Py, Px)``
+        Expected background counts per pixel ``b`` (>= 0).
+    initial : tensor ``(Z, Y, X)``, optional
+        Starting volume (>= 0, not all zero); default: flux-matched uniform volume.
+    iterations : int
+        Maximum number of updates.
+    rtol : float, optional
+        Stop after the first iterate whose relative change is below ``rtol``.
+    acceleration : None or ``"biggs-andrews"``
+    backprojector : callable ``image -> volume``, optional
+        Unmatched back projector (e.g. :func:`wiener_butterworth_backprojector`).
+    tv_weight : float
+        Total-variation weight ``lambda`` in ``[0, 0.211)``; 0 disables it.
+    track_nll : bool
+        Report the Poisson NLL of each iterate. Plain RL reuses that forward projection in
+        the next update (no extra cost); with acceleration it costs one forward projection.
+    progress, cancel
+        ``progress(done, total, message)`` after each update; ``cancel`` is checked before
+        each update and raises :class:`~lfm_studio.engine.progress.CancelledError`.
+
+    Yields
+    ------
+    Iterate
+    """
+    if acceleration not in ACCELERATIONS:
+        raise ValueError(
+            f"acceleration must be None or 'biggs-andrews'; got {acceleration!r}. "
+            "Fix: acceleration='biggs-andrews' for faster convergence."
+        )
+    iterations = check_iterations(iterations)
+    rtol = check_rtol(rtol)
+    tv_weight = check_tv_weight(tv_weight)
+    problem = _Problem(projector, image, background, backprojector)
+    if initial is None:
+        x = problem.initial()
+    else:
+        x = check_estimate(
+            "initial", initial, problem.volume_shape, dtype=problem.dtype, device=problem.device
+        )
+    extrapolation = BiggsAndrews() if acceleration else None
+    name = "accelerated Richardson-Lucy" if acceleration else "Richardson-Lucy"
+    done, known = 0, None  # known: A x + b of the current x, when computed for the NLL
+    for k in range(1, iterations + 1):
+        checkpoint(cancel, progress, k - 1, iterations, f"{name}: iteration {k} of {iterations}")
+        point = extrapolation.predict(x) if extrapolation else x
+        update = problem.step(point, tv_weight, known if point is x else None)
+        if extrapolation:
+            extrapolation.record(x, point, update)
+        change = _norm(update - x) / max(_norm(x), 1e-300)
+        x, done = update, k
+        known = problem.predicted(x) if track_nll else None
+        nll = problem.nll(known) if track_nll else None
+        yield Iterate(k, x, change, nll, extrapolation.alpha if extrapolation else 0.0)
+        if rtol is not None and change < rtol:
+            break
+    if progress is not None:
+        progress(iterations, iterations, f"{name}: done after {done} iteration(s)")
+
+
+def richardson_lucy(projector: Any, image: Any, **options: Any) -> torch.Tensor:
+    """The last estimate of :func:`richardson_lucy_iterates` (same arguments), shape ``(Z, Y, X)``."""
+    estimate = None
+    for iterate in richardson_lucy_iterates(projector, image, **options):
+        estimate = iterate.estimate
+    assert estimate is not None  # iterations >= 1
+    return estimate

@@ -1,0 +1,132 @@
+"""Multi-depth Tikhonov reconstruction for the shift-invariant (Fourier LFM) model, per spatial frequency.
+
+Model on the projector's FFT window (periodic there; the window is large enough that
+the convolution does not wrap): ``Y(k) = sum_z H_z(k) X_z(k) = H_k^T x_k`` with
+``H_k = (H_1(k), ..., H_Z(k))`` the OTF values of all depths at frequency ``k``. The
+Tikhonov problem ``min ||Y - H_k^T x_k||^2 + mu ||x_k||^2`` decouples over ``k`` into
+``(conj(H_k) H_k^T + mu I) x_k = conj(H_k) Y(k)``: a rank-one update of ``mu I``.
+Sherman-Morrison with ``u = conj(H_k)``: ``(mu I + u u^H) u = u (mu + u^H u)``, so
+
+    x_k = conj(H_k) Y(k) / (|H_k|^2 + mu),     |H_k|^2 = sum_z |H_z(k)|^2,
+
+one division per frequency instead of a ``Z x Z`` solve. ``mu`` is given relative to
+``max_k |H_k|^2`` (dimensionless, independent of the PSF normalisation); ``mu = 0``
+gives the minimum-norm least-squares (pseudo-inverse) solution, with frequencies where
+``|H_k| <= 16 eps max|H_k|`` set to 0. The image is embedded in the FFT window as the
+projector's adjoint embeds it and each depth is cropped to the volume as the adjoint
+crops it.
+
+The closed form treats the FFT window as the whole world: it ignores that the camera
+sees only its own window of the full convolution and that the volume is smaller than
+the window. ``refine=N`` runs ``N`` preconditioned conjugate-gradient steps on the exact
+normal equations of the projector, ``(A^T A + mu I) x = A^T y``, preconditioned by the
+per-frequency inverse ``(conj(H) H^T + mu)^-1 = (I - u u^H / (mu + |u|^2)) / mu`` (needs
+``mu > 0``); it converges to the exact Tikhonov solution of the projector's model.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.reconstruct.fourier_geometry import (
+    depth_chunks,
+    filter_to_volume,
+    image_spectrum,
+    require_fourier_projector,
+    spectra_to_volume,
+    volume_spectrum,
+)
+from lfm_studio.engine.reconstruct.guards import check_image, relative_floor
+
+
+def otf_power(projector: Any) -> torch.Tensor:
+    """``|H_k|^2 = sum_z |H_z(k)|^2`` on the rfft grid ``(Fy, Fx//2+1)``, float64."""
+    total = None
+    for part in depth_chunks(projector):
+        h = projector.otf[part]
+        term = (h.real.double() ** 2 + h.imag.double() ** 2).sum(dim=0)
+        total = term if total is None else total + term
+    return total
+
+
+def check_mu(mu: float, *, refine: int) -> float:
+    """``mu`` >= 0 (> 0 when refining), finite."""
+    value = float(mu)
+    if not (0.0 <= value < float("inf")) or (refine and value == 0.0):
+        limit = "> 0 when refine > 0" if refine else ">= 0"
+        raise ValueError(
+            f"mu must be finite and {limit} (relative to max_k sum_z |H_z(k)|^2); got {mu!r}. "
+            "Fix: e.g. mu=1e-3; larger for noisier images."
+        )
+    return value
+
+
+def tikhonov(projector: Any, image: Any, *, mu: float = 1e-3, refine: int = 0) -> torch.Tensor:
+    """Multi-depth Tikhonov reconstruction ``(Z, Vy, Vx)`` of ``image`` for a shift-invariant projector.
+
+    Parameters
+    ----------
+    projector : ShiftInvariantProjector
+    image : tensor or array ``(Py, Px)``, counts (finite; negative noise values are fine)
+    mu : float
+        Regularisation weight relative to ``max_k |H_k|^2`` (>= 0).
+    refine : int
+        Conjugate-gradient steps on the projector's exact normal equations (0: closed form only).
+        Each costs about two RL iterations and keeps ``Z`` spectra in memory.
+    """
+    require_fourier_projector(projector, "Tikhonov reconstruction")
+    if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
+        raise ValueError(f"refine must be an int >= 0 (conjugate-gradient steps); got {refine!r}.")
+    mu = check_mu(mu, refine=refine)
+    otf = projector.otf
+    dtype = otf.real.dtype
+    y = check_image(image, tuple(projector.image_shape), dtype=dtype, device=otf.device, non_negative=False)
+    power = otf_power(projector)
+    peak = float(power.max())
+    mu_abs = mu * peak
+    denominator = power + mu_abs
+    keep = denominator > relative_floor(dtype) ** 2 * peak
+    gain = torch.where(keep, 1.0 / torch.where(keep, denominator, 1.0), 0.0).to(dtype)
+    spectrum = image_spectrum(projector, y) * gain
+    x = filter_to_volume(projector, spectrum, lambda part: otf[part].conj())
+    if refine:
+        x = _refine(projector, y, x, mu_abs, power, refine)
+    return x
+
+
+def _precondition(projector: Any, residual: torch.Tensor, mu: float, power: torch.Tensor) -> torch.Tensor:
+    """``E^T (conj(H) H^T + mu)^-1 E r``: the per-frequency Sherman-Morrison inverse on a volume."""
+    spectra = volume_spectrum(projector, residual)
+    otf = projector.otf
+    along = (otf * spectra).sum(dim=0)  # H_k^T r_k
+    inverse = (spectra - otf.conj() * (along / (mu + power)).to(spectra.dtype)) / mu
+    return spectra_to_volume(projector, inverse)
+
+
+def _refine(projector: Any, y: torch.Tensor, x: torch.Tensor, mu: float, power, steps: int) -> torch.Tensor:
+    """Preconditioned CG on ``(A^T A + mu I) x = A^T y`` from ``x``."""
+
+    def normal(v: torch.Tensor) -> torch.Tensor:
+        return projector.adjoint(projector.forward(v)) + mu * v
+
+    def dot(a: torch.Tensor, b: torch.Tensor) -> float:
+        return float((a.double() * b.double()).sum())
+
+    rhs = projector.adjoint(y)
+    residual = rhs - normal(x)
+    z = _precondition(projector, residual, mu, power)
+    direction, rz = z, dot(residual, z)
+    stop = (relative_floor(x.dtype) * float(torch.linalg.vector_norm(rhs.double()))) ** 2
+    for _ in range(steps):
+        if dot(residual, residual) <= stop or rz <= 0:
+            break
+        applied = normal(direction)
+        step = rz / dot(direction, applied)
+        x = x + step * direction
+        residual = residual - step * applied
+        z = _precondition(projector, residual, mu, power)
+        rz, previous = dot(residual, z), rz
+        direction = z + (rz / previous) * direction
+    return x
