@@ -1,0 +1,168 @@
+"""The editable design parameters of the parameter panel and the input widget of one of them.
+
+Each :class:`FieldSpec` names a design value by its path (as in
+:func:`~lfm_studio.engine.design.evolve`), the unit shown and the input range. Ranges
+are deliberately wider than what is physically valid, so that a wrong value reaches
+the design checks and comes back with their reason (NA above the immersion index,
+quantum efficiency above 1, ...) instead of being silently clamped.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from qtpy.QtCore import Signal
+from qtpy.QtWidgets import QAbstractSpinBox, QDoubleSpinBox, QHBoxLayout, QLabel, QSpinBox, QWidget
+
+INVALID_STYLE = "border: 2px solid #d32f2f; border-radius: 3px;"
+MIN_BOX_WIDTH = 72  # pixels
+
+
+@dataclass(frozen=True)
+class FieldSpec:
+    """One editable value.
+
+    Attributes
+    ----------
+    path : design path, e.g. ``"objective.numerical_aperture"``.
+    label : what the user reads.
+    unit : suffix shown in the box ("nm", "µm", "mm", "×", "" ...).
+    group : the panel section.
+    decimals, minimum, maximum, step : of the input box.
+    parts : 1 for a number, 2 for a pair such as ``pixel_count`` (y, x) or ``depth_range_um``.
+    integer : whole numbers (pixel counts).
+    optional : the minimum means "none" (the design value is None).
+    kinds : design kinds where the field applies ("fourier", "conventional").
+    tip : tooltip.
+    """
+
+    path: str
+    label: str
+    unit: str
+    group: str
+    decimals: int = 3
+    minimum: float = 0.0
+    maximum: float = 1e6
+    step: float = 1.0
+    parts: int = 1
+    integer: bool = False
+    optional: bool = False
+    kinds: tuple[str, ...] = ("fourier", "conventional")
+    tip: str = ""
+
+
+FIELDS: tuple[FieldSpec, ...] = (
+    FieldSpec("wavelength_nm", "Emission wavelength", "nm", "Light", 1, 0.0, 1e5, 5.0,
+              tip="Emission wavelength in vacuum (GCaMP: 525 nm)."),
+    FieldSpec("objective.magnification", "Magnification", "×", "Objective", 2, 0.0, 1000.0, 1.0,
+              tip="Lateral magnification with the tube lens below."),
+    FieldSpec("objective.numerical_aperture", "Numerical aperture", "", "Objective", 3, 0.0, 10.0, 0.05,
+              tip="NA = n sin(alpha); must stay below the immersion index."),
+    FieldSpec("objective.immersion_index", "Immersion index", "", "Objective", 3, 0.0, 10.0, 0.01,
+              tip="1.0 air, 1.333 water, 1.515 oil."),
+    FieldSpec("objective.tube_lens_focal_length_mm", "Tube lens focal length", "mm", "Objective", 1, 0.0, 1e4, 5.0,
+              tip="Olympus 180 mm, Nikon 200 mm, Zeiss 165 mm."),
+    FieldSpec("relay.focal_length_mm", "Fourier lens focal length", "mm", "Fourier lens", 1, 0.0, 1e4, 5.0,
+              kinds=("fourier",), tip="Relay lens that images the back pupil onto the MLA."),
+    FieldSpec("relay.field_stop_diameter_mm", "Field stop diameter", "mm", "Fourier lens", 2, 0.0, 1e3, 0.1,
+              optional=True, kinds=("fourier",), tip="Iris at the native image plane (0 = none)."),
+    FieldSpec("mla_to_camera_distance_mm", "MLA to camera distance", "mm", "MLA and camera", 2, 0.0, 1e4, 0.25,
+              tip="Distance from the microlens array to the sensor."),
+    FieldSpec("camera.pixel_pitch_um", "Pixel pitch", "µm", "MLA and camera", 2, 0.0, 1e3, 0.1),
+    FieldSpec("camera.pixel_count", "Pixel count (y, x)", "px", "MLA and camera", 0, 0, 100_000, 64,
+              parts=2, integer=True),
+    FieldSpec("camera.quantum_efficiency", "Quantum efficiency", "", "MLA and camera", 3, 0.0, 10.0, 0.05,
+              tip="Fraction of photons detected, in (0, 1]."),
+    FieldSpec("camera.read_noise_e", "Read noise", "e⁻ rms", "MLA and camera", 2, 0.0, 1e4, 0.1),
+    FieldSpec("depths.depth_range_um", "Depth range (from, to)", "µm", "Depths", 1, -1e5, 1e5, 10.0, parts=2,
+              tip="Source depths below the native focal plane (positive: away from the objective)."),
+    FieldSpec("depths.depth_step_um", "Depth step", "µm", "Depths", 2, 0.0, 1e5, 1.0),
+)  # fmt: skip
+
+
+class QuantityInput(QWidget):
+    """One or two spin boxes for a :class:`FieldSpec`, with its unit; emits ``edited`` on commit.
+
+    Commit means Enter, leaving the box, or an arrow step (keyboard tracking is off, so
+    typing does not recompute on every keystroke).
+    """
+
+    edited = Signal(str)  # the field path
+
+    def __init__(self, spec: FieldSpec, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.spec = spec
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        self.boxes: list[QAbstractSpinBox] = []
+        for index in range(spec.parts):
+            box = self._make_box(spec)
+            if spec.parts == 2:
+                box.setAccessibleName(
+                    f"{spec.label} {'yx'[index] if spec.integer else ('from', 'to')[index]}"
+                )
+            layout.addWidget(box, 1)
+            self.boxes.append(box)
+        self.setToolTip(spec.tip)
+
+    def _make_box(self, spec: FieldSpec) -> QAbstractSpinBox:
+        box: QAbstractSpinBox
+        if spec.integer:
+            box = QSpinBox(self)
+            box.setRange(int(spec.minimum), int(spec.maximum))
+            box.setSingleStep(int(spec.step))
+        else:
+            box = QDoubleSpinBox(self)
+            box.setDecimals(spec.decimals)
+            box.setRange(spec.minimum, spec.maximum)
+            box.setSingleStep(spec.step)
+        if spec.unit:
+            box.setSuffix(f" {spec.unit}")
+        if spec.optional:
+            box.setSpecialValueText("none")
+        box.setKeyboardTracking(False)
+        box.setMinimumWidth(MIN_BOX_WIDTH)  # the range's widest text need not fit: the panel stays narrow
+        box.setAccessibleName(spec.label)
+        box.valueChanged.connect(self._on_value_changed)
+        return box
+
+    def _on_value_changed(self, _value: float) -> None:
+        self.edited.emit(self.spec.path)
+
+    def value(self):
+        """The value as the design stores it (a number, a pair, or None for an optional "none")."""
+        values = [box.value() for box in self.boxes]
+        if self.spec.optional and values[0] <= self.spec.minimum:
+            return None
+        if self.spec.integer:
+            values = [int(v) for v in values]
+        return tuple(values) if self.spec.parts == 2 else values[0]
+
+    def set_value(self, value) -> None:
+        """Show ``value`` without emitting ``edited`` (state -> view)."""
+        values = (value,) if self.spec.parts == 1 else tuple(value)
+        for box, v in zip(self.boxes, values, strict=True):
+            box.blockSignals(True)
+            box.setValue(self.spec.minimum if v is None else v)
+            box.blockSignals(False)
+
+    def set_invalid(self, message: str | None) -> None:
+        """Red border and the reason as tooltip (None: valid again)."""
+        self.setProperty("invalid", message is not None)
+        for box in self.boxes:
+            box.setStyleSheet("" if message is None else f"QAbstractSpinBox {{ {INVALID_STYLE} }}")
+            box.setToolTip(self.spec.tip if message is None else message)
+
+
+class ErrorLabel(QLabel):
+    """The reason a field's value was refused, shown right under the field (hidden when valid)."""
+
+    def __init__(self, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.setWordWrap(True)
+        self.setStyleSheet("color: #d32f2f;")
+        self.setVisible(False)
+
+    def show_error(self, message: str | None) -> None:
+        self.setText(message or "")
+        self.setVisible(bool(message))

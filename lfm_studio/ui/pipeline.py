@@ -1,0 +1,291 @@
+"""The studio's background stages as plain functions ``(ctx, ...) -> result`` (Qt-free).
+
+Each runs on a worker thread (:mod:`lfm_studio.ui.jobs`): it reports through
+``ctx.progress``, stops when ``ctx.cancel`` is set (the engine's cancel token) and
+returns detached CPU tensors in the records of :mod:`lfm_studio.ui.results`.
+
+Stages: design -> PSF stack (a quick preview first for big designs) -> design metrics
+measured on it; PSF -> light-field image of a phantom -> Richardson-Lucy reconstruction
+with PSNR/SSIM against the phantom.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import torch
+
+from lfm_studio.engine.design import AccuracySpec, Design
+from lfm_studio.engine.design_metrics import DesignMetrics, compute_design_metrics
+from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.fourier_psf import FourierPSFReport, fourier_psf_stack
+from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
+from lfm_studio.engine.systems.lenslet_cache import LensletCache
+from lfm_studio.ui.edits import try_changes
+from lfm_studio.ui.results import ImageResult, PSFProfiles, PSFResult, ReconstructionResult, WorkflowSettings
+
+PREVIEW_DEPTHS = 5  # depths of the quick preview (spread over the design's range)
+PREVIEW_BINNING_FROM = 1024  # sensors with at least this many pixels per side are binned 2x for the preview
+LATERAL_HALF_WIDTH = 20  # pixels either side of the peak in the lateral profile
+
+
+class Context(Protocol):
+    """What a stage needs from :class:`lfm_studio.ui.jobs.JobContext`."""
+
+    cancel: Any
+
+    def progress(self, done: int, total: int, message: str = "") -> None: ...
+
+    def partial(self, value: Any) -> None: ...
+
+    def check(self, message: str = "cancelled") -> None: ...
+
+
+# ----- PSF -----
+
+
+def preview_design(design: Design) -> Design | None:
+    """A cheaper variant of ``design`` for the quick preview, or None when the design is small already.
+
+    Preview accuracy (no oversampling, paraxial objective) and, for big Fourier sensors, 2 x 2
+    pixel binning (same sensor area, same sub-image positions).
+    """
+    ny, nx = design.camera.pixel_count
+    big_sensor = min(ny, nx) >= PREVIEW_BINNING_FROM
+    if design.depths.count <= PREVIEW_DEPTHS and not big_sensor:
+        return None
+    changes: dict[str, Any] = {"accuracy": AccuracySpec.from_preset("preview")}
+    if big_sensor and design.kind == "fourier":
+        binned = {
+            "camera.pixel_pitch_um": 2.0 * design.camera.pixel_pitch_um,
+            "camera.pixel_count": (ny // 2, nx // 2),
+        }
+        outcome = try_changes(design, {**changes, **binned})
+        if outcome.ok:
+            return outcome.design
+    outcome = try_changes(design, changes)
+    return outcome.design if outcome.ok else design
+
+
+def preview_depths(design: Design, count: int = PREVIEW_DEPTHS) -> tuple[float, ...]:
+    """``count`` of the design's depths (metres), evenly spread and including both ends."""
+    values = design.depths.values
+    if len(values) <= count:
+        return tuple(values)
+    picks = sorted({round(i * (len(values) - 1) / (count - 1)) for i in range(count)})
+    return tuple(values[i] for i in picks)
+
+
+@dataclass(frozen=True)
+class PSFRequest:
+    """What the PSF stage computes: the design, on which device, and the preview to show first."""
+
+    design: Design
+    device: str = "cpu"
+    preview: Design | None = None
+    preview_depths: tuple[float, ...] = ()
+
+    @classmethod
+    def for_design(cls, design: Design, *, device: str = "cpu", preview: bool = True) -> PSFRequest:
+        reduced = preview_design(design) if preview else None
+        depths = preview_depths(design) if reduced is not None else ()
+        return cls(design, device, reduced, depths)
+
+
+def _stack(
+    design: Design,
+    depths: tuple[float, ...],
+    device: str,
+    cache: LensletCache | None,
+    ctx: Context,
+    label: str,
+) -> tuple[PSFStack, str, tuple[int, ...], tuple[int, ...]]:
+    def progress(done: int, total: int, message: str) -> None:
+        ctx.progress(done, total, f"{label}: {message}")
+
+    if design.kind == "fourier":
+        report = FourierPSFReport()
+        stack = fourier_psf_stack(
+            fourier_system_of(design), depths, accuracy=fourier_accuracy_of(design), device=device,
+            cache=cache, progress=progress, cancel=ctx.cancel, report=report, design=design,
+        )  # fmt: skip
+        return stack, report.method, tuple(report.lenslets_computed), tuple(report.lenslets_cached)
+    from lfm_studio.engine.simulation import simulate_psf
+
+    stack = simulate_psf(design, depths=depths, device=device, progress=progress, cancel=ctx.cancel)
+    return stack, "conventional", (), ()
+
+
+def _psf_result(
+    design: Design, run: Design, depths: tuple[float, ...], device: str, cache, ctx: Context, preview: bool
+) -> PSFResult:
+    start = time.perf_counter()
+    label = f"PSF preview ({len(depths)} depths)" if preview else f"PSF stack ({len(depths)} depths)"
+    stack, method, computed, cached = _stack(run, depths, device, cache, ctx, label)
+    stack = stack.with_data(stack.data.detach().cpu())
+    ctx.check()
+    return PSFResult(
+        design, stack, preview, method, computed, cached, psf_profiles(stack), time.perf_counter() - start
+    )
+
+
+def compute_psf(ctx: Context, request: PSFRequest, cache: LensletCache | None) -> PSFResult:
+    """The PSF stage: the preview (handed over with ``ctx.partial``) when asked, then the full stack."""
+    if request.preview is not None:
+        preview = _psf_result(
+            request.design, request.preview, request.preview_depths, request.device, cache, ctx, True
+        )
+        ctx.partial(preview)
+    depths = tuple(request.design.depths.values)
+    return _psf_result(request.design, request.design, depths, request.device, cache, ctx, False)
+
+
+def _fourier_slices(stack: PSFStack) -> torch.Tensor:
+    """The ``(Z, Y, X)`` PSFs of a stack (a conventional stack's central lenslet pattern)."""
+    data = stack.data.detach()
+    if data.ndim == 5:  # conventional patterns (S, S, Z, H, H): the on-axis source position
+        s = data.shape[0]
+        return data[s // 2, s // 2]
+    return data.reshape(-1, *data.shape[-3:])[0]
+
+
+def psf_profiles(stack: PSFStack) -> PSFProfiles:
+    """Lateral profile through the brightest pixel of the sharpest slice, and peak versus depth."""
+    data = _fourier_slices(stack).float()
+    peaks = data.amax(dim=(-2, -1))
+    k = int(peaks.argmax())
+    image = data[k]
+    y0, x0 = divmod(int(image.argmax()), image.shape[-1])
+    lo, hi = max(0, x0 - LATERAL_HALF_WIDTH), min(image.shape[-1], x0 + LATERAL_HALF_WIDTH + 1)
+    row = image[y0, lo:hi]
+    scale = float(row.max()) or 1.0
+    pixel = stack.pixel_size / stack.magnification
+    lateral_x = (torch.arange(lo, hi, dtype=torch.float64) - x0) * pixel
+    top = float(peaks.max()) or 1.0
+    return PSFProfiles(
+        lateral_x, (row / scale).double(), stack.depth_tensor(), (peaks / top).double(), stack.depths[k]
+    )
+
+
+def measure_design(ctx: Context, design: Design, stack: PSFStack | None) -> DesignMetrics:
+    """Design metrics with the requirement checks, measured on ``stack`` when it is a ``(Z, Y, X)`` stack."""
+    ctx.progress(0, 1, "measuring design metrics")
+    usable = stack is not None and stack.data.ndim == 3 and len(stack.depths) >= 3
+    metrics = compute_design_metrics(design, psf=stack if usable else None)
+    ctx.progress(1, 1, "design metrics")
+    return metrics
+
+
+# ----- image and reconstruction -----
+
+
+def simulate_image(
+    ctx: Context, design: Design, stack: PSFStack, settings: WorkflowSettings, device: str = "cpu"
+) -> ImageResult:
+    """Phantom (beads, cells or a TIFF volume) -> noisy light-field image through ``stack``."""
+    from lfm_studio.engine.simulation import camera_of, imaging_setup, light_field_image, make_phantom
+
+    ctx.progress(0, 3, "image: building the projector")
+    setup = imaging_setup(stack.to(device))
+    ctx.check()
+    ctx.progress(1, 3, "image: phantom")
+    if settings.phantom == "tiff":
+        if not settings.tiff_path:
+            raise ValueError(
+                "phantom 'TIFF volume' needs a file. Fix: choose a volume TIFF in the workflow panel."
+            )
+        from lfm_studio.engine.phantoms import from_tiff
+
+        volume = from_tiff(settings.tiff_path, normalize=True, device=device).data
+        info: dict[str, Any] = {"phantom": str(settings.tiff_path)}
+        if tuple(volume.shape) != tuple(setup.volume_shape):
+            voxel_um = tuple(round(v * 1e6, 4) for v in setup.voxel_size)
+            raise ValueError(
+                f"{settings.tiff_path} has shape {tuple(volume.shape)} but this PSF stack images volumes of "
+                f"shape {tuple(setup.volume_shape)} (Z, Y, X) with voxels {voxel_um} um. Fix: resample the volume."
+            )
+    else:
+        volume, info = make_phantom(settings.phantom, setup, seed=settings.seed, count=settings.bead_count)
+        volume = volume.to(device)
+    ctx.check()
+    ctx.progress(2, 3, "image: light field")
+    counts, expected = light_field_image(
+        setup, volume, camera_of(design), photons=settings.photons, seed=settings.seed
+    )
+    ctx.progress(3, 3, "image: done")
+    info = {**info, "photons": settings.photons}
+    return ImageResult(
+        counts.detach().cpu(), expected.detach().cpu(), volume.detach().cpu(), tuple(setup.voxel_size),
+        stack.pixel_size, setup, info,
+    )  # fmt: skip
+
+
+def reconstruction_available() -> bool:
+    """Whether the engine has Richardson-Lucy (``lfm_studio.engine.reconstruct``) and the metrics."""
+    return all(
+        importlib.util.find_spec(name) is not None
+        for name in ("lfm_studio.engine.reconstruct", "lfm_studio.engine.metrics")
+    )
+
+
+def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
+    """Camera counts (ADU) back to photo-electrons: baseline removed, divided by the gain, >= 0."""
+    camera = design.camera
+    if image.info.get("photons") is None:
+        return image.counts.clamp_min(0.0)
+    return ((image.counts - camera.baseline_adu) / camera.gain_adu_per_e).clamp_min(0.0)
+
+
+def reconstruct(
+    ctx: Context, design: Design, image: ImageResult, settings: WorkflowSettings
+) -> ReconstructionResult:
+    """Richardson-Lucy (Biggs-Andrews accelerated) of the image; PSNR per iteration and final PSNR/SSIM."""
+    from lfm_studio.engine.metrics import compare, match_scale, psnr
+    from lfm_studio.engine.reconstruct import richardson_lucy_iterates
+
+    projector = image.setup.projector
+    counts = photon_counts(image, design)
+    truth = image.ground_truth
+    total = settings.iterations
+    psnrs: list[float] = []
+    changes: list[float] = []
+    estimate = None
+    iterates = richardson_lucy_iterates(
+        projector, counts.to(_device_of(projector)), iterations=total, acceleration="biggs-andrews",
+        progress=_rl_progress(ctx), cancel=ctx.cancel,
+    )  # fmt: skip
+    for it in iterates:
+        estimate = it.estimate.detach().cpu()
+        changes.append(float(it.relative_change))
+        psnrs.append(float(psnr(truth, match_scale(estimate, truth))))
+        ctx.partial((tuple(psnrs), tuple(changes)))
+    if estimate is None:
+        raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
+    report = compare(truth, estimate, normalize="scale")
+    return ReconstructionResult(
+        estimate,
+        image.voxel_size,
+        len(changes),
+        tuple(psnrs),
+        tuple(changes),
+        float(report.psnr),
+        float(report.ssim),
+    )
+
+
+def _device_of(projector: Any) -> torch.device:
+    for name in ("otf", "psf", "patterns"):
+        value = getattr(projector, name, None)
+        if isinstance(value, torch.Tensor):
+            return value.device
+    return torch.device("cpu")
+
+
+def _rl_progress(ctx: Context):
+    def progress(done: int, total: int, message: str) -> None:
+        ctx.progress(done, total, f"reconstruction: {message}")
+
+    return progress

@@ -1,0 +1,223 @@
+"""Plots (pyqtgraph): PSF profiles, design metrics against the zebrafish requirements, RL convergence.
+
+Views only: each observes the state (when given one) and redraws; none computes anything
+heavier than picking values out of a result (the profiles are computed with the PSF, on
+the worker). The main window places them in separate docks.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
+
+import pyqtgraph as pg
+from qtpy.QtCore import Qt
+from qtpy.QtGui import QBrush, QColor
+from qtpy.QtWidgets import (
+    QAbstractItemView,
+    QHeaderView,
+    QLabel,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from lfm_studio.engine.design_metrics import DesignMetrics
+from lfm_studio.engine.design_metrics.report import UNIT_SCALE
+from lfm_studio.ui.results import PSFResult
+from lfm_studio.ui.state import StudioState
+
+PASS, FAIL, UNKNOWN = QColor("#2e7d32"), QColor("#c62828"), QColor("#757575")
+_QUANTITY = {
+    "field_of_view": "FoV",
+    "depth_of_field": "DoF",
+    "lateral_resolution": "Lateral res.",
+    "axial_resolution": "Axial res.",
+}
+_BASIS = {"closed_form": "formula", "measured": "measured"}
+
+
+def _plot(title: str, x_label: str, y_label: str) -> pg.PlotWidget:
+    widget = pg.PlotWidget(background="w")
+    item = widget.getPlotItem()
+    item.setTitle(title, color="k", size="10pt")
+    item.setLabel("bottom", x_label)
+    item.setLabel("left", y_label)
+    item.showGrid(x=True, y=True, alpha=0.25)
+    widget.setMinimumSize(200, 100)
+    return widget
+
+
+class _StateView(QWidget):
+    """A plot that observes some of the state's signals (disconnect before destruction)."""
+
+    def __init__(self, state: StudioState | None, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.state = state
+        self._connections: list[tuple[object, object]] = []
+        layout = QVBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+
+    def _observe(self, signal, slot, current) -> None:
+        signal.connect(slot)
+        self._connections.append((signal, slot))
+        slot(current)
+
+    def disconnect_state(self) -> None:
+        for signal, slot in self._connections:
+            signal.disconnect(slot)
+        self._connections.clear()
+
+
+class ProfilePlots(_StateView):
+    """Lateral and axial PSF profiles of the current full stack (dashed: the quick preview)."""
+
+    def __init__(self, state: StudioState | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(state, parent)
+        self.lateral_plot = _plot("Lateral PSF profile (sharpest depth)", "x (µm, sample)", "intensity")
+        self.axial_plot = _plot("Peak intensity per depth", "depth (µm)", "peak")
+        self.layout().addWidget(self.lateral_plot)
+        self.layout().addWidget(self.axial_plot)
+        solid, dashed = (
+            pg.mkPen("#1565c0", width=2),
+            pg.mkPen("#1565c0", width=1.5, style=Qt.PenStyle.DashLine),
+        )
+        self.lateral_curve = self.lateral_plot.plot(pen=solid)
+        self.axial_curve = self.axial_plot.plot(pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0")
+        self.lateral_preview = self.lateral_plot.plot(pen=dashed)
+        self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5)
+        if state is not None:
+            self._observe(state.psf_changed, self.show_result, state.psf)
+            self._observe(state.preview_changed, self.show_preview, state.preview)
+
+    def show_preview(self, result: PSFResult | None) -> None:
+        self.show_result(result, preview=True)
+
+    def show_result(self, result: PSFResult | None, *, preview: bool = False) -> None:
+        lateral, axial = (
+            (self.lateral_preview, self.axial_preview) if preview else (self.lateral_curve, self.axial_curve)
+        )
+        if result is None or result.profiles is None:
+            lateral.setData([], [])
+            axial.setData([], [])
+            return
+        p = result.profiles
+        lateral.setData((p.lateral_x * 1e6).numpy(), p.lateral.numpy())
+        axial.setData((p.axial_z * 1e6).numpy(), p.axial.numpy())
+
+
+_SHORT = {
+    "field_of_view": "FoV",
+    "depth_of_field": "DoF",
+    "lateral_resolution": "lateral",
+    "axial_resolution": "axial",
+}
+
+
+class RequirementsView(_StateView):
+    """Design metrics against the requirements: a pass/fail summary, a bar per check, a table."""
+
+    def __init__(self, state: StudioState | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(state, parent)
+        layout = self.layout()
+        self.summary = QLabel(self)
+        self.summary.setWordWrap(True)
+        layout.addWidget(self.summary)
+        note = QLabel(
+            "Bars: formula estimates, then measured on the PSF (*) once the full stack is in.", self
+        )
+        note.setWordWrap(True)
+        note.setStyleSheet("color: gray;")
+        layout.addWidget(note)
+        self.chart = _plot("value / requirement (≥ 1 passes)", "", "score")
+        self.chart.getPlotItem().addLine(y=1.0, pen=pg.mkPen("k", style=Qt.PenStyle.DashLine))
+        self.chart.setMouseEnabled(x=False, y=False)
+        self.chart.setMinimumHeight(90)
+        layout.addWidget(self.chart, 1)
+        self.table = QTableWidget(0, 4, self)
+        self.table.setHorizontalHeaderLabels(["Requirement", "Basis", "Value", "Result"])
+        self.table.verticalHeader().setVisible(False)
+        self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        self.table.horizontalHeader().setStretchLastSection(True)
+        layout.addWidget(self.table, 1)
+        self._bars: list[pg.GraphicsObject] = []
+        if state is not None:
+            self._observe(state.metrics_changed, self.show_metrics, state.metrics)
+
+    def rows(self) -> list[tuple[str, str, str, str]]:
+        """The table as text (for tests and screen readers)."""
+        return [
+            tuple(self.table.item(r, c).text() for c in range(self.table.columnCount()))
+            for r in range(self.table.rowCount())
+        ]
+
+    def show_metrics(self, metrics: DesignMetrics | None) -> None:
+        plot = self.chart.getPlotItem()
+        for bar in self._bars:
+            plot.removeItem(bar)
+        self._bars = []
+        checks = () if metrics is None else metrics.requirements
+        self.table.setRowCount(len(checks))
+        if metrics is None:
+            self.summary.setText("")
+            return
+        met = metrics.requirements_met
+        verdict = {True: "meets", False: "does not meet", None: "may meet"}[met]
+        failed = sum(c.passed is False for c in checks)
+        colour = {True: PASS, False: FAIL, None: UNKNOWN}[met].name()
+        self.summary.setText(
+            f"<b style='color:{colour}'>{verdict.capitalize()} the {metrics.requirement_set} "
+            f"requirements</b> ({failed} of {len(checks)} checks fail)"
+        )
+        ticks, scores, brushes = [], [], []
+        for row, check in enumerate(checks):
+            scale, unit = UNIT_SCALE[check.unit], f" {check.unit}" if check.unit else ""
+            symbol = {">=": "≥", "<=": "≤"}.get(check.comparison, check.comparison)
+            name = f"{_QUANTITY.get(check.quantity, check.quantity)} {symbol} {check.limit / scale:.4g}{unit}"
+            value = "n/a" if check.value is None else f"{check.value / scale:.4g}{unit}"
+            result = {True: "PASS", False: "FAIL", None: "?"}[check.passed]
+            colour = {True: PASS, False: FAIL, None: UNKNOWN}[check.passed]
+            basis = _BASIS.get(check.basis, check.basis)
+            for column, text in enumerate((name, basis, value, result)):
+                item = QTableWidgetItem(text)
+                item.setToolTip(
+                    f"{name}: {value} ({'closed-form estimate' if basis == 'formula' else 'measured on the PSF'})"
+                )
+                if column == 3:
+                    item.setForeground(QBrush(QColor("white")))
+                    item.setBackground(QBrush(colour))
+                    item.setTextAlignment(Qt.AlignmentFlag.AlignCenter)
+                self.table.setItem(row, column, item)
+            score = 0.0
+            if check.value:
+                score = check.value / check.limit if check.comparison == ">=" else check.limit / check.value
+            short = _SHORT.get(check.quantity, check.quantity)
+            ticks.append((row, f"{short}*" if check.basis == "measured" else short))
+            scores.append(score)
+            brushes.append(pg.mkBrush(colour))
+        if checks:
+            bars = pg.BarGraphItem(x=list(range(len(checks))), height=scores, width=0.6, brushes=brushes)
+            plot.addItem(bars)
+            self._bars.append(bars)
+            plot.getAxis("bottom").setTicks([ticks])
+            plot.setYRange(0, max(1.5, max(scores) * 1.1))
+
+
+class ConvergencePlot(_StateView):
+    """Richardson-Lucy convergence: PSNR against the ground truth after each iteration (live)."""
+
+    def __init__(self, state: StudioState | None = None, parent: QWidget | None = None) -> None:
+        super().__init__(state, parent)
+        self.plot = _plot("Richardson-Lucy convergence", "iteration", "PSNR (dB)")
+        self.layout().addWidget(self.plot)
+        pen = pg.mkPen("#6a1b9a", width=2)
+        self.curve = self.plot.plot(pen=pen, symbol="o", symbolSize=4, symbolBrush="#6a1b9a")
+        if state is not None:
+            self._observe(state.convergence_changed, self.show_curves, state.convergence)
+
+    def show_curves(self, curves: tuple[tuple[float, ...], tuple[float, ...]]) -> None:
+        psnr = list(curves[0])
+        self.curve.setData(list(range(1, len(psnr) + 1)), psnr)

@@ -1,0 +1,166 @@
+"""What the studio's background stages produce (plain frozen records, Qt-free).
+
+Tensors inside are detached and on the CPU (they cross from worker threads to the
+GUI thread). Lengths are SI metres, as in the engine.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.psf_stack import PSFStack
+
+STAGES = ("psf", "image", "reconstruction")
+"""The recompute chain: a stage is stale when anything it depends on changed."""
+
+
+@dataclass(frozen=True)
+class PSFProfiles:
+    """Lateral and axial PSF profiles for the plots (sample side, normalised to a peak of 1).
+
+    Attributes
+    ----------
+    lateral_x : (N,) positions in metres relative to the peak, along x at the sharpest slice.
+    lateral : (N,) intensity along that line.
+    axial_z : (Z,) depths in metres.
+    axial : (Z,) peak intensity of each depth slice.
+    focus_depth : depth of the sharpest slice, metres.
+    """
+
+    lateral_x: torch.Tensor
+    lateral: torch.Tensor
+    axial_z: torch.Tensor
+    axial: torch.Tensor
+    focus_depth: float
+
+
+@dataclass(frozen=True)
+class PSFResult:
+    """One computed PSF stack with what produced it.
+
+    Attributes
+    ----------
+    design : the design in force when the job started (the full one, also for a preview).
+    stack : the stack (for a preview: of the reduced preview design).
+    preview : True for the quick preview (few depths, reduced sensor and accuracy).
+    method : "per_lenslet", "full_field" or "conventional".
+    lenslets_computed, lenslets_cached : per-lenslet cache use (Fourier per-lenslet path).
+    profiles : for the plots.
+    seconds : wall time of the computation.
+    """
+
+    design: Design
+    stack: PSFStack
+    preview: bool
+    method: str
+    lenslets_computed: tuple[int, ...] = ()
+    lenslets_cached: tuple[int, ...] = ()
+    profiles: PSFProfiles | None = None
+    seconds: float = 0.0
+
+
+@dataclass(frozen=True)
+class ImageResult:
+    """A simulated light-field image with its ground truth and the projector that made it.
+
+    Attributes
+    ----------
+    counts : (Py, Px) camera counts in ADU (the noise-free image when ``photons`` is None).
+    expected : (Py, Px) noise-free image.
+    ground_truth : (Z, Y, X) phantom volume.
+    voxel_size : (dz, dy, dx) metres.
+    pixel_size : sensor pixel pitch, metres.
+    setup : the :class:`~lfm_studio.engine.simulation.ImagingSetup` (reused by the reconstruction).
+    info : phantom description (kind, seed, object count, photons).
+    """
+
+    counts: torch.Tensor
+    expected: torch.Tensor
+    ground_truth: torch.Tensor
+    voxel_size: tuple[float, float, float]
+    pixel_size: float
+    setup: Any
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class ReconstructionResult:
+    """A reconstructed volume with its convergence curve and quality against the ground truth.
+
+    Attributes
+    ----------
+    volume : (Z, Y, X) estimate.
+    voxel_size : (dz, dy, dx) metres.
+    iterations : iterations run.
+    psnr_curve : PSNR (dB) after each iteration (empty without a ground truth).
+    change_curve : relative change ``|x_k - x_{k-1}| / |x_{k-1}|`` after each iteration.
+    psnr, ssim : final quality against the ground truth (None when it cannot be computed).
+    """
+
+    volume: torch.Tensor
+    voxel_size: tuple[float, float, float]
+    iterations: int
+    psnr_curve: tuple[float, ...] = ()
+    change_curve: tuple[float, ...] = ()
+    psnr: float | None = None
+    ssim: float | None = None
+
+
+@dataclass(frozen=True)
+class WorkflowSettings:
+    """What the workflow panel asks for: phantom, photon budget, seed, reconstruction.
+
+    Attributes
+    ----------
+    phantom : "beads", "cells" or "tiff".
+    bead_count : number of beads (phantom "beads").
+    tiff_path : volume TIFF (phantom "tiff").
+    photons : expected photons in the image; None = noise-free.
+    seed : random seed of phantom and noise.
+    iterations : Richardson-Lucy iterations.
+    auto_update : recompute image and reconstruction when the design changes.
+    """
+
+    phantom: str = "beads"
+    bead_count: int = 20
+    tiff_path: str | None = None
+    photons: float | None = 1e6
+    seed: int = 0
+    iterations: int = 10
+    auto_update: bool = True
+
+    IMAGE_FIELDS = ("phantom", "bead_count", "tiff_path", "photons", "seed")
+
+    def image_changed(self, other: WorkflowSettings) -> bool:
+        """Whether the image stage depends on something that differs between the two settings."""
+        return any(getattr(self, f) != getattr(other, f) for f in self.IMAGE_FIELDS)
+
+
+@dataclass(frozen=True)
+class JobStatus:
+    """State of one named background job (what the status bar shows).
+
+    ``state`` is "idle", "running", "cancelling", "done", "failed" or "cancelled";
+    ``done``/``total`` count units of work (lenslets, depths, iterations).
+    """
+
+    name: str
+    state: str = "idle"
+    done: int = 0
+    total: int = 0
+    message: str = ""
+    generation: int = 0
+
+    @property
+    def active(self) -> bool:
+        """Running or being cancelled."""
+        return self.state in ("running", "cancelling")
+
+    @property
+    def fraction(self) -> float | None:
+        """Progress in [0, 1], None when the total is unknown."""
+        return None if self.total <= 0 else min(1.0, max(0.0, self.done / self.total))

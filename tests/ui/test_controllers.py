@@ -1,0 +1,225 @@
+"""Controllers: the recompute chain on the small Fourier design, the MLA editor and viewer bindings.
+
+The editor and viewer are stand-ins with the brief's widget contracts (tests/ui/standins.py).
+"""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+from lfm_studio.engine.progress import checkpoint
+from lfm_studio.ui import pipeline
+from lfm_studio.ui.controllers import MLAEditorBinding, StudioController, ViewerBinding
+from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.state import StudioState
+from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+
+TIMEOUT_MS = 20_000
+
+
+@pytest.fixture(scope="module")
+def design():
+    return small_fourier_design()
+
+
+@pytest.fixture
+def studio(qtbot, design):
+    state = StudioState(design)
+    controller = StudioController(state, debounce_ms=10, preview=False)
+    editor, viewer = FakeMLAEditor(design.mla.lenslets), FakePSFViewer()
+    qtbot.addWidget(editor)
+    qtbot.addWidget(viewer)
+    bindings = (MLAEditorBinding(state, editor, controller), ViewerBinding(state, viewer, controller))
+    yield state, controller, editor, viewer
+    for binding in bindings:
+        binding.disconnect_state()
+    controller.shutdown()
+
+
+def _wait_psf(qtbot, state, generation_before=None):
+    qtbot.waitUntil(lambda: state.psf is not None and "psf" not in state.stale, timeout=TIMEOUT_MS)
+    qtbot.waitUntil(lambda: not state.job("psf").active, timeout=TIMEOUT_MS)
+
+
+def test_the_psf_is_computed_and_shown_then_one_edited_lenslet_is_recomputed_alone(qtbot, studio):
+    state, controller, editor, viewer = studio
+    controller.start()
+    _wait_psf(qtbot, state)
+    first = state.psf
+    assert first.method == "per_lenslet" and first.lenslets_computed == (0, 1, 2, 3)
+    assert viewer.calls[-1] == ("show_psf", "PSF", (3, 256, 256))
+    misses = controller.cache.misses
+    # view -> state: the editor commits lenslet 2 with another focal length.
+    lenslets = list(editor.lenslets())
+    lenslets[2] = lenslets[2].model_copy(update={"focal_length_mm": 17.5})
+    editor.commit(lenslets)
+    assert state.design.mla.lenslets[2].focal_length_mm == 17.5 and state.dirty
+    qtbot.waitUntil(lambda: state.psf is not first and "psf" not in state.stale, timeout=TIMEOUT_MS)
+    assert state.psf.lenslets_computed == (2,)
+    assert state.psf.lenslets_cached == (0, 1, 3)
+    assert controller.cache.misses == misses + 1
+    # The new lenslet changes the stack (not a stale copy).
+    assert not bool((state.psf.stack.data == first.stack.data).all())
+
+
+def test_state_changes_reach_the_editor(qtbot, studio, design):
+    state, _, editor, _ = studio
+    moved = apply_changes(design, {"mla.lenslets.0.center_um": (-550.0, -600.0)})
+    state.set_design(moved)
+    assert editor.lenslets() == moved.mla.lenslets
+    pupil_um = moved.pupil_diameter_at_mla / 2 * 1e6
+    assert editor.pupil_radius_um == pytest.approx(pupil_um)
+    assert editor.sensor[0] == pytest.approx((256 * 6.5, 256 * 6.5))
+
+
+def test_an_overlapping_lenslet_from_the_editor_is_refused_and_the_design_kept(qtbot, studio, design):
+    state, _, editor, _ = studio
+    lenslets = list(editor.lenslets())
+    lenslets[1] = lenslets[1].model_copy(update={"center_um": (-300.0, -600.0)})  # 300 um from lenslet 0
+    editor.commit(lenslets)
+    assert state.design == design
+    assert "overlap" in state.errors["mla"]
+    editor.commit(design.mla.lenslets)  # back to a valid layout: the error goes
+    assert "mla" not in state.errors
+
+
+def test_quick_edits_are_debounced_into_one_psf_job(qtbot, studio, design):
+    state, controller, _, _ = studio
+    controller.start()
+    _wait_psf(qtbot, state)
+    before = controller.runner.generation("psf")
+    for na in (0.90, 0.85, 0.80):
+        state.set_design(apply_changes(design, {"objective.numerical_aperture": na}))
+    _wait_psf(qtbot, state)
+    qtbot.waitUntil(lambda: state.psf.design.objective.numerical_aperture == 0.80, timeout=TIMEOUT_MS)
+    assert controller.runner.generation("psf") == before + 1
+
+
+def test_a_camera_noise_edit_does_not_recompute_the_psf(qtbot, studio, design):
+    state, controller, _, _ = studio
+    controller.start()
+    _wait_psf(qtbot, state)
+    before = controller.runner.generation("psf")
+    state.set_design(apply_changes(design, {"camera.read_noise_e": 2.5}))
+    controller.flush()
+    assert controller.runner.generation("psf") == before
+    assert "psf" not in state.stale
+
+
+def _slow_psf(ctx, request, cache):
+    """Stands in for the PSF stage: an engine-like loop that only ends when cancelled."""
+    while True:
+        checkpoint(ctx.cancel, ctx.progress, 0, 10, "lenslet 1/10")
+        ctx.cancel.wait(0.01)
+
+
+def test_cancel_keeps_the_previous_psf(qtbot, studio, design, monkeypatch):
+    state, controller, _, viewer = studio
+    controller.start()
+    _wait_psf(qtbot, state)
+    previous, shown = state.psf, list(viewer.calls)
+    monkeypatch.setattr(pipeline, "compute_psf", _slow_psf)
+    state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
+    controller.flush()
+    qtbot.waitUntil(lambda: state.job("psf").total == 10, timeout=TIMEOUT_MS)
+    controller.cancel()
+    qtbot.waitUntil(lambda: state.job("psf").state == "cancelled", timeout=TIMEOUT_MS)
+    assert state.psf is previous
+    assert viewer.calls == shown
+    assert "psf" in state.stale  # still out of date: the next edit recomputes it
+
+
+def test_a_late_result_from_superseded_parameters_is_dropped(qtbot, studio, design, monkeypatch):
+    state, controller, _, _ = studio
+    real = pipeline.compute_psf
+    entered, gate = threading.Event(), threading.Event()
+
+    def gated(ctx, request, cache):
+        if request.design.wavelength_nm != 700.0:
+            return real(ctx, request, cache)
+        entered.set()
+        # A job that misses its cancel checkpoints (e.g. one long FFT) and finishes after the new one.
+        deaf = SimpleNamespace(
+            cancel=threading.Event(), progress=ctx.progress, partial=ctx.partial, check=lambda *_: None
+        )
+        result = real(deaf, request, cache)
+        gate.wait(10)
+        return result
+
+    monkeypatch.setattr(pipeline, "compute_psf", gated)
+    state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
+    controller.flush()
+    assert entered.wait(10)
+    newest = apply_changes(design, {"wavelength_nm": 690.0})
+    state.set_design(newest)
+    controller.flush()
+    qtbot.waitUntil(lambda: state.psf is not None and state.psf.design == newest, timeout=TIMEOUT_MS)
+    gate.set()
+    qtbot.waitUntil(lambda: controller.runner.dropped == 1, timeout=TIMEOUT_MS)
+    assert state.psf.design == newest and "psf" not in state.stale
+
+
+def test_preview_then_full_stack(qtbot, design):
+    from lfm_studio.engine.design import DepthSpec
+
+    deeper = design.updated(depths=DepthSpec(depth_range_um=(-10.0, 10.0), depth_step_um=2.0))  # 11 depths
+    state = StudioState(deeper)
+    controller = StudioController(state, debounce_ms=10, preview=True)
+    previews = []
+    state.preview_changed.connect(previews.append)
+    controller.start()
+    qtbot.waitUntil(lambda: state.psf is not None, timeout=TIMEOUT_MS)
+    controller.shutdown()
+    assert len(previews) == 1 and previews[0].preview
+    assert len(previews[0].stack.depths) == pipeline.PREVIEW_DEPTHS
+    assert len(state.psf.stack.depths) == 11 and not state.psf.preview
+
+
+def test_image_then_reconstruction_with_quality(qtbot, studio):
+    state, controller, _, viewer = studio
+    from lfm_studio.ui.results import WorkflowSettings
+
+    state.set_workflow(WorkflowSettings(bead_count=3, photons=1e6, seed=1, iterations=2))
+    controller.start()
+    _wait_psf(qtbot, state)
+    controller.request_image()
+    qtbot.waitUntil(lambda: state.image is not None, timeout=TIMEOUT_MS)
+    assert state.camera_image.shape == (256, 256) and int((state.ground_truth > 0).sum()) == 3
+    assert ("show_image", "light field", (256, 256)) in viewer.calls
+    if not pipeline.reconstruction_available():
+        pytest.skip("lfm_studio.engine.reconstruct is not installed")
+    controller.request_reconstruction()
+    qtbot.waitUntil(lambda: state.reconstruction is not None, timeout=TIMEOUT_MS)
+    result = state.reconstruction
+    assert result.iterations == 2 and len(result.psnr_curve) == 2 and len(state.convergence[0]) == 2
+    assert result.psnr is not None and result.psnr > 0 and 0 < result.ssim <= 1
+    assert viewer.calls[-1][:2] == ("show_volume", "reconstruction")
+    # A seed change: image and reconstruction recompute (auto update), the PSF does not.
+    psf_generation = controller.runner.generation("psf")
+    old_image = state.image
+    state.set_workflow(WorkflowSettings(bead_count=3, photons=1e6, seed=2, iterations=2))
+    qtbot.waitUntil(
+        lambda: state.image is not old_image and "reconstruction" not in state.stale, timeout=TIMEOUT_MS
+    )
+    assert controller.runner.generation("psf") == psf_generation
+
+
+def test_without_auto_update_only_the_button_recomputes_the_image(qtbot, studio):
+    state, controller, _, _ = studio
+    from lfm_studio.ui.results import WorkflowSettings
+
+    state.set_workflow(WorkflowSettings(bead_count=2, seed=1, auto_update=False))
+    controller.start()
+    _wait_psf(qtbot, state)
+    controller.request_image()
+    qtbot.waitUntil(lambda: state.image is not None and "image" not in state.stale, timeout=TIMEOUT_MS)
+    first = state.image
+    state.set_workflow(WorkflowSettings(bead_count=2, seed=2, auto_update=False))
+    controller.flush()
+    assert state.image is first and "image" in state.stale and not controller.runner.is_running("image")
+    controller.request_image()
+    qtbot.waitUntil(lambda: state.image is not first, timeout=TIMEOUT_MS)
+    assert state.image.info["seed"] == 2

@@ -1,0 +1,114 @@
+"""The parameter panel both ways: state -> fields, fields -> new design or a marked error."""
+
+from __future__ import annotations
+
+import pytest
+
+from lfm_studio.engine.design import load_preset
+from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.parameter_panel import ParameterPanel
+from lfm_studio.ui.state import StudioState
+from tests.ui.standins import small_fourier_design
+
+NA = "objective.numerical_aperture"
+
+
+@pytest.fixture(scope="module")
+def design():
+    return small_fourier_design()
+
+
+@pytest.fixture
+def panel(qtbot, design):
+    state = StudioState(design)
+    panel = ParameterPanel(state)
+    qtbot.addWidget(panel)
+    yield panel
+    panel.disconnect_state()
+
+
+def _set(panel, path, *values):
+    """What a user does: type into the box(es) and press Enter (keyboard tracking is off)."""
+    for box, value in zip(panel.inputs[path].boxes, values, strict=False):
+        box.setValue(value)
+
+
+def test_fields_show_the_design_with_units(panel, design):
+    assert panel.inputs[NA].value() == pytest.approx(0.95)
+    assert panel.inputs["wavelength_nm"].boxes[0].suffix() == " nm"
+    assert panel.inputs["camera.pixel_pitch_um"].boxes[0].suffix() == " µm"
+    assert panel.inputs["objective.tube_lens_focal_length_mm"].boxes[0].suffix() == " mm"
+    assert panel.inputs["camera.pixel_count"].value() == (256, 256)
+    assert panel.inputs["depths.depth_range_um"].value() == (-10.0, 10.0)
+    assert panel.inputs["relay.field_stop_diameter_mm"].value() == pytest.approx(2.0)
+    assert panel.accuracy.currentText() == "preview"
+
+
+def test_a_valid_edit_builds_a_new_design(panel, design):
+    state = panel.state
+    _set(panel, NA, 0.9)
+    assert state.design.objective.numerical_aperture == pytest.approx(0.9)
+    assert state.dirty and state.errors == {}
+    _set(panel, "camera.pixel_count", 300, 280)
+    assert state.design.camera.pixel_count == (300, 280)
+    _set(panel, "relay.field_stop_diameter_mm", 0.0)  # the minimum reads "none"
+    assert state.design.relay.field_stop_diameter_mm is None
+
+
+def test_an_invalid_value_is_marked_with_the_reason_and_the_design_stays(panel, design):
+    state = panel.state
+    _set(panel, NA, 1.2)  # an air objective (n = 1) cannot have NA 1.2
+    assert state.design == design  # the last valid design stays in force
+    field, label = panel.inputs[NA], panel.error_labels[NA]
+    assert field.property("invalid") is True
+    assert "numerical_aperture 1.2 must be below immersion_index 1" in label.text()
+    assert not label.isHidden()
+    assert "border" in field.boxes[0].styleSheet() and "must be below" in field.boxes[0].toolTip()
+    assert field.value() == pytest.approx(1.2)  # the user's value stays visible to be corrected
+    # Another field edited meanwhile still applies on its own.
+    _set(panel, "wavelength_nm", 700.0)
+    assert state.design.wavelength_nm == 700.0 and NA in state.errors
+    # Water immersion makes the waiting NA valid: both go into force together, the mark goes.
+    _set(panel, "objective.immersion_index", 1.333)
+    assert state.design.objective.numerical_aperture == pytest.approx(1.2)
+    assert state.design.objective.immersion_index == pytest.approx(1.333)
+    assert state.errors == {} and field.property("invalid") is False and label.isHidden()
+
+
+def test_a_refused_value_is_dropped_when_the_document_is_replaced(panel, design):
+    state = panel.state
+    _set(panel, "depths.depth_step_um", 0.0)
+    assert "depth_step_um must be a finite number > 0" in state.errors["depths.depth_step_um"]
+    state.replace_design(design)
+    assert panel.inputs["depths.depth_step_um"].value() == pytest.approx(10.0)
+    assert panel.inputs["depths.depth_step_um"].property("invalid") is False
+
+
+def test_state_changes_update_the_fields(panel, design):
+    state = panel.state
+    state.set_design(apply_changes(design, {"wavelength_nm": 690.0, "camera.read_noise_e": 2.0}))
+    assert panel.inputs["wavelength_nm"].value() == pytest.approx(690.0)
+    assert panel.inputs["camera.read_noise_e"].value() == pytest.approx(2.0)
+    assert not state.errors  # programmatic updates do not echo back as edits
+
+
+def test_accuracy_and_device_choices_reach_the_state(panel):
+    panel.accuracy.textActivated.emit("standard")
+    assert panel.state.design.accuracy.preset == "standard"
+    panel.device.textActivated.emit("cpu")
+    assert panel.state.device == "cpu"
+
+
+def test_design_warnings_are_shown(panel):
+    _set(panel, "camera.pixel_count", 200, 200)  # sub-images cut by the sensor edge: valid, with a warning
+    assert panel.state.design.camera.pixel_count == (200, 200)
+    assert "cut by the edge" in panel.warning_label.text() and not panel.warning_label.isHidden()
+
+
+def test_a_conventional_design_disables_the_fourier_lens(qtbot):
+    state = StudioState(load_preset("lfm_10x_na03"))
+    panel = ParameterPanel(state)
+    qtbot.addWidget(panel)
+    assert not panel.inputs["relay.focal_length_mm"].isEnabled()
+    assert panel.inputs["mla_to_camera_distance_mm"].isEnabled()
+    panel.disconnect_state()

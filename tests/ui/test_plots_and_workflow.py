@@ -1,0 +1,100 @@
+"""Plots (state -> view) and the workflow panel (both ways)."""
+
+from __future__ import annotations
+
+import threading
+from types import SimpleNamespace
+
+import pytest
+
+from lfm_studio.ui import pipeline
+from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
+from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
+from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.workflow_panel import WorkflowPanel
+from tests.ui.standins import small_fourier_design
+
+
+def _ctx():
+    return SimpleNamespace(
+        cancel=threading.Event(), progress=lambda *a: None, partial=lambda v: None, check=lambda *a: None
+    )
+
+
+@pytest.fixture(scope="module")
+def computed():
+    design = small_fourier_design()
+    psf = pipeline.compute_psf(_ctx(), pipeline.PSFRequest.for_design(design), None)
+    return design, psf, pipeline.measure_design(_ctx(), design, psf.stack)
+
+
+def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
+    design, psf, metrics = computed
+    state = StudioState(design)
+    profiles, requirements, convergence = ProfilePlots(state), RequirementsView(state), ConvergencePlot(state)
+    for view in (profiles, requirements, convergence):
+        qtbot.addWidget(view)
+    assert requirements.rows() == []  # the controller computes metrics; none yet
+    state.set_psf(psf)
+    state.set_metrics(metrics)
+    x, y = profiles.lateral_curve.getData()
+    assert len(x) > 10 and y.max() == pytest.approx(1.0) and abs(x[y.argmax()]) < 1e-9
+    z, peak = profiles.axial_curve.getData()
+    assert list(z) == pytest.approx([-10.0, 0.0, 10.0]) and peak.max() == pytest.approx(1.0)
+    rows = requirements.rows()
+    assert len(rows) == len(metrics.requirements)
+    results = {(r[0].split(" ")[0], r[1]): r[3] for r in rows}
+    assert results[("FoV", "formula")] == "FAIL"  # 50 um field stop vs 800 um required
+    assert rows[0][0] == "FoV ≥ 800 um" and rows[0][2] == "50 um"
+    assert {r[1] for r in rows} == {"formula", "measured"}
+    assert "Does not meet" in requirements.summary.text()
+    state.set_convergence((10.0, 12.0, 13.0), (0.5, 0.2, 0.1))
+    assert list(convergence.curve.getData()[1]) == [10.0, 12.0, 13.0]
+    state.set_psf(None)
+    assert len(profiles.lateral_curve.getData()[0] or []) == 0
+    for view in (profiles, requirements, convergence):
+        view.disconnect_state()
+    state.set_metrics(None)  # disconnected: the table keeps its rows
+    assert len(requirements.rows()) == len(metrics.requirements)
+
+
+def test_workflow_panel_both_ways(qtbot, computed):
+    design = computed[0]
+    state = StudioState(design)
+    panel = WorkflowPanel(state, reconstruction_available=True)
+    qtbot.addWidget(panel)
+    # view -> state
+    panel.seed.setValue(7)
+    panel.bead_count.setValue(4)
+    panel.noise_free.setChecked(True)
+    assert state.workflow.seed == 7 and state.workflow.bead_count == 4 and state.workflow.photons is None
+    panel.phantom.setCurrentIndex(panel.phantom.findData("cells"))
+    assert state.workflow.phantom == "cells" and not panel.bead_count.isEnabled()
+    # state -> view
+    state.set_workflow(
+        WorkflowSettings(phantom="tiff", tiff_path="/data/brain.tif", photons=2e5, iterations=12)
+    )
+    assert panel.phantom.currentData() == "tiff" and panel.tiff_path.text() == "/data/brain.tif"
+    assert panel.photons.value() == pytest.approx(2e5) and panel.photons.text().startswith("2e+05")
+    assert panel.iterations.value() == 12 and panel.tiff_path.isEnabled()
+    # the photon box steps by decades
+    panel.photons.stepBy(1)
+    assert state.workflow.photons == pytest.approx(1e6)
+    # buttons
+    with qtbot.waitSignal(panel.simulate_requested):
+        panel.simulate_button.click()
+    with qtbot.waitSignal(panel.reconstruct_requested):
+        panel.reconstruct_button.click()
+    state.set_reconstruction(
+        ReconstructionResult(computed[1].stack.data, (1, 1, 1), 5, psnr=31.25, ssim=0.875)
+    )
+    assert "PSNR 31.25 dB" in panel.quality.text() and "SSIM 0.875" in panel.quality.text()
+    panel.disconnect_state()
+
+
+def test_reconstruct_is_disabled_without_the_engine_module(qtbot, computed):
+    panel = WorkflowPanel(StudioState(computed[0]), reconstruction_available=False)
+    qtbot.addWidget(panel)
+    assert not panel.reconstruct_button.isEnabled()
+    assert "lfm_studio.engine.reconstruct" in panel.reconstruct_button.toolTip()
+    panel.disconnect_state()
