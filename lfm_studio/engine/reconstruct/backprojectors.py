@@ -125,7 +125,12 @@ def wiener_butterworth_backprojector(
         Use as ``richardson_lucy(..., backprojector=bp)``.
     """
     require_fourier_projector(projector, "the Wiener-Butterworth back projector")
-    require_positive("alpha", alpha, "", "e.g. 1e-3 (Guo et al.: 1e-4 to 1e-3).")
+    require_positive(
+        "alpha",
+        alpha,
+        "",
+        "e.g. 1 (the default); Guo et al.'s 1e-4 to 1e-3 are for single-view deconvolution.",
+    )
     if not 0.0 < float(beta) < 1.0:
         raise ValueError(f"beta must be in (0, 1) (gain at the cutoff); got {beta!r}. Fix: e.g. 1e-2.")
     if isinstance(order, bool) or not isinstance(order, int) or order < 1:

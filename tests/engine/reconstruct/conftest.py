@@ -1,8 +1,9 @@
 """Small Fourier (FLFM) and conventional (10x) systems shared by the reconstruction tests.
 
 PSFs are simulated once per session (about 1 s each): a 256 x 256 px FLFM camera with
-5 depths 10 um apart (volume 5 x 93 x 93; the sensor cuts the outer sub-images), and a 10x/0.3 conventional LFM on 6 x 6
-lenslets with 3 depths 20 um apart (volume 3 x 30 x 30, image 114 x 114).
+5 depths 10 um apart (volume 5 x 93 x 93; the sensor cuts the outer sub-images), and a
+10x/0.3 conventional LFM on 6 x 6 lenslets with 3 depths 20 um apart (volume 3 x 30 x 30,
+image 114 x 114).
 """
 
 from __future__ import annotations

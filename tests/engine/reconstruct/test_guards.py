@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
-from lfm_studio.engine.reconstruct import poisson_nll, richardson_lucy
+from lfm_studio.engine.reconstruct import poisson_nll, richardson_lucy, richardson_lucy_iterates
 
 
 class _ZeroProjector:
@@ -57,6 +57,11 @@ def _with(image, index, value):
 def test_bad_images_are_rejected_by_name(projector, image, change, message):
     with pytest.raises(ValueError, match=message):
         richardson_lucy(projector, change(image), iterations=2)
+
+
+def test_inputs_are_checked_when_the_iterator_is_created(projector, image):
+    with pytest.raises(ValueError, match="image contains 1 NaN/Inf"):
+        richardson_lucy_iterates(projector, _with(image, (0, 0), float("nan")))  # no next() needed
 
 
 def test_rounding_level_negatives_are_accepted_as_zero(projector, image):

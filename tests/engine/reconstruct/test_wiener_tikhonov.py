@@ -119,11 +119,10 @@ def test_tikhonov_closed_form_equals_a_dense_solve_of_the_window_model(tiny, mu)
 def test_tikhonov_refined_equals_the_dense_solve_of_the_projector(tiny):
     projector, image = tiny
     n = int(np.prod(projector.volume_shape))
+    units = torch.eye(n, dtype=torch.float64).reshape(n, *projector.volume_shape)
     a = np.stack(
-        [projector.forward(torch.eye(n, dtype=torch.float64)[i].reshape(projector.volume_shape)).numpy().ravel()
-         for i in range(n)],
-        axis=1,
-    )  # fmt: skip
+        [projector.forward(unit).numpy().ravel() for unit in units], axis=1
+    )  # dense A, column by column
     mu = 1e-2
     mu_abs = mu * float((projector.otf.abs() ** 2).sum(0).max())
     expected = np.linalg.solve(a.T @ a + mu_abs * np.eye(n), a.T @ image.numpy().ravel()).reshape(
