@@ -150,8 +150,9 @@ def test_psf_file_is_imagej_hyperstack_with_physical_scale(tmp_path):
         assert meta["Labels"][0] == "z=-30 um" and meta["Labels"][3] == "z=7.3 um"
         # lateral scale: sample-side pixel = 6.5 um / (20 / 1.3) = 0.4225 um
         xres, yres = tif.pages.first.resolution
-        assert 1 / xres == pytest.approx(0.4225, rel=RATIONAL_RTOL)
-        assert 1 / yres == pytest.approx(0.4225, rel=RATIONAL_RTOL)
+        pixel_x_um, pixel_y_um = 1 / xres, 1 / yres
+        assert pixel_x_um == pytest.approx(0.4225, rel=RATIONAL_RTOL)
+        assert pixel_y_um == pytest.approx(0.4225, rel=RATIONAL_RTOL)
         assert tif.pages.first.dtype == np.float32
         info = json.loads(meta["Info"])
     assert info["format"] == "lfm_studio" and info["kind"] == "psf_stack" and info["schema_version"] == 1
