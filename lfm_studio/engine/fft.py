@@ -70,3 +70,23 @@ def centered_power(x: torch.Tensor) -> torch.Tensor:
         checker = (1 - 2 * ((iy + ix) % 2)).to(x.real.dtype if x.is_complex() else x.dtype)
         spectrum = fft2(x * checker)
     return spectrum.real**2 + spectrum.imag**2
+
+
+def rfft_along(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """Unnormalised real-input 1D DFT of length ``n`` (zero-padded) along ``dim``."""
+    return torch.fft.rfft(x, n=n, dim=dim, norm="backward")
+
+
+def fft_along(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """Unnormalised complex 1D DFT of length ``n`` (zero-padded) along ``dim``."""
+    return torch.fft.fft(x, n=n, dim=dim, norm="backward")
+
+
+def ifft_along_unscaled(x: torch.Tensor, dim: int) -> torch.Tensor:
+    """Inverse 1D DFT along ``dim`` *without* the ``1/n`` (the caller applies the scale once)."""
+    return torch.fft.ifft(x, dim=dim, norm="forward")
+
+
+def irfft_along_unscaled(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
+    """Inverse of :func:`rfft_along` (real output of length ``n``) *without* the ``1/n``."""
+    return torch.fft.irfft(x, n=n, dim=dim, norm="forward")

@@ -64,3 +64,16 @@ def test_matches_numpy_convention_and_centering():
     delta = torch.zeros(6, 5, dtype=torch.complex128)
     delta[3, 2] = 1.0
     assert torch.allclose(fft.centered_fft2(delta), torch.ones(6, 5, dtype=torch.complex128))
+
+
+@pytest.mark.parametrize("n", [2048, 2400, 1000])
+def test_separable_1d_transforms_equal_the_2d_real_transform(threads, n):
+    # The projector applies rfft along x then fft along y (unscaled), and the inverses
+    # unscaled with one 1/N: this must equal rfft2 / irfft2 at every size, incl. 2048.
+    gen = torch.Generator().manual_seed(n)
+    x = torch.randn(3, 64, n, generator=gen)
+    spectrum = fft.fft_along(fft.rfft_along(x, n, dim=-1), 128, dim=-2)
+    reference = fft.rfft2(torch.nn.functional.pad(x, (0, 0, 0, 64)))
+    assert float((spectrum - reference).abs().max() / reference.abs().max()) < 1e-5
+    back = fft.irfft_along_unscaled(fft.ifft_along_unscaled(spectrum, dim=-2), n, dim=-1) / (128 * n)
+    assert float((back[:, :64] - x).abs().max() / x.abs().max()) < 1e-5

@@ -63,9 +63,15 @@ class ShiftInvariantProjector:
         self.fft_shape = (next_fast_length(self.full_shape[0]), next_fast_length(self.full_shape[1]))
         self.dtype, self.device = psf.dtype, psf.device
         self.depth_chunk = depth_chunk or self._default_chunk()
-        padded = torch.zeros((self.depths, *self.fft_shape), dtype=psf.dtype, device=psf.device)
-        padded[:, : self.psf_shape[0], : self.psf_shape[1]] = psf
-        self.otf = fft.rfft2(padded)  # (Z, Fy, Fx//2+1)
+        fy, fx = self.fft_shape
+        # OTFs stored transposed, (Z, Fx//2+1, Fy): every 1D pass runs along contiguous memory.
+        rows = fft.rfft_along(psf, fx, dim=-1).transpose(-2, -1).contiguous()
+        self.otf_t = fft.fft_along(rows, fy, dim=-1)
+
+    @property
+    def otf(self) -> torch.Tensor:
+        """PSF spectra ``(Z, Fy, Fx//2+1)`` of the zero-padded PSFs (the ``rfft2`` layout; a view)."""
+        return self.otf_t.transpose(-2, -1)
 
     def _default_chunk(self) -> int:
         if self.device.type != "cpu":
@@ -90,39 +96,46 @@ class ShiftInvariantProjector:
             yield slice(start, min(self.depths, start + self.depth_chunk))
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        """``A x``: volume ``(Z, Vy, Vx)`` -> image ``(Py, Px)``."""
+        """``A x``: volume ``(Z, Vy, Vx)`` -> image ``(Py, Px)``.
+
+        Pruned transforms: a slice fills only ``Vy`` of the ``Fy`` window rows, so the row
+        ``rfft`` runs on those rows; the inverse column transform is cropped to the sensor
+        rows before the last ``irfft``.
+        """
         if tuple(volume.shape) != self.volume_shape:
             raise ValueError(
                 f"volume must have shape {self.volume_shape} (Z, Vy, Vx); got {tuple(volume.shape)}."
             )
         volume = volume.to(device=self.device, dtype=self.dtype)
+        fy, fx = self.fft_shape
         total = None
         for part in self._chunks():
-            spectrum = fft.rfft2(self._embed(volume[part], self.lateral_shape))
-            term = (spectrum * self.otf[part]).sum(dim=0)
+            rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1).contiguous()  # (c, Kx, Vy)
+            term = (fft.fft_along(rows, fy, dim=-1) * self.otf_t[part]).sum(dim=0)  # (Kx, Fy)
             total = term if total is None else total + term
-        full = fft.irfft2(total, s=self.fft_shape)
         oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
         ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
-        return full[oy : oy + self.psf_shape[0], ox : ox + self.psf_shape[1]]
+        columns = fft.ifft_along_unscaled(total, dim=-1)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
+        image = fft.irfft_along_unscaled(columns.transpose(0, 1).contiguous(), fx, dim=-1)
+        return image[:, ox : ox + self.psf_shape[1]] * (1.0 / (fy * fx))
 
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:
         """``A^T y``: image ``(Py, Px)`` -> volume ``(Z, Vy, Vx)`` (exact transpose of :meth:`forward`)."""
         if tuple(image.shape) != self.psf_shape:
             raise ValueError(f"image must have shape {self.psf_shape} (Py, Px); got {tuple(image.shape)}.")
         image = image.to(device=self.device, dtype=self.dtype)
-        oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
-        ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
-        embedded = torch.zeros(self.fft_shape, dtype=self.dtype, device=self.device)
-        embedded[oy : oy + self.psf_shape[0], ox : ox + self.psf_shape[1]] = image
-        spectrum = fft.rfft2(embedded)
+        fy, fx = self.fft_shape
+        (py, px), (vy, vx) = self.psf_shape, self.lateral_shape
+        oy = _centre_offset(self.full_shape[0], py)
+        ox = _centre_offset(self.full_shape[1], px)
+        rows = fft.rfft_along(torch.nn.functional.pad(image, (ox, fx - ox - px)), fx, dim=-1)  # (Py, Kx)
+        rows = torch.nn.functional.pad(rows.transpose(0, 1), (oy, fy - oy - py))  # (Kx, Fy), image rows at oy
+        spectrum = fft.fft_along(rows, fy, dim=-1)
         parts = []
         for part in self._chunks():
-            corr = fft.irfft2(spectrum * self.otf[part].conj(), s=self.fft_shape)
-            parts.append(corr[:, : self.lateral_shape[0], : self.lateral_shape[1]])
-        return torch.cat(parts, dim=0)
-
-    def _embed(self, block: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
-        out = torch.zeros((block.shape[0], *self.fft_shape), dtype=self.dtype, device=self.device)
-        out[:, : shape[0], : shape[1]] = block
-        return out
+            columns = fft.ifft_along_unscaled(spectrum * self.otf_t[part].conj(), dim=-1)[
+                ..., :vy
+            ]  # (c, Kx, Vy)
+            back = fft.irfft_along_unscaled(columns.transpose(-2, -1).contiguous(), fx, dim=-1)[..., :vx]
+            parts.append(back)
+        return torch.cat(parts, dim=0) * (1.0 / (fy * fx))
