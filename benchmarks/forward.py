@@ -14,12 +14,13 @@ error column is the relative L2 error of the per-lenslet stack against it, per d
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 
 import torch
 
 from lfm_studio.engine.design import load_preset
-from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, FourierPSFReport, fourier_psf_stack
+from lfm_studio.engine.systems.fourier_psf import FourierPSFReport, fourier_psf_stack
 from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
 
 
@@ -102,14 +103,12 @@ def main() -> None:
     fast = fourier_psf_stack(
         system,
         depths,
-        accuracy=FourierAccuracy(**{**accuracy.__dict__, "method": "per_lenslet"}),
+        accuracy=dataclasses.replace(accuracy, method="per_lenslet"),
         report=report,
     )
     t_fast = time.perf_counter() - t0
 
-    full_acc = FourierAccuracy(
-        **{**accuracy.__dict__, "method": "full_field", "propagator": "bandlimited_asm"}
-    )
+    full_acc = dataclasses.replace(accuracy, method="full_field", propagator="bandlimited_asm")
     t0 = time.perf_counter()
     full = fourier_psf_stack(system, ref_depths, accuracy=full_acc)
     t_full_per_depth = (time.perf_counter() - t0) / len(ref_depths)

@@ -30,3 +30,13 @@ def real_dtype(dtype: torch.dtype) -> torch.dtype:
             "Fix: use torch.float32 for speed or torch.float64 for reference accuracy."
         )
     return _REAL_OF[dtype]
+
+
+_BY_NAME = {"float32": torch.float32, "float64": torch.float64}
+
+
+def real_dtype_named(name: str) -> torch.dtype:
+    """``torch.float32`` or ``torch.float64`` from the name used in design files and the CLI."""
+    if name not in _BY_NAME:
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {name!r}.")
+    return _BY_NAME[name]

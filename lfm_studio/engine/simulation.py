@@ -7,11 +7,12 @@ light-field image with camera noise. Each step is a plain function; none imports
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.operators import ShiftInvariantProjector
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
@@ -19,7 +20,7 @@ from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
-from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, fourier_psf_stack
+from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
 from lfm_studio.engine.systems.from_design import (
     conventional_system_of,
     fourier_accuracy_of,
@@ -27,7 +28,6 @@ from lfm_studio.engine.systems.from_design import (
 )
 
 Projector = ShiftInvariantProjector | LensletLatticeProjector
-_DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
 def design_depths(design: Design, depths_um: tuple[float, float, float] | None = None) -> tuple[float, ...]:
@@ -58,13 +58,13 @@ def simulate_psf(
     if design.kind == "fourier":
         accuracy = fourier_accuracy_of(design)
         if dtype is not None:
-            accuracy = FourierAccuracy(**{**accuracy.__dict__, "dtype": _DTYPES[dtype]})
+            accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
         return fourier_psf_stack(
             fourier_system_of(design), depths, accuracy=accuracy, device=device,
             progress=progress, cancel=cancel, design=design,
         )  # fmt: skip
     system = conventional_system_of(design)
-    real = _DTYPES[dtype or design.accuracy.dtype]
+    real = real_dtype_named(dtype or design.accuracy.dtype)
     return conventional_psf_stack(
         system, depths, dtype=real, device=device, progress=progress, cancel=cancel, design=design
     )

@@ -6,16 +6,13 @@ objects; each spec already converts its own units (``spec.focal_length`` in metr
 
 from __future__ import annotations
 
-import torch
-
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
-
-_DTYPES = {"float32": torch.float32, "float64": torch.float64}
 
 
 def objective_of(design: Design) -> ObjectiveLens:
@@ -56,7 +53,7 @@ def fourier_accuracy_of(design: Design) -> FourierAccuracy:
     return FourierAccuracy(
         oversampling=max(1, int(spec.oversampling)),
         model=spec.objective_model,
-        dtype=_DTYPES[spec.dtype],
+        dtype=real_dtype_named(spec.dtype),
         method="auto" if spec.per_lenslet else "full_field",
         depth_chunk=spec.depth_chunk,
         propagator=spec.propagator,
