@@ -242,9 +242,9 @@ def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
 def reconstruct(
     ctx: Context, design: Design, image: ImageResult, settings: WorkflowSettings
 ) -> ReconstructionResult:
-    """Richardson-Lucy (Biggs-Andrews accelerated) of the image; PSNR per iteration and final PSNR/SSIM."""
+    """Accelerated Richardson-Lucy (accelerated_rl_options) of the image; PSNR per iteration and final PSNR/SSIM."""
     from lfm_studio.engine.metrics import compare, match_scale, psnr
-    from lfm_studio.engine.reconstruct import richardson_lucy_iterates
+    from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy_iterates
 
     projector = image.setup.projector
     counts = photon_counts(image, design)
@@ -254,8 +254,8 @@ def reconstruct(
     changes: list[float] = []
     estimate = None
     iterates = richardson_lucy_iterates(
-        projector, counts.to(_device_of(projector)), iterations=total, acceleration="biggs-andrews",
-        progress=_rl_progress(ctx), cancel=ctx.cancel,
+        projector, counts.to(_device_of(projector)), iterations=total, progress=_rl_progress(ctx),
+        cancel=ctx.cancel, **accelerated_rl_options(projector),
     )  # fmt: skip
     for it in iterates:
         estimate = it.estimate.detach().cpu()

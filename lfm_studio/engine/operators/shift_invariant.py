@@ -121,8 +121,22 @@ class ShiftInvariantProjector:
 
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:
         """``A^T y``: image ``(Py, Px)`` -> volume ``(Z, Vy, Vx)`` (exact transpose of :meth:`forward`)."""
+        return self.filtered_adjoint(image, self.otf_t.conj())
+
+    def filtered_adjoint(self, image: torch.Tensor, filters_t: torch.Tensor) -> torch.Tensor:
+        """``crop(irfft2(filters_z * rfft2(embed(y))))`` per depth: image ``(Py, Px)`` -> ``(Z, Vy, Vx)``.
+
+        ``filters_t`` are per-depth spectra in the transposed layout of :attr:`otf_t`,
+        ``(Z, Fx//2+1, Fy)``; ``conj(otf_t)`` gives :meth:`adjoint`, other filters give
+        unmatched back projectors (Wiener-Butterworth) at the same cost (pruned transforms).
+        """
         if tuple(image.shape) != self.psf_shape:
             raise ValueError(f"image must have shape {self.psf_shape} (Py, Px); got {tuple(image.shape)}.")
+        if tuple(filters_t.shape) != tuple(self.otf_t.shape):
+            raise ValueError(
+                f"filters_t must have the shape of otf_t {tuple(self.otf_t.shape)} (Z, Fx//2+1, Fy); "
+                f"got {tuple(filters_t.shape)}."
+            )
         image = image.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
         (py, px), (vy, vx) = self.psf_shape, self.lateral_shape
@@ -133,9 +147,7 @@ class ShiftInvariantProjector:
         spectrum = fft.fft_along(rows, fy, dim=-1)
         parts = []
         for part in self._chunks():
-            columns = fft.ifft_along_unscaled(spectrum * self.otf_t[part].conj(), dim=-1)[
-                ..., :vy
-            ]  # (c, Kx, Vy)
+            columns = fft.ifft_along_unscaled(spectrum * filters_t[part], dim=-1)[..., :vy]  # (c, Kx, Vy)
             back = fft.irfft_along_unscaled(columns.transpose(-2, -1).contiguous(), fx, dim=-1)[..., :vx]
             parts.append(back)
         return torch.cat(parts, dim=0) * (1.0 / (fy * fx))

@@ -7,12 +7,15 @@ its device.
 
 Example::
 
-    from lfm_studio.engine.reconstruct import richardson_lucy, richardson_lucy_iterates
+    from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy, richardson_lucy_iterates
 
     volume = richardson_lucy(setup.projector, image, iterations=30)
-    for it in richardson_lucy_iterates(setup.projector, image, acceleration="biggs-andrews",
+    for it in richardson_lucy_iterates(setup.projector, image, acceleration="geometric",
                                        iterations=50, rtol=1e-3, progress=report, cancel=event):
         show(it.index, it.estimate, it.relative_change)
+
+    fastest = accelerated_rl_options(setup.projector)            # geometric + Wiener-Butterworth
+    volume = richardson_lucy(setup.projector, image, iterations=10, **fastest)
 
     bp = wiener_butterworth_backprojector(setup.projector)      # Guo et al. 2020
     fast = richardson_lucy(setup.projector, image, backprojector=bp, iterations=3)
@@ -24,6 +27,7 @@ from lfm_studio.engine.reconstruct.backprojectors import (
     FilteredBackProjector,
     wiener_butterworth_backprojector,
 )
+from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
 from lfm_studio.engine.reconstruct.richardson_lucy import (
     Iterate,
     poisson_nll,
@@ -36,6 +40,7 @@ from lfm_studio.engine.reconstruct.wiener import wiener
 __all__ = [
     "FilteredBackProjector",
     "Iterate",
+    "accelerated_rl_options",
     "poisson_nll",
     "richardson_lucy",
     "richardson_lucy_iterates",

@@ -14,6 +14,21 @@ iteration costs (one forward and one back projection) plus a few vector operatio
 The cap ``ALPHA_MAX < 1`` keeps the extrapolation from running away; the clamp to 0
 of the prediction keeps the estimate non-negative (a voxel predicted at 0 stays 0,
 as in the original algorithm).
+
+:class:`GeometricExtrapolation` (``acceleration="geometric"``) applies the same rule to
+the *logarithm* of the estimate. An RL update multiplies every voxel by a factor, and
+in the tail of a reconstruction those factors repeat: background voxels shrink and
+bead voxels grow geometrically, ``x_k ~ c r^k``. Linear extrapolation follows such a
+sequence only slowly and must clip overshoots at 0; extrapolating ``log x`` follows it
+exactly and stays positive without clipping:
+
+    y_k = x_k * (x_k / x_{k-1})^alpha_k,     g_k = log(x_{k+1} / y_k)
+
+with ``alpha`` from the ``g`` as above. Measured on the FLFM beads problem of
+``benchmarks/reconstruct.py`` (noise-free, 512 px, 9 depths): the PSNR of 30 plain
+iterations was reached after 15 linear and 11 geometric iterations; that of 100 plain
+iterations after 32 and 20. Log steps are clipped at ``+-LOG_STEP_MAX`` (a factor of
+about 3000 per extrapolation) so no float32 value can overflow.
 """
 
 from __future__ import annotations
@@ -23,6 +38,7 @@ import math
 import torch
 
 ALPHA_MAX = 0.99  # [0, 1) as in Biggs & Andrews; 1 would extrapolate without damping
+LOG_STEP_MAX = 8.0  # largest |log(x_k / x_{k-1})| extrapolated (geometric form), e^8 ~ 3000
 
 
 class BiggsAndrews:
@@ -58,3 +74,28 @@ class BiggsAndrews:
         if not denominator > 0:
             return 0.0
         return min(max(numerator / denominator, 0.0), ALPHA_MAX)
+
+
+class GeometricExtrapolation(BiggsAndrews):
+    """Biggs-Andrews extrapolation of ``log x``: ``y_k = x_k (x_k / x_{k-1})^alpha`` (see module notes)."""
+
+    def predict(self, current: torch.Tensor) -> torch.Tensor:
+        """``y_k``; voxels at 0 (now or in the previous iterate) are not extrapolated."""
+        self.alpha = self._alpha()
+        if self.previous is None or self.alpha == 0.0:
+            return current
+        ratio = _log_ratio(current, self.previous).clamp(-LOG_STEP_MAX, LOG_STEP_MAX)
+        return current * torch.exp(self.alpha * ratio)
+
+    def record(self, previous: torch.Tensor, point: torch.Tensor, update: torch.Tensor) -> None:
+        """Remember ``x_k`` and the log step ``g_k = log(update / point)`` (0 where either is 0)."""
+        self.previous = previous
+        self.older_step, self.step = self.step, _log_ratio(update, point)
+
+
+def _log_ratio(numerator: torch.Tensor, denominator: torch.Tensor) -> torch.Tensor:
+    """``log(numerator / denominator)`` where both are > 0, else 0."""
+    both = (numerator > 0) & (denominator > 0)
+    tiny = torch.finfo(numerator.dtype).tiny
+    ratio = torch.log(numerator.clamp_min(tiny)) - torch.log(denominator.clamp_min(tiny))
+    return torch.where(both, ratio, torch.zeros_like(ratio))

@@ -59,7 +59,9 @@ class FilteredBackProjector:
     """A back projector ``image (Py, Px) -> volume (Z, Vy, Vx)`` with its own per-depth filters.
 
     ``B y = crop(irfft2(filters[z] * rfft2(embed(y))))`` on the projector's FFT window;
-    ``filters = conj(projector.otf)`` gives exactly ``projector.adjoint``.
+    ``filters = conj(projector.otf)`` gives exactly ``projector.adjoint``. With a projector
+    that has ``filtered_adjoint`` (:class:`ShiftInvariantProjector`), ``B`` runs through its
+    pruned transforms and costs what ``A^T`` costs.
     """
 
     uses_adjoint_sensitivity = True  # RL divides by A^T 1: the filters have the DC gain of A^T
@@ -73,6 +75,10 @@ class FilteredBackProjector:
             )
         self.projector = projector
         self.filters = filters
+        # The projector's transposed layout (Z, Fx//2+1, Fy), made contiguous once.
+        self._filters_t = (
+            filters.transpose(-2, -1).contiguous() if hasattr(projector, "filtered_adjoint") else None
+        )
 
     @property
     def volume_shape(self) -> tuple[int, int, int]:
@@ -85,6 +91,8 @@ class FilteredBackProjector:
     def __call__(self, image: torch.Tensor) -> torch.Tensor:
         """Back-project ``image`` ``(Py, Px)`` to a volume ``(Z, Vy, Vx)``."""
         image = image.to(device=self.filters.device, dtype=self.projector.otf.real.dtype)
+        if self._filters_t is not None:
+            return self.projector.filtered_adjoint(image, self._filters_t)
         return filter_to_volume(self.projector, image_spectrum(self.projector, image), self.filters)
 
 
@@ -157,4 +165,7 @@ def wiener_butterworth_backprojector(
     eps2 = max(at_cutoff**2 / beta**2 - 1.0, 0.0)
     butterworth = 1.0 / torch.sqrt(1.0 + eps2 * (radius / k_c) ** (2 * order))
     scale = (gain * butterworth / (gain[0, 0] * butterworth[0, 0])).to(otf.real.dtype)  # DC gain of A^T
+    transposed = getattr(projector, "otf_t", None)
+    if transposed is not None:  # build in the projector's contiguous (Z, Kx, Fy) layout: no copy later
+        return FilteredBackProjector(projector, (transposed.detach().conj() * scale.T).transpose(-2, -1))
     return FilteredBackProjector(projector, (otf.conj() * scale).resolve_conj())

@@ -42,13 +42,19 @@ from lfm_studio.engine.reconstruct.guards import check_image, relative_floor
 
 
 def otf_power(projector: Any) -> torch.Tensor:
-    """``|H_k|^2 = sum_z |H_z(k)|^2`` on the rfft grid ``(Fy, Fx//2+1)``, float64."""
+    """``|H_k|^2 = sum_z |H_z(k)|^2`` on the rfft grid ``(Fy, Fx//2+1)``, float64.
+
+    Reads the projector's contiguous transposed spectra ``otf_t`` when it has them (a
+    strided pass over the ``otf`` view was 5x slower) and returns a transposed view then.
+    """
+    transposed = getattr(projector, "otf_t", None)
+    spectra = transposed if transposed is not None else projector.otf
     total = None
     for part in depth_chunks(projector):
-        h = projector.otf[part]
-        term = (h.real.double() ** 2 + h.imag.double() ** 2).sum(dim=0)
+        h = spectra[part]
+        term = (h.real.square() + h.imag.square()).sum(dim=0).double()  # squares in the OTF's precision
         total = term if total is None else total + term
-    return total
+    return total.transpose(0, 1) if transposed is not None else total
 
 
 def check_mu(mu: float, *, refine: int) -> float:

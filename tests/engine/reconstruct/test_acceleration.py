@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 
 from lfm_studio.engine.reconstruct import (
     FilteredBackProjector,
+    accelerated_rl_options,
     richardson_lucy,
     richardson_lucy_iterates,
     wiener_butterworth_backprojector,
 )
+from lfm_studio.engine.reconstruct.accelerated import ALPHA_MAX, LOG_STEP_MAX, GeometricExtrapolation
 from lfm_studio.engine.reconstruct.fourier_geometry import radial_frequency
 from lfm_studio.engine.reconstruct.tikhonov import otf_power
 from lfm_studio.engine.reconstruct.total_variation import DIVERGENCE_BOUND, tv_denominator, tv_divergence
@@ -33,13 +37,16 @@ def _iterations_to_reach(target: float, truth, iterates) -> int | None:
     ("options", "at_most"),
     [
         # Measured on this system (3 beads, noise-free): plain RL needs 30 iterations for its PSNR;
-        # Biggs-Andrews 14, Wiener-Butterworth (alpha 1) 17, both together 13. Bounds leave room
-        # for rounding differences but stay well below 30.
+        # Biggs-Andrews 14, Wiener-Butterworth (alpha 1) 17, both together 13, geometric 10,
+        # accelerated_rl_options (geometric + WB alpha 0.7) 9. Bounds leave room for rounding
+        # differences; the geometric bounds also sit below Biggs-Andrews' measured 14.
         ({"acceleration": "biggs-andrews"}, 18),
         ({"backprojector": "wb"}, 22),
         ({"backprojector": "wb", "acceleration": "biggs-andrews"}, 18),
+        ({"acceleration": "geometric"}, 12),
+        ({"recommended": True}, 11),
     ],
-    ids=["biggs-andrews", "wiener-butterworth", "both"],
+    ids=["biggs-andrews", "wiener-butterworth", "both", "geometric", "accelerated-rl-options"],
 )
 def test_faster_methods_reach_plain_rl_30_quality_in_fewer_iterations(
     fourier, beads_problem, options, at_most
@@ -48,6 +55,8 @@ def test_faster_methods_reach_plain_rl_30_quality_in_fewer_iterations(
     projector = fourier.setup.projector
     if options.get("backprojector") == "wb":
         options = {**options, "backprojector": wiener_butterworth_backprojector(projector)}
+    if options.get("recommended"):
+        options = accelerated_rl_options(projector)
     iterates = richardson_lucy_iterates(projector, image, iterations=30, **options)
     reached = _iterations_to_reach(target, truth, iterates)
     assert reached is not None and reached <= at_most, f"reached plain-30 PSNR {target:.2f} dB at {reached}"
@@ -62,6 +71,56 @@ def test_biggs_andrews_extrapolates_and_keeps_estimates_non_negative(fourier, be
     assert alphas[:2] == [0.0, 0.0]  # no history for the first two updates
     assert all(0.0 <= a < 1.0 for a in alphas) and max(alphas) > 0.3
     assert all(bool((it.estimate >= 0).all()) for it in iterates)
+
+
+def test_geometric_extrapolation_continues_a_geometric_sequence():
+    # Voxels multiplied by a constant factor r per RL step (the tail of an RL run): the log
+    # steps are equal, alpha reaches its cap and the prediction is x_k (x_k / x_(k-1))^alpha,
+    # i.e. log x extrapolated linearly (x_k / x_(k-1) = r^(1 + alpha) once extrapolating).
+    ratios = torch.tensor([0.5, 1.0, 1.25, 3.0], dtype=torch.float64)
+    extrapolation = GeometricExtrapolation()
+    previous, x = None, torch.ones(4, dtype=torch.float64)
+    for _ in range(3):
+        point = extrapolation.predict(x)
+        update = point * ratios  # an "RL step" multiplying by r
+        extrapolation.record(x, point, update)
+        previous, x = x, update
+    point = extrapolation.predict(x)
+    assert extrapolation.alpha == ALPHA_MAX
+    torch.testing.assert_close(point, x * (x / previous) ** ALPHA_MAX, rtol=1e-12, atol=0.0)
+    torch.testing.assert_close(
+        point.log(), x.log() + ALPHA_MAX * (x.log() - previous.log()), rtol=1e-12, atol=1e-12
+    )
+
+
+def test_geometric_extrapolation_keeps_zeros_and_bounds_huge_steps_in_float32():
+    extrapolation = GeometricExtrapolation()
+    x = torch.tensor([0.0, 1e-30, 1.0, 3e30], dtype=torch.float32)
+    steps = torch.tensor([1.0, 1e20, 2.0, 10.0], dtype=torch.float32)
+    for _ in range(3):
+        point = extrapolation.predict(x)
+        update = (point * steps).clamp_max(3e38)
+        extrapolation.record(x, point, update)
+        x = update
+    point = extrapolation.predict(x)
+    assert bool(torch.isfinite(point).all()) and bool((point >= 0).all())
+    assert float(point[0]) == 0.0  # RL keeps a zero voxel at zero; so does the extrapolation
+    # |log step| is clipped at LOG_STEP_MAX: the 1e20x step extrapolates by at most e^8.
+    assert float(point[1] / x[1]) <= math.exp(LOG_STEP_MAX) * (1 + 1e-5)
+
+
+def test_accelerated_rl_options_pick_what_each_projector_supports(fourier, conventional):
+    fourier_options = accelerated_rl_options(fourier.setup.projector)
+    assert fourier_options["acceleration"] == "geometric"
+    assert isinstance(fourier_options["backprojector"], FilteredBackProjector)
+    assert accelerated_rl_options(conventional.setup.projector) == {"acceleration": "geometric"}
+
+
+def test_filtered_adjoint_rejects_filters_of_the_wrong_shape(fourier):
+    projector = fourier.setup.projector
+    image = torch.zeros(projector.image_shape)
+    with pytest.raises(ValueError, match=r"filters_t must have the shape of otf_t"):
+        projector.filtered_adjoint(image, projector.otf_t[:1])
 
 
 def test_matched_filter_reproduces_the_projector_adjoint(fourier):

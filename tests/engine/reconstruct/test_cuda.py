@@ -29,8 +29,8 @@ def _close(cpu: torch.Tensor, cuda: torch.Tensor) -> bool:
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"acceleration": "biggs-andrews"}, {"backprojector": "wb"}, {"tv_weight": 0.01}],
-    ids=["plain", "biggs-andrews", "wiener-butterworth", "tv"],
+    [{}, {"acceleration": "biggs-andrews"}, {"acceleration": "geometric"}, {"backprojector": "wb"}, {"tv_weight": 0.01}],
+    ids=["plain", "biggs-andrews", "geometric", "wiener-butterworth", "tv"],
 )
 def test_fourier_richardson_lucy_cpu_equals_cuda(fourier, options):
     cpu_projector = fourier.setup64.projector

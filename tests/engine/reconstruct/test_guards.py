@@ -81,7 +81,7 @@ def test_rounding_level_negatives_are_accepted_as_zero(projector, image):
         ({"initial": torch.ones(1, 2, 3)}, r"initial must have shape \(3, 30, 30\)"),
         ({"iterations": 0}, r"iterations must be an int >= 1"),
         ({"rtol": -1.0}, r"rtol must be a finite number > 0"),
-        ({"acceleration": "nesterov"}, r"acceleration must be None or 'biggs-andrews'"),
+        ({"acceleration": "nesterov"}, r"acceleration must be None, 'biggs-andrews' or 'geometric'"),
         ({"tv_weight": -0.1}, r"tv_weight must be in \[0, 0.2113\)"),
     ],
 )
