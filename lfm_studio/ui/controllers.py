@@ -13,6 +13,7 @@ a job succeeded and is still current (:mod:`lfm_studio.ui.jobs`).
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any
 
 from qtpy.QtCore import QObject, QTimer
@@ -328,21 +329,31 @@ class ViewerBinding(QObject):
         state.image_changed.disconnect(self._on_image)
         state.reconstruction_changed.disconnect(self._on_reconstruction)
 
+    # Results carry display data prepared on the worker thread (range, max-pooled pyramid: about
+    # a second for a 64 x 2048 x 2048 stack); a viewer without show_display gets the raw data.
+    def _show(self, display: Any, fallback: Any) -> None:
+        if display is not None and hasattr(self.viewer, "show_display"):
+            self.viewer.show_display(display)
+        else:
+            fallback()
+
     def _on_psf(self, result: PSFResult | None) -> None:
         if result is None:
             self.viewer.clear()
         else:
-            self.viewer.show_psf(result.stack)
+            self._show(result.display, partial(self.viewer.show_psf, result.stack))
 
     def _on_preview(self, result: PSFResult | None) -> None:
         psf = self.state.psf
         if result is not None and (psf is None or psf.design != result.design):
-            self.viewer.show_psf(result.stack)
+            self._show(result.display, partial(self.viewer.show_psf, result.stack))
 
     def _on_image(self, result: ImageResult | None) -> None:
         if result is not None:
-            self.viewer.show_image(result.counts, result.pixel_size, name="light field")
+            show = partial(self.viewer.show_image, result.counts, result.pixel_size, name="light field")
+            self._show(result.display, show)
 
     def _on_reconstruction(self, result: ReconstructionResult | None) -> None:
         if result is not None:
-            self.viewer.show_volume(result.volume, result.voxel_size, name="reconstruction")
+            show = partial(self.viewer.show_volume, result.volume, result.voxel_size, name="reconstruction")
+            self._show(result.display, show)

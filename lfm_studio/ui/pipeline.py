@@ -26,6 +26,7 @@ from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_s
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui.edits import try_changes
 from lfm_studio.ui.results import ImageResult, PSFProfiles, PSFResult, ReconstructionResult, WorkflowSettings
+from lfm_studio.widgets.display_data import image_display, psf_display, volume_display
 
 PREVIEW_DEPTHS = 5  # depths of the quick preview (spread over the design's range)
 PREVIEW_BINNING_FROM = 1024  # sensors with at least this many pixels per side are binned 2x for the preview
@@ -128,8 +129,9 @@ def _psf_result(
     stack = stack.with_data(stack.data.detach().cpu())
     ctx.check()
     return PSFResult(
-        design, stack, preview, method, computed, cached, psf_profiles(stack), time.perf_counter() - start
-    )
+        design, stack, preview, method, computed, cached, psf_profiles(stack), time.perf_counter() - start,
+        display=psf_display(stack, "PSF"),
+    )  # fmt: skip
 
 
 def compute_psf(ctx: Context, request: PSFRequest, cache: LensletCache | None) -> PSFResult:
@@ -217,9 +219,10 @@ def simulate_image(
     )
     ctx.progress(3, 3, "image: done")
     info = {**info, "photons": settings.photons}
+    counts = counts.detach().cpu()
     return ImageResult(
-        counts.detach().cpu(), expected.detach().cpu(), volume.detach().cpu(), tuple(setup.voxel_size),
-        stack.pixel_size, setup, info,
+        counts, expected.detach().cpu(), volume.detach().cpu(), tuple(setup.voxel_size),
+        stack.pixel_size, setup, info, display=image_display(counts, stack.pixel_size, "light field"),
     )  # fmt: skip
 
 
@@ -273,6 +276,7 @@ def reconstruct(
         tuple(changes),
         float(report.psnr),
         float(report.ssim),
+        display=volume_display(estimate, image.voxel_size, "reconstruction"),
     )
 
 

@@ -51,6 +51,7 @@ class PSFResult:
     lenslets_computed, lenslets_cached : per-lenslet cache use (Fourier per-lenslet path).
     profiles : for the plots.
     seconds : wall time of the computation.
+    display : the stack prepared for the viewer on the worker thread (``psf_display``), or None.
     """
 
     design: Design
@@ -61,6 +62,7 @@ class PSFResult:
     lenslets_cached: tuple[int, ...] = ()
     profiles: PSFProfiles | None = None
     seconds: float = 0.0
+    display: Any = None
 
 
 @dataclass(frozen=True)
@@ -76,6 +78,7 @@ class ImageResult:
     pixel_size : sensor pixel pitch, metres.
     setup : the :class:`~lfm_studio.engine.simulation.ImagingSetup` (reused by the reconstruction).
     info : phantom description (kind, seed, object count, photons).
+    display : ``counts`` prepared for the viewer on the worker thread (``image_display``), or None.
     """
 
     counts: torch.Tensor
@@ -85,6 +88,7 @@ class ImageResult:
     pixel_size: float
     setup: Any
     info: dict[str, Any] = field(default_factory=dict)
+    display: Any = None
 
 
 @dataclass(frozen=True)
@@ -99,6 +103,7 @@ class ReconstructionResult:
     psnr_curve : PSNR (dB) after each iteration (empty without a ground truth).
     change_curve : relative change ``|x_k - x_{k-1}| / |x_{k-1}|`` after each iteration.
     psnr, ssim : final quality against the ground truth (None when it cannot be computed).
+    display : ``volume`` prepared for the viewer on the worker thread (``volume_display``), or None.
     """
 
     volume: torch.Tensor
@@ -108,6 +113,7 @@ class ReconstructionResult:
     change_curve: tuple[float, ...] = ()
     psnr: float | None = None
     ssim: float | None = None
+    display: Any = None
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from qtpy.QtGui import QImage
 from qtpy.QtWidgets import QHBoxLayout, QVBoxLayout, QWidget
 
 if TYPE_CHECKING:
-    from lfm_studio.widgets.psf_viewer import DisplayData
+    from lfm_studio.widgets.display_data import DisplayData
 
 _GRAY = "CET-L1"
 

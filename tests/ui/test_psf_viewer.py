@@ -12,8 +12,9 @@ from qtpy.QtGui import QGuiApplication
 from qtpy.QtWidgets import QApplication
 
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.widgets import napari_embed
-from lfm_studio.widgets.psf_viewer import PSFViewer, max_pool_preview, psf_display
+from lfm_studio.widgets import napari_embed, psf_viewer
+from lfm_studio.widgets.display_data import psf_display, pyramid_levels
+from lfm_studio.widgets.psf_viewer import PSFViewer
 from tests.ui.conftest import collect_widgets
 
 PITCH, MAG = 6.5e-6, 8.96
@@ -161,32 +162,41 @@ def test_3d_render_is_non_blank(viewer, qtbot):
     assert not viewer.layer("PSF").bounding_box.visible
 
 
-def test_large_stacks_are_max_pooled_for_3d_only(qtbot):
+def test_large_stacks_become_multiscale_layers_over_a_max_pooled_pyramid(qtbot):
     view = PSFViewer(use_napari=True, max_voxels_3d=3 * 16 * 16)
     qtbot.addWidget(view)
     stack = spot_stack()
     view.show_psf(stack)
     layer = view.layer("PSF")
-    assert layer.data.shape == (3, 64, 64)  # 2-D slices: full data
+    # 3 x 64 x 64 over a 3-D budget of 3 x 16 x 16: levels pooled 2x and 4x laterally.
+    assert layer.multiscale and [level.shape for level in layer.data] == [
+        (3, 64, 64),
+        (3, 32, 32),
+        (3, 16, 16),
+    ]
+    np.testing.assert_array_equal(np.asarray(layer.data[0]), stack.data.numpy())  # level 0 is the data
+    np.testing.assert_allclose(layer.downsample_factors[-1], (1, 4, 4))
+    np.testing.assert_allclose(layer.scale, (20.0, 6.5, 6.5), rtol=1e-12)  # physical scale of level 0
+    assert np.asarray(layer.data[-1]).max() == pytest.approx(float(stack.data.max()))  # max keeps the peak
     view.set_3d(True)
-    # 3 x 64 x 64 over a budget of 3 x 16 x 16: factor ceil(sqrt(16)) = 4 per lateral side.
-    assert layer.data.shape == (3, 16, 16) and layer.metadata["preview_factor"] == 4
-    np.testing.assert_allclose(layer.scale[1:], (26.0, 26.0), rtol=1e-12)
-    # The physical extent is kept: first pooled pixel centred on the mean of pixels 0..3.
-    np.testing.assert_allclose(layer.translate[1:], (-32 * 6.5 + 1.5 * 6.5,) * 2, rtol=1e-12)
-    assert layer.data.max() == pytest.approx(float(stack.data.max()))  # max pooling keeps the peak
+    assert view._scene.drawn_factor("PSF") == 4  # napari renders the coarsest level in 3-D
     view.set_3d(False)
-    assert layer.data.shape == (3, 64, 64) and layer.metadata["preview_factor"] == 1
+    assert view._scene.drawn_factor("PSF") == 1
     view.close_viewer()
 
 
-def test_max_pool_preview_keeps_small_data_and_pools_big_data():
-    small = np.zeros((2, 8, 8), np.float32)
-    assert max_pool_preview(small, 2 * 8 * 8) is None
+def test_pyramid_levels_keep_small_data_and_pool_big_data_by_max():
+    assert pyramid_levels(np.zeros((2, 8, 8), np.float32), max_voxels_3d=2 * 8 * 8) == ()
     big = np.zeros((2, 9, 9), np.float32)
     big[1, 8, 8] = 5.0
-    pooled, factor = max_pool_preview(big, 2 * 4 * 4)
-    assert factor == 3 and pooled.shape == (2, 3, 3) and pooled[1, 2, 2] == 5.0
+    levels = pyramid_levels(big, max_voxels_3d=2 * 3 * 3)
+    assert [level.shape for level in levels] == [(2, 5, 5), (2, 3, 3)]  # ceil: the edge pixel is kept
+    assert levels[0][1, 4, 4] == 5.0 and levels[1][1, 2, 2] == 5.0 and levels[1].sum() == 5.0
+    # Lateral size alone also pools (about a canvas width): 2048 -> 1024 -> 512.
+    assert [lv.shape for lv in pyramid_levels(np.zeros((2048, 2048), np.float32))] == [
+        (1024, 1024),
+        (512, 512),
+    ]
 
 
 def test_unsorted_depths_are_shown_in_depth_order():
@@ -265,7 +275,7 @@ def test_a_canvas_that_fails_to_start_falls_back(qtbot, monkeypatch):
     def broken(**_):
         raise RuntimeError("GLX context lost")
 
-    monkeypatch.setattr(napari_embed, "NapariScene", broken)
+    monkeypatch.setattr(psf_viewer, "NapariScene", broken)
     view = PSFViewer()
     qtbot.addWidget(view)
     assert view.backend == "pyqtgraph" and "GLX context lost" in view.message
