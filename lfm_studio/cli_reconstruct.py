@@ -20,8 +20,9 @@ import torch
 
 from lfm_studio.cli_progress import progress_bar
 from lfm_studio.cli_simulate import parse_depths, resolve_device
+from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
 
-METHODS = ("rl", "rl-accelerated", "wiener", "tikhonov")
+METHODS = ("rl", "rl-accelerated", "wiener", "tikhonov")  # the engine's reconstruct_frame methods
 _READ_FLAGS = {
     "pixel_size": "--pixel-size-um (sensor pixel pitch)",
     "magnification": "--magnification",
@@ -99,23 +100,12 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
 
 
 def _reconstruct_frame(args: argparse.Namespace, projector, frame: torch.Tensor, report) -> torch.Tensor:
-    from lfm_studio.engine import reconstruct
+    from lfm_studio.engine.reconstruct import reconstruct_frame
 
-    if args.method in ("rl", "rl-accelerated"):
-        faster = reconstruct.accelerated_rl_options(projector) if args.method == "rl-accelerated" else {}
-        return reconstruct.richardson_lucy(
-            projector,
-            frame,
-            background=args.background,
-            iterations=args.iterations,
-            rtol=args.rtol,
-            progress=report,
-            **faster,
-        )
-    signal = (frame - args.background).clamp_min(0.0)  # Wiener/Tikhonov have no background term
-    if args.method == "wiener":
-        return reconstruct.wiener(projector, signal, **({} if args.snr is None else {"snr": args.snr}))
-    return reconstruct.tikhonov(projector, signal, **({} if args.snr is None else {"mu": 1.0 / args.snr}))
+    return reconstruct_frame(
+        projector, frame, method=args.method, iterations=args.iterations, background=args.background,
+        snr=args.snr, rtol=args.rtol, progress=report,
+    )  # fmt: skip
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
@@ -148,7 +138,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"{tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, or "
             "--measured to crop/resample a measured one."
         )
-    iterative = args.method in ("rl", "rl-accelerated")
+    iterative = args.method in ITERATIVE
     count, steps = frames.shape[0], args.iterations if iterative else 1
     volumes = []
     try:

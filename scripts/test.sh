@@ -18,5 +18,7 @@ ruff check .
 ruff format --check .
 echo "== import contracts"
 lint-imports
+echo "== napari plugin manifest (discovered, every command imports)"
+npe2 validate --imports lfm-studio
 echo "== pytest"
 python -m pytest "$@"

@@ -223,7 +223,7 @@ def test_existing_output_is_kept_and_errors_are_named(files, tmp_path, capsys):
 
 
 def test_failed_reconstruction_leaves_no_file(files, tmp_path, monkeypatch, capsys):
-    from lfm_studio.engine import reconstruct
+    from lfm_studio.engine.reconstruct import dispatch as reconstruct  # what the CLI calls
 
     image = read_image(files["lf"])
     frames = tmp_path / "frames.tif"

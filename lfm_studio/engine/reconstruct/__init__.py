@@ -27,6 +27,7 @@ from lfm_studio.engine.reconstruct.backprojectors import (
     FilteredBackProjector,
     wiener_butterworth_backprojector,
 )
+from lfm_studio.engine.reconstruct.dispatch import METHODS, reconstruct_frame
 from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
 from lfm_studio.engine.reconstruct.richardson_lucy import (
     Iterate,
@@ -38,10 +39,12 @@ from lfm_studio.engine.reconstruct.tikhonov import tikhonov
 from lfm_studio.engine.reconstruct.wiener import wiener
 
 __all__ = [
+    "METHODS",
     "FilteredBackProjector",
     "Iterate",
     "accelerated_rl_options",
     "poisson_nll",
+    "reconstruct_frame",
     "richardson_lucy",
     "richardson_lucy_iterates",
     "tikhonov",

@@ -1,0 +1,196 @@
+"""Dock widget "Reconstruct light field": image layer + PSF layer -> volume layer, in the background.
+
+Pick the camera image and the PSF stack layers, the method (Richardson-Lucy, its
+accelerated form, Wiener, Tikhonov), iterations and background. Inputs are checked
+before anything starts (a mismatch, e.g. of pixel sizes, is an error notification
+naming both layers and values); the reconstruction then runs on a napari
+``thread_worker`` with progress and Cancel. Only a finished reconstruction adds a
+layer: the volume in object space (voxel size from the PSF's magnification and depth
+step, in um), its settings in the layer metadata. Cancel or failure adds nothing and
+leaves every layer as it was.
+"""
+
+from __future__ import annotations
+
+from functools import partial
+from typing import Any
+
+import napari
+from napari.layers import Image, Layer
+from qtpy.QtWidgets import QComboBox, QDoubleSpinBox, QFormLayout, QSpinBox, QVBoxLayout, QWidget
+
+from lfm_studio.napari_plugin import reconstruction
+from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.layer_data import (
+    LayerError,
+    image_from_layer,
+    kind_of,
+    stack_from_layer,
+    volume_layer_data,
+)
+from lfm_studio.napari_plugin.layer_picker import LayerPicker
+from lfm_studio.napari_plugin.notify import report_error, report_info
+from lfm_studio.napari_plugin.task_controls import TaskControls
+
+MAX_ITERATIONS = 10_000
+MAX_BACKGROUND = 1e9
+
+
+def is_camera_image(layer: Any) -> bool:
+    """A 2-D grayscale image layer that is not a PSF stack or a volume of ours."""
+    return (
+        isinstance(layer, Image)
+        and not layer.rgb
+        and layer.ndim == 2
+        and kind_of(layer.metadata) in (None, "light_field")
+    )
+
+
+def is_psf_stack(layer: Any) -> bool:
+    return isinstance(layer, Image) and kind_of(layer.metadata) == "psf_stack"
+
+
+def _is_ours(layer: Any) -> int:
+    return int(kind_of(layer.metadata) is not None)
+
+
+def baseline_of(psf_layer: Any) -> float | None:
+    """The camera baseline (ADU) of the design behind a PSF layer, if it records one."""
+    design = (psf_layer.metadata or {}).get("design") if psf_layer is not None else None
+    camera = design.get("camera") if isinstance(design, dict) else None
+    value = camera.get("baseline_adu") if isinstance(camera, dict) else None
+    return float(value) if isinstance(value, (int, float)) else None
+
+
+class ReconstructWidget(QWidget):
+    """The "Reconstruct light field" dock widget of ``napari_viewer``."""
+
+    def __init__(self, napari_viewer: napari.viewer.Viewer, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.viewer = napari_viewer
+        self.image_picker = LayerPicker(napari_viewer, is_camera_image, preferred=_is_ours)
+        self.psf_picker = LayerPicker(napari_viewer, is_psf_stack)
+        self.method = QComboBox()
+        for key, label in reconstruction.METHODS.items():
+            self.method.addItem(label, key)
+        self.iterations = QSpinBox()
+        self.iterations.setRange(1, MAX_ITERATIONS)
+        self.iterations.setValue(30)
+        self.background = QDoubleSpinBox()
+        self.background.setRange(0.0, MAX_BACKGROUND)
+        self.background.setDecimals(2)
+        self.background.setSuffix(" counts")
+        self.background.setToolTip(
+            "Background per pixel subtracted from the model (e.g. the camera baseline in ADU). "
+            "Set from the PSF's design when the PSF layer is chosen."
+        )
+        self.snr = QDoubleSpinBox()
+        self.snr.setRange(1e-3, 1e9)
+        self.snr.setDecimals(3)
+        self.snr.setValue(reconstruction.DEFAULT_SNR)
+        self.snr.setToolTip("Wiener: power signal-to-noise ratio; Tikhonov: mu = 1 / SNR.")
+        self.controls = TaskControls("Reconstruct")
+        form = QFormLayout()
+        form.addRow("Light-field image", self.image_picker)
+        form.addRow("PSF stack", self.psf_picker)
+        form.addRow("Method", self.method)
+        form.addRow("Iterations", self.iterations)
+        form.addRow("Background", self.background)
+        form.addRow("SNR", self.snr)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(self.controls)
+        layout.addStretch(1)
+        self.method.currentIndexChanged.connect(self._on_method)
+        self.psf_picker.layerChosen.connect(self._on_psf_chosen)
+        self.controls.runClicked.connect(self.start)
+        self._task: BackgroundTask | None = None
+        self._request: reconstruction.Request | None = None
+        self._on_method()
+        self._on_psf_chosen(self.psf_picker.layer())
+
+    # ----- the contract (buttons call these; so can tests and scripts) -----
+
+    @property
+    def busy(self) -> bool:
+        """Whether a reconstruction is running."""
+        return self._task is not None
+
+    def set_method(self, method: str) -> None:
+        """Choose ``method`` by key (``"rl"``, ``"rl-accelerated"``, ``"wiener"``, ``"tikhonov"``)."""
+        index = self.method.findData(method)
+        if index < 0:
+            raise ValueError(f"method must be one of {', '.join(reconstruction.METHODS)}; got {method!r}.")
+        self.method.setCurrentIndex(index)
+
+    def settings(self) -> reconstruction.Settings:
+        """The settings shown (raises ``ValueError`` for invalid ones)."""
+        return reconstruction.Settings(
+            method=self.method.currentData(),
+            iterations=self.iterations.value(),
+            background=self.background.value(),
+            snr=self.snr.value(),
+        )
+
+    def start(self) -> bool:
+        """Check the inputs and start the reconstruction; False (with an error notification) if refused."""
+        if self._task is not None:
+            return False
+        try:
+            request = self._request_from_layers()
+        except ValueError as error:
+            report_error(str(error))
+            return False
+        self._request = request
+        task = BackgroundTask(partial(reconstruction.run, request), self)
+        task.ended.connect(self._on_ended)
+        self.controls.attach(task, f"reconstructing {request.image_name!r}")
+        self._task = task
+        task.start()
+        return True
+
+    def cancel(self) -> None:
+        """Stop the running reconstruction before its next iteration (no layer is added)."""
+        self.controls.cancel()
+
+    # ----- internals -----
+
+    def _request_from_layers(self) -> reconstruction.Request:
+        image_layer, psf_layer = self.image_picker.layer(), self.psf_picker.layer()
+        if image_layer is None:
+            raise LayerError(
+                "No light-field image to reconstruct. Fix: open a camera image (a 2-D image layer), or "
+                "File > Open Sample > lfm-studio > Bead light field."
+            )
+        if psf_layer is None:
+            raise LayerError(
+                "No PSF stack layer. Fix: open a PSF TIFF with the lfm-studio reader, or compute one with "
+                "the Simulate PSF widget."
+            )
+        stack = stack_from_layer(psf_layer.data, psf_layer.metadata, name=psf_layer.name)
+        image = image_from_layer(
+            image_layer.data, image_layer.metadata, image_layer.scale, name=image_layer.name
+        )
+        return reconstruction.prepare(
+            stack, image, self.settings(), image_name=image_layer.name, psf_name=psf_layer.name
+        )
+
+    def _on_ended(self, outcome: Outcome) -> None:
+        request, self._task, self._request = self._request, None, None
+        if outcome.state == "done" and request is not None:
+            name = f"{request.image_name} {request.settings.method}"
+            self.viewer.add_layer(Layer.create(*volume_layer_data(outcome.value, name=name)))
+        elif outcome.state == "cancelled":
+            report_info("Reconstruction cancelled; no layer was added.")
+        elif outcome.state == "failed":
+            report_error(f"Reconstruction failed: {outcome.message}")
+
+    def _on_method(self, *_: Any) -> None:
+        iterative = self.method.currentData() in reconstruction.ITERATIVE
+        self.iterations.setEnabled(iterative)
+        self.snr.setEnabled(not iterative)
+
+    def _on_psf_chosen(self, layer: Any) -> None:
+        baseline = baseline_of(layer)
+        if baseline is not None:
+            self.background.setValue(baseline)

@@ -1,0 +1,132 @@
+"""A light-field reconstruction request from napari layers, checked before it starts (Qt-free).
+
+:func:`prepare` checks what would otherwise fail minutes later or give nonsense: the
+image and PSF pixel sizes match, the image has the PSF's sensor shape, and the
+method suits the PSF kind; each refusal names the layers, the values and a fix.
+:func:`run` builds the projector and reconstructs, reporting progress and stopping at
+the next iteration once ``cancel`` is set (the engine's checkpoints). The method
+choices and their options are those of ``lfm-studio reconstruct``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from lfm_studio.engine import reconstruct
+from lfm_studio.engine.io import LightFieldImage, Volume
+from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
+from lfm_studio.engine.simulation import imaging_setup
+from lfm_studio.engine.units import um
+
+# Short labels for the method box; the methods themselves are the engine's (reconstruct_frame).
+METHODS = {
+    "rl": "Richardson-Lucy",
+    "rl-accelerated": "Richardson-Lucy, accelerated",
+    "wiener": "Wiener (one step)",
+    "tikhonov": "Tikhonov (one step)",
+}
+DEFAULT_SNR = 100.0  # wiener: power SNR; tikhonov: mu = 1 / SNR
+
+
+@dataclass(frozen=True)
+class Settings:
+    """Reconstruction options: ``method`` (see :data:`METHODS`), RL ``iterations``, ``background``
+    counts per pixel (e.g. the camera baseline, ADU) and ``snr`` for Wiener / Tikhonov."""
+
+    method: str = "rl"
+    iterations: int = 30
+    background: float = 0.0
+    snr: float = DEFAULT_SNR
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}.")
+        if self.method in ITERATIVE and not (isinstance(self.iterations, int) and self.iterations >= 1):
+            raise ValueError(f"iterations must be an integer >= 1; got {self.iterations!r}.")
+        if not (math.isfinite(self.background) and self.background >= 0):
+            raise ValueError(
+                f"background must be a finite number >= 0 (counts per pixel); got {self.background!r}. "
+                "Fix: give the camera baseline, e.g. 100 ADU, or 0 for a baseline-free image."
+            )
+        if not (math.isfinite(self.snr) and self.snr > 0):
+            raise ValueError(f"SNR must be a finite number > 0; got {self.snr!r}. Fix: e.g. 100.")
+
+
+@dataclass(frozen=True)
+class Request:
+    """A checked reconstruction: PSF stack, one camera frame, settings and the layer names (for messages)."""
+
+    stack: PSFStack
+    image: LightFieldImage
+    settings: Settings
+    image_name: str
+    psf_name: str
+
+
+def prepare(
+    stack: PSFStack, image: LightFieldImage, settings: Settings, *, image_name: str, psf_name: str
+) -> Request:
+    """Check that ``image`` can be reconstructed with ``stack`` and ``settings``; raise ``ValueError`` if not."""
+    if image.data.ndim != 2:
+        raise ValueError(
+            f"The image layer {image_name!r} has shape {tuple(image.data.shape)}; the reconstruct widget takes "
+            "one camera frame (Y, X). Fix: pick a 2-D layer, or reconstruct time series with "
+            "'lfm-studio reconstruct'."
+        )
+    if not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
+        raise ValueError(
+            f"PSF pixel size does not match the image: the image layer {image_name!r} has "
+            f"{image.pixel_size / um:g} um pixels but the PSF layer {psf_name!r} was computed for "
+            f"{stack.pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
+            "simulate one with the camera's pixel pitch (Simulate PSF)."
+        )
+    conventional = stack.data.ndim == 5
+    if settings.method not in ITERATIVE and conventional:
+        raise ValueError(
+            f"{METHODS[settings.method]} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
+            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose Richardson-Lucy."
+        )
+    if not conventional and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
+        raise ValueError(
+            f"The image layer {image_name!r} has {tuple(image.data.shape)} pixels but the PSF layer "
+            f"{psf_name!r} covers a {tuple(stack.data.shape[-2:])} pixel sensor. Fix: use the PSF simulated "
+            "for this camera (same pixel count), or crop the image to it."
+        )
+    return Request(stack, image, settings, image_name, psf_name)
+
+
+def _solve(request: Request, projector, progress: ProgressCallback, cancel: CancelToken) -> torch.Tensor:
+    s = request.settings
+    return reconstruct.reconstruct_frame(
+        projector, request.image.data, method=s.method, iterations=s.iterations, background=s.background,
+        snr=s.snr, progress=progress, cancel=cancel,
+    )  # fmt: skip
+
+
+def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Volume:
+    """Reconstruct: the volume (object-space voxels, the PSF's depths) with the settings in its metadata."""
+    checkpoint(cancel, progress, 0, 1, "building the projector")
+    setup = imaging_setup(request.stack)
+    if tuple(request.image.data.shape) != tuple(setup.projector.image_shape):
+        raise ValueError(
+            f"The image layer {request.image_name!r} has {tuple(request.image.data.shape)} pixels but the PSF "
+            f"layer {request.psf_name!r} images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF "
+            "simulated for this camera."
+        )
+    checkpoint(cancel, progress, 0, 1, METHODS[request.settings.method])
+    volume = _solve(request, setup.projector, progress, cancel).detach().cpu()
+    s = request.settings
+    metadata = {
+        "method": s.method,
+        "iterations": s.iterations if s.method in ITERATIVE else None,
+        "background": s.background,
+        "snr": None if s.method in ITERATIVE else s.snr,
+        "image": request.image_name,
+        "psf": request.psf_name,
+    }
+    return Volume(volume, setup.voxel_size, request.stack.depths, metadata)
