@@ -23,6 +23,14 @@ SHAPES = ("circle", "square")
 # Relative slack (of the larger diameter) for "touching" and "on the rim" tests, so
 # that rounding in generated centres does not reject a tight layout.
 _TOLERANCE = 1e-9
+# Absolute floor of that slack, metres: the 1e-5 um that design files allow (their centres
+# are rounded to 1e-6 um; design.mla.TOLERANCE_UM), so every validated design builds here.
+_ABSOLUTE_TOLERANCE = 1e-11
+
+
+def _slack(diameter: float) -> float:
+    """Overlap or rim excursion (metres) still counted as touching for apertures of ``diameter``."""
+    return max(_TOLERANCE * diameter, _ABSOLUTE_TOLERANCE)
 
 
 def _um(value: float) -> str:
@@ -114,7 +122,7 @@ def _first_overlap(lenslets: tuple[Lenslet, ...]) -> tuple[int, int, float] | No
                             continue
                         a, b = lenslets[i], lenslets[j]
                         depth = _overlap_depth(a, b)
-                        overlaps = depth > _TOLERANCE * max(a.aperture_diameter, b.aperture_diameter)
+                        overlaps = depth > _slack(max(a.aperture_diameter, b.aperture_diameter))
                         if overlaps and (found is None or (i, j) < found[:2]):
                             found = (i, j, depth)
     return found
@@ -123,7 +131,7 @@ def _first_overlap(lenslets: tuple[Lenslet, ...]) -> tuple[int, int, float] | No
 def outside_reason(lens: Lenslet, aperture_diameter: float | None, extent: tuple[float, float] | None) -> str:
     """Why ``lens`` does not fit the array aperture ('' when it fits)."""
     x, y = lens.center
-    slack = _TOLERANCE * lens.aperture_diameter
+    slack = _slack(lens.aperture_diameter)
     if aperture_diameter is not None:
         h = lens.half_width
         reach = math.hypot(x, y) + h if lens.shape == "circle" else math.hypot(abs(x) + h, abs(y) + h)
