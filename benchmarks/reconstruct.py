@@ -11,8 +11,7 @@
     (ii) a per-depth ``scipy.signal.fftconvolve`` loop (full convolution, cropped; valid
          correlation for the back projection), which recomputes every FFT.
     Timings alternate between methods (other jobs share this machine); the table gives the
-    median over ``--repeats`` and the ratios of those medians. A prototype of a proposed
-    projector change (pruned, transposed FFTs; same A and A^T) is timed in the same loop.
+    median over ``--repeats`` and the ratios of those medians.
     Goals: ours <= 1.2x (i) and >= 3x faster than (ii). The baselines' A x and A^T y are
     checked against the engine projector's (max relative difference).
 (b) Time to reach the PSNR that 30 (and 100) plain RL iterations reach, on a smaller problem
@@ -120,47 +119,6 @@ class ScipyFFTConvolveLoop:
             return np.stack([scipy.signal.fftconvolve(embedded, h, mode="valid") for h in self.flipped])
 
 
-class PrunedTransposedProjector:
-    """PROPOSAL for ShiftInvariantProjector (prototype, not used by the engine): same A and A^T.
-
-    Two changes, both exact: (1) pruned transforms: a volume slice fills only ``Vy`` of the
-    ``Fy`` rows of the FFT window, so its rfft runs over those rows only (``rfft`` along x of
-    ``Vy`` rows, then the column FFT); the back projection needs only rows ``< Vy`` after the
-    column inverse, so the row ``irfft`` runs on ``Vy`` rows. (2) spectra kept transposed,
-    ``(Z, Fx//2+1, Fy)``, so both 1D passes run along contiguous memory (torch's strided
-    column FFTs were the slow part). With ``Vy = 339`` of ``Fy = 2400`` (XLFM) this halves
-    the transform work and avoids torch's slow 2D ``irfft2``.
-    """
-
-    def __init__(self, projector) -> None:
-        self.volume_shape, self.image_shape = tuple(projector.volume_shape), tuple(projector.image_shape)
-        self.fft_shape, self.offsets = tuple(projector.fft_shape), centre_offsets(projector)
-        self.dtype, self.device = projector.dtype, projector.device
-        self.otf_t = projector.otf.transpose(1, 2).contiguous()  # (Z, Fx//2+1, Fy)
-
-    def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        (fy, fx), (oy, ox), (py, px) = self.fft_shape, self.offsets, self.image_shape
-        total = None
-        for z in range(volume.shape[0]):
-            rows = torch.fft.rfft(volume[z], n=fx, dim=1).T.contiguous()  # (K, Vy)
-            term = torch.fft.fft(rows, n=fy, dim=1) * self.otf_t[z]  # (K, Fy)
-            total = term if total is None else total + term
-        columns = torch.fft.ifft(total, dim=1, norm="forward").T.contiguous()  # unscaled directions only
-        full = torch.fft.irfft(columns, n=fx, dim=1, norm="forward") * (1.0 / (fy * fx))
-        return full[oy : oy + py, ox : ox + px]
-
-    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
-        (fy, fx), (oy, ox), (py, px) = self.fft_shape, self.offsets, self.image_shape
-        _, vy, vx = self.volume_shape
-        rows = torch.fft.rfft(torch.nn.functional.pad(image, (ox, fx - ox - px)), dim=1).T.contiguous()
-        spectrum = torch.fft.fft(torch.nn.functional.pad(rows, (oy, fy - oy - py)), dim=1)  # (K, Fy)
-        out = torch.empty(self.volume_shape, dtype=image.dtype)
-        for z in range(self.volume_shape[0]):
-            columns = torch.fft.ifft(spectrum * self.otf_t[z].conj(), dim=1, norm="forward")[:, :vy]
-            out[z] = torch.fft.irfft(columns.T.contiguous(), n=fx, dim=1, norm="forward")[:, :vx]
-        return out * (1.0 / (fy * fx))
-
-
 def numpy_rl_iteration(op, volume: np.ndarray, image: np.ndarray, sensitivity: np.ndarray) -> np.ndarray:
     """The same update as ours: x * max(A^T(y / max(Ax, floor)), 0) / max(A^T 1, floor)."""
     floor = 16 * np.finfo(np.float32).eps
@@ -194,7 +152,6 @@ def section_iteration(args) -> None:
 
     scipy_loop = ScipyOTFLoop(projector, args.threads)
     convolve_loop = ScipyFFTConvolveLoop(stack.data.numpy(), projector, args.threads)
-    proposed = PrunedTransposedProjector(projector)
     y, x = image.numpy(), volume.numpy()
     sensitivity = scipy_loop.adjoint(np.ones_like(y))
 
@@ -210,21 +167,19 @@ def section_iteration(args) -> None:
         )
         return f"{da:.0e}/{db:.0e}"
 
-    diffs = {"scipy": difference(scipy_loop), "proposed": difference(proposed)}
+    diffs = {"scipy": difference(scipy_loop)}
     t0 = time.perf_counter()
     numpy_rl_iteration(convolve_loop, x, y, sensitivity)
     t_convolve = [time.perf_counter() - t0]
     diffs["convolve"] = difference(convolve_loop)
 
     ours_iterates = richardson_lucy_iterates(projector, image, initial=volume, iterations=10**6)
-    proposed_iterates = richardson_lucy_iterates(proposed, image, initial=volume, iterations=10**6)
-    next(ours_iterates), next(proposed_iterates)  # warm-up (and A^T 1, computed once per reconstruction)
-    times = {"ours": [], "scipy": [], "proposed": []}
+    next(ours_iterates)  # warm-up (and A^T 1, computed once per reconstruction)
+    times = {"ours": [], "scipy": []}
     for _ in range(args.repeats):
         for key, step in (
             ("ours", lambda: next(ours_iterates)),
             ("scipy", lambda: numpy_rl_iteration(scipy_loop, x, y, sensitivity)),
-            ("proposed", lambda: next(proposed_iterates)),
         ):
             t0 = time.perf_counter()
             step()
@@ -233,21 +188,19 @@ def section_iteration(args) -> None:
         t0 = time.perf_counter()
         numpy_rl_iteration(convolve_loop, x, y, sensitivity)
         t_convolve.append(time.perf_counter() - t0)
-    ours, ref, new = (statistics.median(times[k]) for k in ("ours", "scipy", "proposed"))
+    ours, ref = (statistics.median(times[k]) for k in ("ours", "scipy"))
     conv = statistics.median(t_convolve)
     print(f"{'one RL iteration':<52} {'time (s)':>9} {'/ ours':>7} {'A x / A^T y rel. diff':>21}")
     for label, seconds, diff in (
         ("ours: richardson_lucy_iterates, ShiftInvariantProjector", ours, "reference"),
         ("(i) cached-OTF scipy.fft loop", ref, diffs["scipy"]),
         ("(ii) per-depth scipy.signal.fftconvolve loop", conv, diffs["convolve"]),
-        ("ours with the proposed projector (prototype)", new, diffs["proposed"]),
     ):
         print(f"{label:<52} {seconds:>9.3f} {seconds / ours:>7.2f} {diff:>21}")
     print(
-        f"goals: ours <= 1.2x (i): {'met' if ours <= 1.2 * ref else 'NOT met'} ({ours / ref:.2f}x; "
-        f"proposed {new / ref:.2f}x); >= 3x faster than (ii): {'met' if conv >= 3 * ours else 'NOT met'} "
+        f"goals: ours <= 1.2x (i): {'met' if ours <= 1.2 * ref else 'NOT met'} ({ours / ref:.2f}x); >= 3x faster than (ii): {'met' if conv >= 3 * ours else 'NOT met'} "
         f"({conv / ours:.1f}x). Samples: ours {[round(t, 3) for t in times['ours']]}, "
-        f"(i) {[round(t, 3) for t in times['scipy']]}, proposed {[round(t, 3) for t in times['proposed']]}, "
+        f"(i) {[round(t, 3) for t in times['scipy']]}, "
         f"(ii) {[round(t, 2) for t in t_convolve]}"
     )
     if torch.cuda.is_available():
