@@ -29,7 +29,13 @@ def _close(cpu: torch.Tensor, cuda: torch.Tensor) -> bool:
 
 @pytest.mark.parametrize(
     "options",
-    [{}, {"acceleration": "biggs-andrews"}, {"acceleration": "geometric"}, {"backprojector": "wb"}, {"tv_weight": 0.01}],
+    [
+        {},
+        {"acceleration": "biggs-andrews"},
+        {"acceleration": "geometric"},
+        {"backprojector": "wb"},
+        {"tv_weight": 0.01},
+    ],
     ids=["plain", "biggs-andrews", "geometric", "wiener-butterworth", "tv"],
 )
 def test_fourier_richardson_lucy_cpu_equals_cuda(fourier, options):
