@@ -22,6 +22,7 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
 from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
 from lfm_studio.engine.systems.from_design import (
+    conventional_accuracy_of,
     conventional_system_of,
     fourier_accuracy_of,
     fourier_system_of,
@@ -56,17 +57,14 @@ def simulate_psf(
     ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached."""
     depths = tuple(depths) if depths is not None else design_depths(design)
     if design.kind == "fourier":
-        accuracy = fourier_accuracy_of(design)
-        if dtype is not None:
-            accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
-        return fourier_psf_stack(
-            fourier_system_of(design), depths, accuracy=accuracy, device=device,
-            progress=progress, cancel=cancel, design=design,
-        )  # fmt: skip
-    system = conventional_system_of(design)
-    real = real_dtype_named(dtype or design.accuracy.dtype)
-    return conventional_psf_stack(
-        system, depths, dtype=real, device=device, progress=progress, cancel=cancel, design=design
+        system, accuracy, compute = fourier_system_of(design), fourier_accuracy_of(design), fourier_psf_stack
+    else:
+        system, accuracy = conventional_system_of(design), conventional_accuracy_of(design)
+        compute = conventional_psf_stack
+    if dtype is not None:
+        accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
+    return compute(
+        system, depths, accuracy=accuracy, device=device, progress=progress, cancel=cancel, design=design
     )
 
 

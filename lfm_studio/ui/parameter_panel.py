@@ -23,7 +23,7 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
-from lfm_studio.engine.design import ACCURACY_PRESETS, AccuracySpec, Design
+from lfm_studio.engine.design import ACCURACY_PRESETS, AccuracySpec, Design, describe_preset
 from lfm_studio.ui.edits import read_path, try_changes
 from lfm_studio.ui.parameter_fields import FIELDS, ErrorLabel, FieldSpec, QuantityInput
 from lfm_studio.ui.state import StudioState
@@ -101,10 +101,7 @@ class ParameterPanel(QScrollArea):
         form = self._group("Computation", layout, body)
         self.accuracy = QComboBox(body)
         self.accuracy.addItems(list(ACCURACY_PRESETS))
-        self.accuracy.setToolTip(
-            "preview: fast, paraxial, no oversampling; standard: Debye objective, 2x oversampled; "
-            "reference: float64, 4x oversampled, full-field (slow)."
-        )
+        self.accuracy.setToolTip("\n".join(describe_preset(name) for name in ACCURACY_PRESETS))
         self.accuracy.textActivated.connect(self._on_accuracy)
         form.addRow("Accuracy preset", self.accuracy)
         self.device = QComboBox(body)

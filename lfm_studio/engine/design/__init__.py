@@ -11,7 +11,12 @@ parameter, its value with unit, and a fix; questionable choices emit a
 :func:`load_design`; bundled presets come from :func:`load_preset`.
 """
 
-from lfm_studio.engine.design.accuracy import ACCURACY_PRESETS, AccuracySpec
+from lfm_studio.engine.design.accuracy import (
+    ACCURACY_PRESETS,
+    PRESET_ERROR_BOUNDS,
+    AccuracySpec,
+    describe_preset,
+)
 from lfm_studio.engine.design.camera import CameraSpec
 from lfm_studio.engine.design.depths import DepthSpec
 from lfm_studio.engine.design.design import METADATA_FIELDS, SCHEMA_VERSION, Design
@@ -29,6 +34,7 @@ __all__ = [
     "ACCURACY_PRESETS",
     "METADATA_FIELDS",
     "MIGRATIONS",
+    "PRESET_ERROR_BOUNDS",
     "SCHEMA_VERSION",
     "AccuracySpec",
     "AnyMLASpec",
@@ -44,6 +50,7 @@ __all__ = [
     "RegularMLASpec",
     "RelayLensSpec",
     "canonical_json",
+    "describe_preset",
     "design_from_json",
     "design_to_json",
     "evolve",

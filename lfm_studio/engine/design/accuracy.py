@@ -19,22 +19,43 @@ PresetName = Literal["preview", "standard", "reference", "custom"]
 Propagator = Literal["auto", "asm", "bandlimited_asm", "fresnel_tf", "fresnel_ir"]
 
 ACCURACY_PRESETS: dict[str, dict[str, Any]] = {
-    # Fast look while editing: paraxial objective, no oversampling, little padding.
+    # Fast look while editing: 2 sub-samples per pixel (1 costs 4x less but measured 6 % on
+    # the XLFM), Debye objective (the paraxial one costs the same and is off by 10-100 %).
     "preview": dict(
-        propagator="auto", oversampling=1, padding=1.5, dtype="float32",
-        debye_points=32, objective_model="paraxial", per_lenslet=True, depth_chunk=8,
+        propagator="auto", oversampling=2, padding=1.5, dtype="float32",
+        debye_points=32, objective_model="debye", per_lenslet=True, depth_chunk=8,
     ),
-    # Default: Debye objective, 2x oversampled grids, 2x padding (DESIGN.md section 3).
+    # Default: 3 sub-samples per pixel (pixel integration error ~ 6 % / s^2), float32.
     "standard": dict(
-        propagator="auto", oversampling=2, padding=2.0, dtype="float32",
+        propagator="auto", oversampling=3, padding=2.0, dtype="float32",
         debye_points=64, objective_model="debye", per_lenslet=True, depth_chunk=4,
     ),
-    # Ground truth for benchmarks: band-limited ASM, float64, fine quadrature, full grid.
+    # For benchmarks and checks: 6 sub-samples per pixel, float64, band-limited ASM where a
+    # full field is computed. Per lenslet when sub-images do not overlap: the full sensor
+    # field at this sampling needs tens of GB for the XLFM.
     "reference": dict(
-        propagator="bandlimited_asm", oversampling=4, padding=2.0, dtype="float64",
-        debye_points=256, objective_model="debye", per_lenslet=False, depth_chunk=1,
+        propagator="bandlimited_asm", oversampling=6, padding=2.0, dtype="float64",
+        debye_points=256, objective_model="debye", per_lenslet=True, depth_chunk=4,
     ),
 }  # fmt: skip
+
+PRESET_ERROR_BOUNDS: dict[str, dict[str, float]] = {
+    "fourier": {"preview": 0.05, "standard": 0.01, "reference": 0.005},
+    "conventional": {"preview": 0.05, "standard": 0.02, "reference": 0.005},
+}
+"""Worst-depth relative L2 error of each preset's PSF stack against the converged reference,
+per system kind (``lfm-studio bench``, docs/benchmarks.md; tested on every shipped design)."""
+
+
+def describe_preset(name: str) -> str:
+    """One line on preset ``name``: its main knobs and its tested PSF error bounds (for tooltips)."""
+    knobs = ACCURACY_PRESETS[name]
+    model = {"debye": "Debye", "paraxial": "paraxial"}[knobs["objective_model"]]
+    bounds = ", ".join(
+        f"{100 * PRESET_ERROR_BOUNDS[kind][name]:g} % ({label} LFM)"
+        for kind, label in (("fourier", "Fourier"), ("conventional", "conventional"))
+    )
+    return f"{name}: oversampling {knobs['oversampling']}, {knobs['dtype']}, {model} objective; PSF error <= {bounds}"
 
 
 class AccuracySpec(SpecModel):
@@ -53,7 +74,11 @@ class AccuracySpec(SpecModel):
     dtype : "float32" or "float64"
         Real precision (complex64 / complex128 fields).
     debye_points : int
-        Gauss-Legendre points in theta for the Debye integral (>= 8).
+        Gauss-Legendre points in theta for the Debye integral (>= 8). Kept for files and
+        scripts, but not used by the simulation: the Fourier pupil field is closed form, and
+        the conventional NIP field always takes the engine's converged order for its phase
+        excursion (fixed orders of 48-96 points measured 41-127 % PSF error on the shipped designs;
+        docs/benchmarks.md). Engine scripts can still set ``ConventionalAccuracy.debye_points``.
     objective_model : "paraxial" or "debye"
         Paraxial 4f imaging (low NA) or the Debye integral (high NA).
     per_lenslet : bool

@@ -57,6 +57,7 @@ Device = torch.device | str | None
 Scalar = float | torch.Tensor
 
 _CHUNK_ELEMENTS = 1 << 22  # Bessel-table entries per chunk (32 MiB of float64)
+_MODELS = ("debye", "paraxial")
 
 
 def quadrature_order(phase_excursion: float) -> int:
@@ -103,6 +104,7 @@ def debye_integral(
     apodization: Apodization = "aplanatic",
     n_quadrature: int | None = None,
     derivative: bool = False,
+    model: str = "debye",
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """Object-side Debye field ``U(r, z)`` at radii ``radius`` and depths ``z``.
 
@@ -122,6 +124,9 @@ def debye_integral(
         largest phase excursion in this call.
     derivative : bool
         Also return ``dU/dr`` (``J0' = -J1`` under the integral), same shape, in ``sqrt(W)/m^2``.
+    model : ``"debye"`` (default) or ``"paraxial"``: the Fourier transform of the paraxial
+        pupil field of :func:`pupil_field` (uniform pupil amplitude, i.e. ``P = cos(theta)``
+        here, and the quadratic defocus ``-n k z sin^2(theta) / 2``); ``apodization`` is ignored.
 
     Returns
     -------
@@ -129,7 +134,9 @@ def debye_integral(
     ``sqrt(W)/m`` for a unit-power emitter; a ``(U, dU/dr)`` pair with ``derivative``.
     """
     require_positive("wavelength", wavelength, "m", "pass the vacuum wavelength in metres, e.g. 525 * nm.")
-    apod = resolve_apodization(apodization)
+    if model not in _MODELS:
+        raise ValueError(f"model must be one of {_MODELS}; got {model!r}. Fix: use 'debye' at high NA.")
+    apod = resolve_apodization("cos" if model == "paraxial" else apodization)
     device = radius.device
     zt, scalar_z = _depths(z, device)
     r = radius.to(torch.float64).reshape(-1)
@@ -158,7 +165,10 @@ def debye_integral(
     sin_theta = torch.sin(theta)
     amplitude = weights * apod(theta) * sin_theta  # (Q,)
     # n k z (cos theta - 1) = -2 n k z sin^2(theta/2): no cancellation near the axis.
-    phase = -2.0 * kn * zt[:, None] * torch.sin(theta / 2.0)[None, :] ** 2  # (Z, Q)
+    if model == "paraxial":
+        phase = -0.5 * kn * zt[:, None] * sin_theta[None, :] ** 2  # (Z, Q)
+    else:
+        phase = -2.0 * kn * zt[:, None] * torch.sin(theta / 2.0)[None, :] ** 2  # (Z, Q)
     e_re = amplitude * torch.cos(phase)
     e_im = amplitude * torch.sin(phase)
     constant = complex(0.0, -math.sqrt(math.pi) * n / wavelength)
@@ -193,6 +203,7 @@ def debye_psf(
     n_quadrature: int | None = None,
     radial_sampling: str | int = "auto",
     image_side: bool = False,
+    model: str = "debye",
     dtype: torch.dtype = torch.complex64,
     device: Device = None,
 ) -> Field:
@@ -212,7 +223,7 @@ def debye_psf(
     position : (x0, y0)
         Lateral source position in metres in the sample (the image is centred on
         ``(-M x0, -M y0)`` when ``image_side``).
-    apodization, n_quadrature : see :func:`debye_integral`.
+    apodization, n_quadrature, model : see :func:`debye_integral`.
     radial_sampling : ``"auto"`` (default), ``"exact"`` or an integer ``s``
         Where the radial integral is evaluated. ``"exact"``: at every distinct distance
         of a grid sample from the source. An integer ``s``: on a radial table of step
@@ -240,7 +251,7 @@ def debye_psf(
     if image_side:
         y, x = -y / m, -x / m
     r2 = (x[None, :] - x0) ** 2 + (y[:, None] - y0) ** 2
-    options = {"apodization": apodization, "n_quadrature": n_quadrature}
+    options = {"apodization": apodization, "n_quadrature": n_quadrature, "model": model}
     scale = m if image_side else 1.0  # grid metres per object-side metre
     if radial_sampling == "auto":
         na = _value(objective.numerical_aperture)

@@ -46,25 +46,29 @@ def light_radius(system: ConventionalLFMSystem, depths: tuple[float, ...], margi
     return max(system.blur_radius(z) for z in depths) + margin * system.wavelength / na_image
 
 
-def samples_per_pitch(system: ConventionalLFMSystem) -> int:
+def samples_per_pitch(system: ConventionalLFMSystem, oversampling: float = 1.0) -> int:
     """NIP samples per pitch ``Ns``: a multiple of ``S`` (odd), at Nyquist for the image-side NA,
-    and alias-free for the three-pitch lenslet window.
+    and alias-free for the three-pitch lenslet window, times ``oversampling`` (>= 1).
 
     The sampled Fresnel sum repeats its output every ``lambda d / dx``; the window
     ``3 P`` must be shorter: ``Ns > 3 P^2 / (lambda d)``.
     """
+    if not oversampling >= 1.0:
+        raise ValueError(
+            f"NIP oversampling must be >= 1; got {oversampling!r}. Fix: use 1 (the minimum grid)."
+        )
     s = system.voxels_per_lenslet
     na_image = float(system.objective.numerical_aperture) / system.magnification
     nyquist = math.ceil(2.0 * system.pitch * na_image / system.wavelength) + 1
     alias_free = math.floor(3.0 * system.pitch**2 / (system.wavelength * system.mla_to_camera)) + 1
-    per_voxel = math.ceil(max(alias_free, nyquist) / s)
+    per_voxel = math.ceil(max(alias_free, nyquist) * oversampling / s)
     per_voxel += 1 - per_voxel % 2  # odd, so each patch is centred on its lenslet
     return s * per_voxel
 
 
-def nip_field_size(system: ConventionalLFMSystem, reach: int) -> int:
+def nip_field_size(system: ConventionalLFMSystem, reach: int, oversampling: float = 1.0) -> int:
     """NIP samples per side needed for ``reach`` lenslets plus the sub-position shifts (odd)."""
-    ns = samples_per_pitch(system)
+    ns = samples_per_pitch(system, oversampling)
     return (2 * reach + 1) * ns + 2 * (system.voxels_per_lenslet // 2) * (ns // system.voxels_per_lenslet)
 
 
@@ -75,16 +79,21 @@ def nip_fields(
     reach: int,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str = "cpu",
-    radial_sampling: int = 8,
+    radial_sampling: int | str = 8,
+    model: str = "debye",
+    n_quadrature: int | None = None,
+    oversampling: float = 1.0,
 ) -> torch.Tensor:
     """Image-side Debye fields ``(Z, N, N)`` of an on-axis point at each depth on the NIP grid.
 
     One call for all depths: the Bessel table in ``(radius, theta)`` is shared by every
     depth. ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
-    (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids).
+    (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
+    ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
+    grid factor of :func:`samples_per_pitch`.
     """
-    n = nip_field_size(system, reach)
-    dx = system.pitch / samples_per_pitch(system)
+    n = nip_field_size(system, reach, oversampling)
+    dx = system.pitch / samples_per_pitch(system, oversampling)
     z = torch.tensor(depths, dtype=torch.float64, device=device)
     cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
     # The on-axis field is radially symmetric and the grid (odd n) centred on it: compute
@@ -95,7 +104,8 @@ def nip_fields(
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
     field = debye_psf(
         system.objective, quadrant, system.wavelength, z, position=(offset, offset),
-        image_side=True, radial_sampling=radial_sampling, dtype=cdtype, device=device,
+        image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
+        dtype=cdtype, device=device,
     )  # fmt: skip
     mirror = (torch.arange(n, device=device) - h).abs()
     data = field.data.reshape(len(depths), h + 1, h + 1)
@@ -156,6 +166,9 @@ def conventional_patterns(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     nip_field: torch.Tensor | None = None,
+    nip_oversampling: float = 1.0,
+    pixel_oversampling: float = OUTPUT_OVERSAMPLING,
+    light_margin: float = 12.0,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -169,6 +182,9 @@ def conventional_patterns(
     nip_field : the on-axis NIP fields ``(Z, N, N)`` of these depths from :func:`nip_fields`
         on a grid at least as wide as this reach needs (cropped centrally); computed
         here when omitted.
+    nip_oversampling, pixel_oversampling, light_margin : accuracy knobs: the NIP grid factor
+        (:func:`samples_per_pitch`), the sensor-field samples per intensity Nyquist interval
+        (:func:`sub_samples`) and the diffraction margin of :func:`light_radius`.
 
     Returns
     -------
@@ -177,19 +193,24 @@ def conventional_patterns(
     (image) orientation, the canvas centred on the source lenslet's centre.
     """
     s = system.voxels_per_lenslet
-    field_n = nip_field_size(system, reach)
+    field_n = nip_field_size(system, reach, nip_oversampling)
     if nip_field is None:
-        nip_field = nip_fields(system, depths, reach=reach, dtype=dtype, device=device)
+        nip_field = nip_fields(
+            system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling
+        )
     cut = (nip_field.shape[-1] - field_n) // 2
     if cut < 0:
         raise ValueError(f"nip_field is {nip_field.shape[-1]} samples wide; reach {reach} needs {field_n}.")
     base = nip_field[:, cut : cut + field_n, cut : cut + field_n]
     unique = {}
-    radius = light_radius(system, depths)
+    radius = light_radius(system, depths, light_margin)
     offsets = _unique_offsets(s // 2)
     for done, (a, b) in enumerate(offsets):
         checkpoint(cancel, progress, done, len(offsets), f"pattern {done + 1}/{len(offsets)}")
-        unique[(a, b)] = offset_pattern(system, base, a, b, reach=reach, dtype=dtype, light_radius=radius)
+        unique[(a, b)] = offset_pattern(
+            system, base, a, b, reach=reach, dtype=dtype, light_radius=radius,
+            oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
+        )  # fmt: skip
     checkpoint(cancel, progress, len(offsets), len(offsets), "patterns done")
     return _expand_symmetric(unique, s)
 
@@ -204,6 +225,7 @@ def offset_pattern(
     dtype: torch.dtype,
     oversampling: float = OUTPUT_OVERSAMPLING,
     light_radius: float | None = None,
+    nip_oversampling: float = 1.0,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -213,11 +235,12 @@ def offset_pattern(
     complex fields on one sensor grid, and ``|U|^2`` is integrated on the pixels
     (:func:`sub_samples` samples per pixel, from ``oversampling``). Lenslets farther than
     ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
-    light and are skipped; ``None`` computes them all.
+    light and are skipped; ``None`` computes them all. ``nip_oversampling``: the NIP grid
+    factor ``base`` was computed with (:func:`nip_fields`).
     """
     m = sub_samples(system, oversampling)
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
-    ns = samples_per_pitch(system)
+    ns = samples_per_pitch(system, nip_oversampling)
     step = ns // s  # NIP samples per voxel sub-position
     field_n = base.shape[-1]
     per_lenslet = q * m  # output samples per pitch (odd)

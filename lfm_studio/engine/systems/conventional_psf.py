@@ -3,14 +3,66 @@
 from __future__ import annotations
 
 from collections import defaultdict
+from dataclasses import dataclass
 
 import torch
 
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.conventional_patterns import conventional_patterns, nip_fields
+from lfm_studio.engine.systems.conventional_patterns import (
+    OUTPUT_OVERSAMPLING,
+    conventional_patterns,
+    nip_fields,
+)
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
+
+_MODELS = ("debye", "paraxial")
+
+
+@dataclass(frozen=True)
+class ConventionalAccuracy:
+    """Accuracy knobs of the conventional-LFM patterns (each is benchmarked, run time against error).
+
+    Attributes
+    ----------
+    dtype : ``torch.float32`` or ``torch.float64`` (fields in the matching complex dtype).
+    model : objective model of the NIP field, ``"debye"`` or ``"paraxial"`` (see :func:`debye_psf`).
+    debye_points : Gauss-Legendre nodes of the Debye integral; ``None`` = the engine's
+        converged order for the phase excursion (:func:`debye.quadrature_order`).
+    nip_oversampling : factor (>= 1) on the NIP samples per pitch (:func:`samples_per_pitch`).
+    pixel_oversampling : sensor-field samples per intensity Nyquist interval before the
+        midpoint-rule pixel integration (:func:`sub_samples`; > 0).
+    light_margin : diffraction lengths ``lambda / NA_img`` kept beyond the geometric blur
+        (:func:`light_radius`; lenslets farther out are skipped; > 0).
+    radial_sampling : radial-table oversampling of the Debye field, or ``"exact"``.
+    depth_chunk : depths per pattern batch (bounds memory; >= 1).
+    """
+
+    dtype: torch.dtype = torch.float32
+    model: str = "debye"
+    debye_points: int | None = None
+    nip_oversampling: float = 1.0
+    pixel_oversampling: float = OUTPUT_OVERSAMPLING
+    light_margin: float = 12.0
+    radial_sampling: int | str = 8
+    depth_chunk: int = 64
+
+    def __post_init__(self) -> None:
+        if self.model not in _MODELS:
+            raise ValueError(f"model must be one of {_MODELS}; got {self.model!r}. Fix: use 'debye'.")
+        if self.debye_points is not None and self.debye_points < 8:
+            raise ValueError(f"debye_points must be >= 8 or None; got {self.debye_points!r}. Fix: use None.")
+        if not self.nip_oversampling >= 1.0:
+            raise ValueError(f"nip_oversampling must be >= 1; got {self.nip_oversampling!r}. Fix: use 1.")
+        if not self.pixel_oversampling > 0.0:
+            raise ValueError(
+                f"pixel_oversampling must be > 0; got {self.pixel_oversampling!r}. Fix: use {OUTPUT_OVERSAMPLING}."
+            )
+        if not self.light_margin > 0.0:
+            raise ValueError(f"light_margin must be > 0 (in lambda / NA_img); got {self.light_margin!r}.")
+        if self.depth_chunk < 1:
+            raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
 
 
 def depth_groups(system: ConventionalLFMSystem, depths: tuple[float, ...]) -> dict[int, list[int]]:
@@ -25,7 +77,8 @@ def conventional_psf_stack(
     system: ConventionalLFMSystem,
     depths: tuple[float, ...],
     *,
-    dtype: torch.dtype = torch.float32,
+    dtype: torch.dtype | None = None,
+    accuracy: ConventionalAccuracy | None = None,
     device: torch.device | str = "cpu",
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
@@ -35,32 +88,44 @@ def conventional_psf_stack(
 
     ``(S, S)`` is the voxel sub-position (row, column) in image orientation, ``H`` the
     widest pattern (narrower ones are zero-padded, centred); ``metadata["reach"]`` lists
-    each depth's reach so :func:`lattice_projector` crops them back.
+    each depth's reach so :func:`lattice_projector` crops them back. ``accuracy``:
+    the knobs (default :class:`ConventionalAccuracy`); ``dtype``, when given, overrides its dtype.
     """
+    acc = accuracy or ConventionalAccuracy()
+    dtype = dtype or acc.dtype
     depths = tuple(float(z) for z in depths)
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
     groups = depth_groups(system, depths)
     # One Debye evaluation for every depth, on the widest grid any group needs.
-    fields = nip_fields(system, depths, reach=max(groups), dtype=dtype, device=device)
+    fields = nip_fields(
+        system, depths, reach=max(groups), dtype=dtype, device=device, radial_sampling=acc.radial_sampling,
+        model=acc.model, n_quadrature=acc.debye_points, oversampling=acc.nip_oversampling,
+    )  # fmt: skip
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
     width = (2 * max(groups) + 3) * q
     data = torch.zeros((s, s, len(depths), width, width), dtype=dtype, device=device)
     reach_of = [0] * len(depths)
-    for done, (reach, indices) in enumerate(groups.items()):
+    chunks = [
+        (reach, indices[start : start + acc.depth_chunk])
+        for reach, indices in groups.items()
+        for start in range(0, len(indices), acc.depth_chunk)
+    ]
+    for done, (reach, indices) in enumerate(chunks):
         checkpoint(
-            cancel, progress, done, len(groups), f"depth group {done + 1}/{len(groups)} (reach {reach})"
+            cancel, progress, done, len(chunks), f"depth group {done + 1}/{len(chunks)} (reach {reach})"
         )
         patterns = conventional_patterns(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
-            cancel=cancel, nip_field=fields[indices],
+            cancel=cancel, nip_field=fields[indices], nip_oversampling=acc.nip_oversampling,
+            pixel_oversampling=acc.pixel_oversampling, light_margin=acc.light_margin,
         )  # fmt: skip
         h = patterns.shape[-1]
         start = (width - h) // 2
         data[:, :, indices, start : start + h, start : start + h] = patterns.permute(1, 2, 0, 3, 4)
         for i in indices:
             reach_of[i] = reach
-    checkpoint(cancel, progress, len(groups), len(groups), "patterns done")
+    checkpoint(cancel, progress, len(chunks), len(chunks), "patterns done")
     return PSFStack(
         data,
         depths,
@@ -105,13 +170,14 @@ def conventional_projector(
     system: ConventionalLFMSystem,
     depths: tuple[float, ...],
     *,
-    dtype: torch.dtype = torch.float32,
+    dtype: torch.dtype | None = None,
+    accuracy: ConventionalAccuracy | None = None,
     device: torch.device | str = "cpu",
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
 ) -> tuple[LensletLatticeProjector, PSFStack]:
     """Build ``A`` / ``A^T`` of ``system`` for ``depths`` (metres); also returns the pattern stack."""
     stack = conventional_psf_stack(
-        system, depths, dtype=dtype, device=device, progress=progress, cancel=cancel
+        system, depths, dtype=dtype, accuracy=accuracy, device=device, progress=progress, cancel=cancel
     )
     return lattice_projector(stack, system.lenslets), stack

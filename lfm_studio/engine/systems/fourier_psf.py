@@ -45,8 +45,12 @@ class FourierAccuracy:
     antialias : area-weighted lenslet aperture edges.
     dtype : ``torch.float32`` or ``torch.float64`` (fields in the matching complex dtype).
     method : ``"auto"``, ``"per_lenslet"`` or ``"full_field"``.
-    depth_chunk : depths per batch (bounds memory; on CPU small chunks are also faster).
-    propagator : propagation method of the full-field path (see :func:`propagate`).
+    depth_chunk : depths per batch of the per-lenslet path (bounds memory; on CPU small chunks
+        are also faster); the full-field path computes one depth at a time.
+    propagator : propagation method of the full-field path (see :func:`propagate`; not
+        ``"fresnel_ir"``, which changes the grid: the per-lenslet path is that method already).
+    padding : zero-padding factor (>= 1) of the full-field propagation (see :func:`propagate`);
+        the per-lenslet windows are sized by ``margin_airy`` instead.
     """
 
     oversampling: int = 3
@@ -57,6 +61,7 @@ class FourierAccuracy:
     method: str = "auto"
     depth_chunk: int = 8
     propagator: str = "auto"
+    padding: float = 2.0
 
     def __post_init__(self) -> None:
         if int(self.oversampling) != self.oversampling or self.oversampling < 1:
@@ -71,6 +76,8 @@ class FourierAccuracy:
             )
         if self.depth_chunk < 1:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
+        if not self.padding >= 1.0:
+            raise ValueError(f"padding must be >= 1 (1 = none); got {self.padding!r}. Fix: use 2.")
 
 
 @dataclass
@@ -229,6 +236,12 @@ def _mla_half_extent(mla: MicrolensArray) -> tuple[float, float]:
 
 
 def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tensor:
+    if acc.propagator == "fresnel_ir":
+        raise ValueError(
+            "propagator 'fresnel_ir' cannot feed the full-field pixel integration: its output grid "
+            "(spacing lambda d / (M dx)) is not the sensor's sub-pixel grid. Fix: use 'auto', "
+            "'bandlimited_asm', 'asm' or 'fresnel_tf' (the per-lenslet path is the single-FFT Fresnel transform)."
+        )
     s = acc.oversampling
     step = system.pixel_pitch / s
     ny, nx = system.sensor_shape
@@ -258,7 +271,7 @@ def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tenso
             check_sampling=False, dtype=cdtype, device=device,
         )  # fmt: skip
         field = relayed.with_data(relayed.data / m_r * mla, grid=grid)
-        at_sensor = propagate(field, system.mla_to_camera, method=acc.propagator)
+        at_sensor = propagate(field, system.mla_to_camera, method=acc.propagator, padding=acc.padding)
         power = bin_pixels(at_sensor.intensity() * (step * step), s)[0]
         out[i] = power[pad_y : pad_y + ny, pad_x : pad_x + nx].to(acc.dtype)
     checkpoint(cancel, progress, z.numel(), z.numel(), "done")

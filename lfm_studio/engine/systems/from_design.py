@@ -2,6 +2,26 @@
 
 The one place where the user-facing spec (units in key names) meets the engine's SI
 objects; each spec already converts its own units (``spec.focal_length`` in metres).
+
+Which accuracy knob (:class:`AccuracySpec`) reaches which computation:
+
+==================  ==========================================  ==========================================
+knob                Fourier LFM (:class:`FourierAccuracy`)      conventional LFM (:class:`ConventionalAccuracy`)
+==================  ==========================================  ==========================================
+propagator          full-field path only                        n/a: no FFT propagation (each lenslet is a
+                                                                direct Fresnel matrix product onto its window)
+oversampling        sub-samples per pixel (``s x s`` binning)   ``2 o - 1`` sensor-field sub-samples per
+                                                                pixel (midpoint rule); NIP grid factor
+                                                                ``max(1, o / 4)``
+padding             full-field propagation padding               n/a: no FFT, no wrap-around
+dtype               field precision                             field precision
+debye_points        n/a: the pupil-plane field is closed-form   not used: the engine's converged order for the
+                    (exact defocus phase, no quadrature)        phase excursion (fixed counts: 41-127 % error)
+objective_model     pupil field model                           NIP field model (Debye / paraxial)
+per_lenslet         "auto" (per lenslet unless sub-images       n/a: lenslets are always summed coherently
+                    overlap) or the full sensor field           on one sensor grid
+depth_chunk         depths per FFT batch (per-lenslet path)     depths per pattern batch
+==================  ==========================================  ==========================================
 """
 
 from __future__ import annotations
@@ -10,6 +30,7 @@ from lfm_studio.engine.design import Design
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
+from lfm_studio.engine.systems.conventional_psf import ConventionalAccuracy
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
@@ -57,6 +78,29 @@ def fourier_accuracy_of(design: Design) -> FourierAccuracy:
         method="auto" if spec.per_lenslet else "full_field",
         depth_chunk=spec.depth_chunk,
         propagator=spec.propagator,
+        padding=float(spec.padding),
+    )
+
+
+def conventional_accuracy_of(design: Design) -> ConventionalAccuracy:
+    """The conventional-LFM accuracy knobs of ``design.accuracy`` (see the module table).
+
+    ``oversampling`` ``o`` gives ``2 o - 1`` sensor-field sub-samples per rectified pixel
+    (odd, one on the pixel centre; 2 -> 3, the engine's default for the shipped designs)
+    and the NIP grid factor ``max(1, o / 4)``.
+    """
+    spec = design.accuracy
+    system = conventional_system_of(design)
+    # sub_samples() counts ceil(pixel * pixel_oversampling / nyquist), made odd: aim inside the bin.
+    nyquist_per_pixel = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
+    samples = 2 * int(spec.oversampling) - 1
+    return ConventionalAccuracy(
+        dtype=real_dtype_named(spec.dtype),
+        model=spec.objective_model,
+        debye_points=None,
+        pixel_oversampling=(samples - 0.5) * nyquist_per_pixel,
+        nip_oversampling=max(1.0, spec.oversampling / 4.0),
+        depth_chunk=spec.depth_chunk,
     )
 
 
