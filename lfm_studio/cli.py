@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 
 from lfm_studio import __version__
+from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
@@ -38,6 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_simulate_parsers(sub)
     add_info_parser(sub)
     add_reconstruct_parsers(sub)
+    add_bench_parser(sub)
     return parser
 
 

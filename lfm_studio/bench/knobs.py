@@ -1,0 +1,201 @@
+"""The knob settings the sweep evaluates, the converged reference, and the presets as points.
+
+Every setting is the "standard" preset's engine options with ONE knob changed (so a
+row shows what that knob costs and buys), plus one point per accuracy preset. Knobs
+that do not reach a system kind's computation are left out of its sweep (the reason
+is in ``NOT_APPLICABLE``). Engine-only knobs that :class:`AccuracySpec` does not
+expose (the per-lenslet window margin, the conventional NIP grid factor, light
+margin and radial table) are swept too, since the presets rely on their defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+
+import torch
+
+from lfm_studio.bench.cases import BenchCase
+from lfm_studio.engine.design import ACCURACY_PRESETS, AccuracySpec
+from lfm_studio.engine.design.evolve import evolve
+from lfm_studio.engine.systems.conventional_psf import ConventionalAccuracy
+from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
+from lfm_studio.engine.systems.from_design import conventional_accuracy_of, fourier_accuracy_of
+
+EngineOptions = FourierAccuracy | ConventionalAccuracy
+
+NOT_APPLICABLE: dict[str, dict[str, str]] = {
+    "fourier": {
+        "debye_points": "the pupil-plane field is closed-form (exact defocus phase), no quadrature",
+        "propagator=fresnel_ir": "changes the grid; the per-lenslet path is the single-FFT Fresnel transform",
+        "pixel integration": "exact s x s binning of aligned sub-samples: the oversampling rows",
+    },
+    "conventional": {
+        "propagator": "no FFT propagation: each lenslet is a direct Fresnel matrix product onto its window",
+        "padding": "no FFT, so no wrap-around; light_margin is the truncation knob",
+        "per_lenslet": "lenslets are always summed coherently on one sensor grid",
+    },
+}
+"""Knobs that do not reach a system kind's computation, with the reason."""
+
+REFERENCE_MARGIN_AIRY = (64.0, 96.0)  # per-lenslet window margin: reference, refined
+
+
+@dataclass(frozen=True)
+class KnobSetting:
+    """One point of the sweep: engine options and the knob (and value) that sets them apart."""
+
+    knob: str
+    value: str
+    options: EngineOptions
+
+    @property
+    def label(self) -> str:
+        """``knob=value`` (the point's name in tables and plots)."""
+        return f"{self.knob}={self.value}"
+
+
+def preset_options(case: BenchCase, preset: str) -> EngineOptions:
+    """Engine options of accuracy preset ``preset`` for ``case`` (through :mod:`from_design`)."""
+    design = evolve(case.design, "accuracy", AccuracySpec.from_preset(preset))
+    return fourier_accuracy_of(design) if case.kind == "fourier" else conventional_accuracy_of(design)
+
+
+def uses_full_field(case: BenchCase, options: EngineOptions) -> bool:
+    """Whether a Fourier case computes the full sensor field with these options."""
+    from lfm_studio.bench.cases import _sub_images_overlap
+
+    if not isinstance(options, FourierAccuracy):
+        return False
+    if options.method != "auto":
+        return options.method == "full_field"
+    return _sub_images_overlap(case.design, case.depths)
+
+
+def _extrapolated(
+    low: EngineOptions, high: EngineOptions, a: int, b: int
+) -> list[tuple[EngineOptions, float]]:
+    """Richardson weights for two midpoint-rule samplings with ``a < b`` samples per pixel (error ~ 1/s^2)."""
+    return [(low, -(a * a) / (b * b - a * a)), (high, (b * b) / (b * b - a * a))]
+
+
+def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[EngineOptions, float]]:
+    """The converged reference as weighted engine runs: ``sum(weight * stack(options))``.
+
+    The pixel integral (``s x s`` / ``m x m`` midpoint rule) converges as ``1/s^2`` (measured
+    on the XLFM lenslets: 6.4 %, 1.5 %, 0.66 %, 0.37 %, 0.16 %, 0.09 % for s = 1, 2, 3, 4, 6, 8),
+    so the reference is the Richardson extrapolation of two samplings, in float64:
+
+    - Fourier, per lenslet: s = 3 and 4 (refined: 4 and 6), window margin 64 (96) Airy lengths;
+    - Fourier, full field (sub-images overlap): s = 3 and 4 (4 and 6), band-limited ASM, padding 2;
+    - conventional: m = 5 and 7 (7 and 9) sensor sub-samples per pixel, NIP grid x1.5 (x2),
+      light margin 24 (32) diffraction lengths, the engine's converged Debye quadrature.
+    """
+    if case.kind == "fourier":
+        full = uses_full_field(case, FourierAccuracy())
+        a, b = (4, 6) if refined else (3, 4)
+        base = FourierAccuracy(
+            oversampling=a,
+            margin_airy=REFERENCE_MARGIN_AIRY[int(refined)],
+            model="debye",
+            dtype=torch.float64,
+            method="full_field" if full else "per_lenslet",
+            depth_chunk=1,
+            propagator="bandlimited_asm",
+            padding=2.0,
+        )
+        return _extrapolated(base, dataclasses.replace(base, oversampling=b), a, b)
+    from lfm_studio.engine.systems.conventional_patterns import sub_samples
+    from lfm_studio.engine.systems.from_design import conventional_system_of
+
+    system = conventional_system_of(case.design)
+    a, b = (7, 9) if refined else (5, 7)
+    nyquist_ratio = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
+    base = ConventionalAccuracy(
+        dtype=torch.float64,
+        model="debye",
+        debye_points=None,
+        nip_oversampling=2.0 if refined else 1.5,
+        light_margin=32.0 if refined else 24.0,
+        radial_sampling=8,
+        depth_chunk=64,
+    )
+    # pixel_oversampling giving exactly m sub-samples: just under m Nyquist-interval ratios.
+    low, high = (dataclasses.replace(base, pixel_oversampling=(m - 0.5) * nyquist_ratio) for m in (a, b))
+    assert (sub_samples(system, low.pixel_oversampling), sub_samples(system, high.pixel_oversampling)) == (
+        a,
+        b,
+    )
+    return _extrapolated(low, high, a, b)
+
+
+def _text(value: object) -> str:
+    if isinstance(value, torch.dtype):
+        return str(value).removeprefix("torch.")
+    return f"{value:g}" if isinstance(value, float) else str(value)
+
+
+def _vary(base: EngineOptions, knob: str, values, field: str | None = None) -> list[KnobSetting]:
+    """Settings with ``field`` (default ``knob``) set to each of ``values`` other than the base's."""
+    field = field or knob
+    return [
+        KnobSetting(knob, _text(v), dataclasses.replace(base, **{field: v}))
+        for v in values
+        if getattr(base, field) != v
+    ]
+
+
+def fourier_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSetting]:
+    """One-knob-at-a-time Fourier settings around the standard preset."""
+    base = preset_options(case, "standard")
+    full = uses_full_field(case, base)
+    settings = _vary(base, "oversampling", (1,) if quick else (1, 2, 4, 6))
+    settings += _vary(base, "dtype", (torch.float64,))
+    settings += _vary(base, "objective_model", ("paraxial",), field="model")
+    if full:  # the per-lenslet path for a case whose sub-images overlap (interference is lost)
+        settings.append(KnobSetting("method", "per_lenslet", dataclasses.replace(base, method="per_lenslet")))
+    # Propagator and padding act on the full-field path only; for a per-lenslet case they
+    # are measured there at one sub-sample per pixel (labelled), to keep the cost sane
+    # (the full XLFM field at s = 3 is a 16200^2 grid); "auto" there is the method=full_field row.
+    ff = base if full else dataclasses.replace(base, method="full_field", oversampling=1)
+    tag = "" if full else " (full field, s=1)"
+    props = ("bandlimited_asm",) if quick else ("asm", "bandlimited_asm", "fresnel_tf", "auto")
+    for prop in props:
+        if full and prop == base.propagator:
+            continue
+        settings.append(KnobSetting("propagator", prop + tag, dataclasses.replace(ff, propagator=prop)))
+    for pad in (1.0,) if quick else (1.0, 1.5, 3.0):
+        settings.append(KnobSetting("padding", f"{pad:g}{tag}", dataclasses.replace(ff, padding=pad)))
+    if not full:
+        margins = (8.0,) if quick else (8.0, 16.0, 64.0)
+        settings += [
+            KnobSetting("margin_airy", f"{m:g}", dataclasses.replace(base, margin_airy=m)) for m in margins
+        ]
+        chunks = (1,) if quick else (1, 16)
+        settings += _vary(base, "depth_chunk", chunks)
+    return settings
+
+
+def conventional_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSetting]:
+    """One-knob-at-a-time conventional settings around the standard preset."""
+    base = preset_options(case, "standard")
+    settings = _vary(base, "pixel_oversampling", (0.7,) if quick else (0.7, 1.4, 2.8, 4.2))
+    settings += _vary(base, "nip_oversampling", (2.0,) if quick else (1.5, 2.0))
+    settings += _vary(base, "dtype", (torch.float64,))
+    settings += _vary(base, "objective_model", ("paraxial",), field="model")
+    settings += _vary(base, "debye_points", (64,) if quick else (48, 64, 96, 128))
+    settings += _vary(base, "light_margin", (6.0,) if quick else (6.0, 24.0))
+    settings += _vary(base, "radial_sampling", ("exact",) if quick else (4, "exact"))
+    settings += _vary(base, "depth_chunk", (1,))
+    return settings
+
+
+def sweep_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSetting]:
+    """The presets first (``preset=NAME``), then every knob setting of the case's system kind."""
+    presets = [KnobSetting("preset", name, preset_options(case, name)) for name in ACCURACY_PRESETS]
+    knobs = (
+        fourier_settings(case, quick=quick)
+        if case.kind == "fourier"
+        else conventional_settings(case, quick=quick)
+    )
+    return presets + knobs

@@ -1,0 +1,125 @@
+"""Run the accuracy sweep of one case: reference, its convergence check, every setting timed and scored."""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass, field
+
+from lfm_studio.bench.cases import BenchCase
+from lfm_studio.bench.compute import compute_stack, depth_first, reference_stack
+from lfm_studio.bench.knobs import KnobSetting, reference_plan, sweep_settings
+from lfm_studio.bench.metrics import ITERATIONS, ReconstructionProbe, psf_error
+from lfm_studio.bench.pareto import pareto_front
+from lfm_studio.bench.timing import interleaved_times
+from lfm_studio.engine.progress import ProgressCallback
+
+
+@dataclass
+class Row:
+    """One setting's result: time (s, fastest interleaved round), ratio to the standard preset, errors."""
+
+    case: str
+    knob: str
+    value: str
+    seconds: float
+    ratio: float
+    psf_error: float
+    recon_error: float
+    front: bool = False
+    note: str = ""
+
+    @property
+    def label(self) -> str:
+        """``knob=value``."""
+        return f"{self.knob}={self.value}"
+
+
+@dataclass
+class CaseResult:
+    """The sweep of one case."""
+
+    case: str
+    kind: str
+    depths_um: tuple[float, ...]
+    note: str
+    reference_seconds: float
+    reference_change: float  # PSF error of the refined reference against the reference (NaN: not checked)
+    rows: list[Row] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        """JSON-ready form (units in key names)."""
+        out = asdict(self)
+        out["rows"] = [asdict(r) for r in self.rows]
+        return out
+
+
+def run_case(
+    case: BenchCase,
+    *,
+    quick: bool = False,
+    repeats: int = 2,
+    check_reference: bool = True,
+    iterations: int = ITERATIONS,
+    settings: list[KnobSetting] | None = None,
+    progress: ProgressCallback | None = None,
+) -> CaseResult:
+    """Time and score every setting of ``case`` against its converged reference.
+
+    ``check_reference`` also computes the one-step-finer reference and reports how much it
+    differs (the reference is converged when that is far below the tightest preset bound).
+    """
+    settings = settings if settings is not None else sweep_settings(case, quick=quick)
+    total = len(settings) * repeats + 1 + int(check_reference)
+    done = 0
+
+    def report(message: str) -> None:
+        nonlocal done
+        if progress is not None:
+            progress(min(done, total), total, f"{case.name}: {message}")
+        done += 1
+
+    report("reference")
+    start = time.perf_counter()
+    ref_stack = reference_stack(case, reference_plan(case))
+    reference_seconds = time.perf_counter() - start
+    reference = depth_first(ref_stack)
+    probe = ReconstructionProbe.from_reference(ref_stack, iterations=iterations)
+    change = math.nan
+    if check_reference:
+        report("refined reference (convergence check)")
+        finer = reference_stack(case, reference_plan(case, refined=True))
+        change = psf_error(depth_first(finer), reference)
+        del finer
+
+    errors: dict[int, tuple[float, float, str]] = {}
+
+    def score(index: int, result) -> None:
+        stack, warned = result
+        errors[index] = (psf_error(depth_first(stack), reference), probe.error(stack), "; ".join(warned))
+
+    tasks = [lambda s=s: compute_stack(case, s.options) for s in settings]
+    seconds = interleaved_times(
+        tasks,
+        repeats=repeats,
+        first=score,
+        before=lambda i, r: report(f"{settings[i].label} (round {r + 1})"),
+    )
+    base = next((t for s, t in zip(settings, seconds, strict=True) if s.label == "preset=standard"), math.nan)
+    rows = [
+        Row(case.name, s.knob, s.value, t, t / base, errors[i][0], errors[i][1], note=errors[i][2])
+        for i, (s, t) in enumerate(zip(settings, seconds, strict=True))
+    ]
+    for i in pareto_front([(r.seconds, r.psf_error) for r in rows]):
+        rows[i].front = True
+    if progress is not None:
+        progress(total, total, f"{case.name}: done")
+    return CaseResult(
+        case.name,
+        case.kind,
+        tuple(z * 1e6 for z in case.depths),
+        case.note,
+        reference_seconds,
+        change,
+        rows,
+    )
