@@ -23,7 +23,12 @@ once. Options (combinable):
 Numerics: ``A x + b`` and the sensitivity are floored at ``16 eps`` times their data
 scale (:mod:`.guards`), the back-projected ratio is clipped at 0 (FFT rounding and the
 negative lobes of unmatched back projectors), so estimates stay >= 0; estimate values
-below the smallest normal number are set to 0 (no denormals).
+below the smallest normal number are set to 0 (no denormals). RL is scale covariant
+(``y, b -> c y, c b`` gives ``x -> c x``), so the iterations run on the data divided by
+the power of two nearest its largest value and the estimates are multiplied back
+(exact in binary floating point): ``A x + b`` stays near 1 whatever the units, so with
+data near float32's smallest normal number (1.2e-38) no voxel is flushed to 0 during the
+iterations; only result values below it are 0.
 
 Start (``initial=None``): the uniform volume whose projection carries the image's
 counts, ``x_0 = sum(y - b) / sum(A^T 1)`` in every voxel (RL keeps that total after
@@ -32,6 +37,7 @@ its first step when ``b = 0``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
@@ -94,9 +100,13 @@ class _Problem:
         self.projector = projector
         self.dtype, self.device = working_dtype_device(projector, image)
         shape = tuple(projector.image_shape)
-        self.image = check_image(image, shape, dtype=self.dtype, device=self.device)
-        self.background = check_background(background, shape, dtype=self.dtype, device=self.device)
-        self.signal = check_signal(self.image, self.background)
+        image = check_image(image, shape, dtype=self.dtype, device=self.device)
+        background = check_background(background, shape, dtype=self.dtype, device=self.device)
+        check_signal(image, background)
+        self.data_scale = _power_of_two_near(max(float(image.max()), float(background.max())))
+        self.image = self.from_data_units(image)
+        self.background = self.from_data_units(background)
+        self.signal = float((self.image.double() - self.background.double()).sum())
         self.volume_shape = tuple(projector.volume_shape)
         self.backproject = backprojector if backprojector is not None else projector.adjoint
         ones = torch.ones(shape, dtype=self.dtype, device=self.device)
@@ -118,6 +128,20 @@ class _Problem:
                 f"the projector sends no light to the camera: sum(A 1) = {self.flux:.6g} (must be > 0). "
                 "Fix: check the PSF stack (it may be all zero)."
             )
+
+    def from_data_units(self, tensor: torch.Tensor) -> torch.Tensor:
+        """``tensor`` (image counts or volume) divided by :attr:`data_scale`, exactly (a power of two)."""
+        if self.data_scale == 1.0:
+            return tensor
+        return (tensor.double() / self.data_scale).to(self.dtype)
+
+    def to_data_units(self, tensor: torch.Tensor) -> torch.Tensor:
+        """A working estimate multiplied back by :attr:`data_scale` (a fresh tensor unless the scale
+        is 1); values that fall below the smallest normal number there are 0 (no denormals)."""
+        if self.data_scale == 1.0:
+            return tensor
+        scaled = tensor * self.data_scale
+        return scaled.masked_fill(scaled < self.smallest_normal, 0.0) if self.data_scale < 1.0 else scaled
 
     def _volume(self, volume: torch.Tensor) -> torch.Tensor:
         if tuple(volume.shape) != self.volume_shape:
@@ -149,8 +173,9 @@ class _Problem:
         if tv_weight:
             denominator = denominator * tv_denominator(point, tv_weight)
         update = point * correction / floored(denominator, self.sensitivity_scale, self.dtype)
-        # Background voxels shrink geometrically; flush values below the smallest normal number to 0
-        # so they never turn denormal (denormal arithmetic is 10-100x slower on x86 CPUs).
+        # Background voxels shrink geometrically; flush values below the smallest normal number (in
+        # working and in data units) to 0 so they never turn denormal (denormal arithmetic is
+        # 10-100x slower on x86 CPUs).
         return update.masked_fill(update < self.smallest_normal, 0.0)
 
     def initial(self) -> torch.Tensor:
@@ -159,13 +184,23 @@ class _Problem:
         return torch.full(self.volume_shape, level, dtype=self.dtype, device=self.device)
 
     def nll(self, predicted: torch.Tensor) -> float:
-        """Poisson NLL ``sum(Ax + b - y log(Ax + b))`` from ``predicted = Ax + b``, in float64.
+        """Poisson NLL ``sum(Ax + b - y log(Ax + b))`` in the data's units, from the working
+        ``predicted = (Ax + b) / c``, in float64 (``c`` = :attr:`data_scale`).
 
-        The constant ``sum(log y!)`` is dropped.
+        ``sum(c m - c y log(c m)) = c (sum(m - y log m) - log(c) sum(y))``; the constant
+        ``sum(log y!)`` is dropped.
         """
         mean = predicted.detach().double()
         y = self.image.double()
-        return float((mean - torch.xlogy(y, mean)).sum())
+        c = self.data_scale
+        return c * float((mean - torch.xlogy(y, mean)).sum() - math.log(c) * y.sum())
+
+
+def _power_of_two_near(value: float) -> float:
+    """``2**e`` with ``value / 2**e`` in ``[1, 2)`` (1.0 for a value that is not > 0)."""
+    if not value > 0.0:
+        return 1.0
+    return math.ldexp(1.0, math.frexp(value)[1] - 1)
 
 
 def _norm(tensor: torch.Tensor) -> float:
@@ -183,7 +218,7 @@ def poisson_nll(projector: Any, volume: Any, image: Any, *, background: Any = 0.
     """
     problem = _Problem(projector, image, background, None)
     x = check_estimate("volume", volume, problem.volume_shape, dtype=problem.dtype, device=problem.device)
-    return problem.nll(problem.predicted(x))
+    return problem.nll(problem.predicted(problem.from_data_units(x)))
 
 
 def richardson_lucy_iterates(
@@ -250,8 +285,10 @@ def richardson_lucy_iterates(
     if initial is None:
         x = problem.initial()
     else:
-        x = check_estimate(
-            "initial", initial, problem.volume_shape, dtype=problem.dtype, device=problem.device
+        x = problem.from_data_units(
+            check_estimate(
+                "initial", initial, problem.volume_shape, dtype=problem.dtype, device=problem.device
+            )
         )
     return _iterate(problem, x, iterations, rtol, acceleration, tv_weight, track_nll, progress, cancel)
 
@@ -281,7 +318,7 @@ def _iterate(
         x, done = update, k
         known = problem.predicted(x) if track_nll else None
         nll = problem.nll(known) if track_nll else None
-        yield Iterate(k, x, change, nll, extrapolation.alpha if extrapolation else 0.0)
+        yield Iterate(k, problem.to_data_units(x), change, nll, extrapolation.alpha if extrapolation else 0.0)
         if rtol is not None and change < rtol:
             break
     if progress is not None:
