@@ -25,8 +25,13 @@ from lfm_studio.engine.design import Design, MLASpec, list_presets, load_design,
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.layer_data import LayerError, design_of, kind_of, psf_layer_data
 from lfm_studio.napari_plugin.layer_picker import same_layer, unwrapped
-from lfm_studio.napari_plugin.notify import design_warnings_collected, report_error, report_info
-from lfm_studio.napari_plugin.psf_task import psf_task
+from lfm_studio.napari_plugin.notify import (
+    design_or_report,
+    design_warnings_collected,
+    report_error,
+    report_info,
+)
+from lfm_studio.napari_plugin.psf_task import start_psf_task
 from lfm_studio.napari_plugin.task_controls import TaskControls
 from lfm_studio.widgets.mla_editor import MLAEditor
 
@@ -140,11 +145,10 @@ class MLADock(QWidget):
         """Compute the edited design's PSF in the background; replace the source layer or add one when done."""
         if self.design is None or self._task is not None:
             return False
-        task = psf_task(self.design, parent=self)
-        task.ended.connect(self._on_ended)
-        self.controls.attach(task, f"computing the PSF of {self.design.name!r}")
-        self._task = task
-        task.start()
+        self._task = start_psf_task(
+            self.design, parent=self, controls=self.controls, on_ended=self._on_ended,
+            message=f"computing the PSF of {self.design.name!r}",
+        )  # fmt: skip
         return True
 
     def cancel(self) -> None:
@@ -154,14 +158,10 @@ class MLADock(QWidget):
     # ----- internals -----
 
     def _load(self, loader: Any, argument: Any, label: str) -> bool:
-        try:
-            with design_warnings_collected():
-                design = loader(argument)
-        except (ValueError, OSError) as error:
-            report_error(f"Cannot edit {label}: {error}")
-            return False
-        self.set_design(design)
-        return True
+        design = design_or_report(loader, argument, f"Cannot edit {label}")
+        if design is not None:
+            self.set_design(design)
+        return design is not None
 
     def _open(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Open a design file", "", "Design files (*.json)")

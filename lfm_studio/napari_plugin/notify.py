@@ -12,11 +12,12 @@ from __future__ import annotations
 import contextlib
 import logging
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from typing import Any
 
 from napari.utils.notifications import show_error, show_info, show_warning
 
-from lfm_studio.engine.design import DesignWarning
+from lfm_studio.engine.design import Design, DesignWarning
 
 _log = logging.getLogger(__name__)
 
@@ -52,3 +53,14 @@ def design_warnings_collected() -> Iterator[list[str]]:
     for message in dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DesignWarning)):
         found.append(message)
         report_warning(message)
+
+
+def design_or_report(loader: Callable[[Any], Design], argument: Any, refusal: str) -> Design | None:
+    """``loader(argument)`` with its design warnings shown; ``None`` after the error notification
+    ``"{refusal}: {error}"`` when the design cannot be read or is refused."""
+    try:
+        with design_warnings_collected():
+            return loader(argument)
+    except (ValueError, OSError) as error:
+        report_error(f"{refusal}: {error}")
+        return None

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 
 from qtpy.QtCore import QObject
 
@@ -10,7 +11,8 @@ from lfm_studio.engine.design import Design
 from lfm_studio.engine.progress import ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.simulation import simulate_psf
-from lfm_studio.napari_plugin.background import BackgroundTask
+from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.task_controls import TaskControls
 
 
 def psf_task(
@@ -26,3 +28,19 @@ def psf_task(
         return stack.with_data(stack.data.detach().cpu())
 
     return BackgroundTask(compute, parent)
+
+
+def start_psf_task(
+    design: Design,
+    *,
+    parent: QObject,
+    controls: TaskControls,
+    on_ended: Callable[[Outcome], None],
+    message: str,
+) -> BackgroundTask:
+    """Start :func:`psf_task` for ``design``, followed by ``controls`` (progress, cancel) and ``on_ended``."""
+    task = psf_task(design, parent=parent)
+    task.ended.connect(on_ended)
+    controls.attach(task, message)
+    task.start()
+    return task

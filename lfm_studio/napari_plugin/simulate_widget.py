@@ -31,8 +31,13 @@ from qtpy.QtWidgets import (
 from lfm_studio.engine.design import AccuracySpec, Design, list_presets, load_design, load_preset
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.layer_data import psf_layer_data
-from lfm_studio.napari_plugin.notify import design_warnings_collected, report_error, report_info
-from lfm_studio.napari_plugin.psf_task import psf_task
+from lfm_studio.napari_plugin.notify import (
+    design_or_report,
+    design_warnings_collected,
+    report_error,
+    report_info,
+)
+from lfm_studio.napari_plugin.psf_task import start_psf_task
 from lfm_studio.napari_plugin.task_controls import TaskControls
 
 DESIGN_ACCURACY = "as in the design"
@@ -168,11 +173,10 @@ class SimulateWidget(QWidget):
             report_error(f"Cannot simulate: {error}")
             return False
         self._name = f"PSF {design.name}"
-        task = psf_task(design, parent=self)
-        task.ended.connect(self._on_ended)
-        self.controls.attach(task, f"simulating {design.name!r}: {describe(design)}")
-        self._task = task
-        task.start()
+        self._task = start_psf_task(
+            design, parent=self, controls=self.controls, on_ended=self._on_ended,
+            message=f"simulating {design.name!r}: {describe(design)}",
+        )  # fmt: skip
         return True
 
     def cancel(self) -> None:
@@ -182,14 +186,10 @@ class SimulateWidget(QWidget):
     # ----- internals -----
 
     def _load(self, loader: Any, argument: Any, label: str) -> bool:
-        try:
-            with design_warnings_collected():
-                design = loader(argument)
-        except (ValueError, OSError) as error:
-            report_error(f"Cannot use {label}: {error}")
-            return False
-        self.set_design(design, label)
-        return True
+        design = design_or_report(loader, argument, f"Cannot use {label}")
+        if design is not None:
+            self.set_design(design, label)
+        return design is not None
 
     def _browse(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Open a design file", "", "Design files (*.json)")
