@@ -46,13 +46,14 @@ def write_pareto_png(
 
 
 def _render_pyqtgraph(results: list[CaseResult]) -> bytes:
-    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
     import pyqtgraph as pg
     import pyqtgraph.exporters as exporters
-    from pyqtgraph.Qt import QtCore, QtGui
+    from pyqtgraph.Qt import QtCore, QtGui, QtWidgets
 
-    pg.mkQApp()
+    app = QtWidgets.QApplication.instance()
+    if app is None:  # headless drawing; os.environ is left alone, so later Qt apps are not affected
+        app = QtWidgets.QApplication(["lfm-studio bench", "-platform", "offscreen"])
     pg.setConfigOptions(antialias=True, background="w", foreground="k")
     columns = min(2, max(1, len(results)))
     rows = math.ceil(len(results) / columns)
@@ -93,7 +94,7 @@ def _render_pyqtgraph(results: list[CaseResult]) -> bytes:
             plot.addItem(text)
     width, height = PANEL_SIZE[0] * columns, PANEL_SIZE[1] * rows
     layout.ci.setGeometry(QtCore.QRectF(0, 0, width, height))  # a hidden widget is never laid out
-    pg.mkQApp().processEvents()
+    app.processEvents()
     exporter = exporters.ImageExporter(layout.ci)
     exporter.parameters()["width"] = width
     image = exporter.export(toBytes=True)

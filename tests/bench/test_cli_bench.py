@@ -30,7 +30,9 @@ def tiny_design(tmp_path):
     return path
 
 
-def test_bench_quick_writes_a_parsable_table_json_and_png(tiny_design, tmp_path, capsys):
+def test_bench_quick_writes_a_parsable_table_json_and_png(qapp, tiny_design, tmp_path, capsys):
+    # qapp: the session's QApplication (on Xvfb) exists first, so the plot reuses it instead of
+    # creating an offscreen one that later Qt tests in this process would inherit (no OpenGL).
     out = tmp_path / "bench"
     assert _main(["bench", "--design", str(tiny_design), "--quick", "--out", str(out), "--threads", "1"]) == 0
     printed = capsys.readouterr().out
