@@ -180,7 +180,7 @@ def conventional_settings(case: BenchCase, *, quick: bool = False) -> list[KnobS
     """One-knob-at-a-time conventional settings around the standard preset."""
     base = preset_options(case, "standard")
     settings = _vary(base, "pixel_oversampling", (0.7,) if quick else (0.7, 1.4, 2.8, 4.2))
-    settings += _vary(base, "nip_oversampling", (2.0,) if quick else (1.5, 2.0))
+    settings += _vary(base, "nip_oversampling", (2.0,) if quick else (1.0, 1.5, 2.0))
     settings += _vary(base, "dtype", (torch.float64,))
     settings += _vary(base, "objective_model", ("paraxial",), field="model")
     settings += _vary(base, "debye_points", (64,) if quick else (48, 64, 96, 128))

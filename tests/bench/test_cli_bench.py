@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import pytest
 
@@ -30,9 +31,17 @@ def tiny_design(tmp_path):
     return path
 
 
-def test_bench_quick_writes_a_parsable_table_json_and_png(qapp, tiny_design, tmp_path, capsys):
-    # qapp: the session's QApplication (on Xvfb) exists first, so the plot reuses it instead of
-    # creating an offscreen one that later Qt tests in this process would inherit (no OpenGL).
+@pytest.fixture
+def plot_app(request):
+    """The session's QApplication when there is a display (pytest-xvfb), so the plot reuses it:
+    an offscreen one made by the plot would be inherited by the later Qt tests of this process
+    (no OpenGL for napari). Without a display (``-p no:xvfb``) the plot makes its own."""
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return request.getfixturevalue("qapp")
+    return None
+
+
+def test_bench_quick_writes_a_parsable_table_json_and_png(plot_app, tiny_design, tmp_path, capsys):
     out = tmp_path / "bench"
     assert _main(["bench", "--design", str(tiny_design), "--quick", "--out", str(out), "--threads", "1"]) == 0
     printed = capsys.readouterr().out

@@ -1,8 +1,7 @@
 """Fixtures for the napari plugin tests (``make_napari_viewer`` from napari's pytest plugin, under pytest-xvfb).
 
 ``qapp`` (session)
-    The application from :func:`lfm_studio.widgets.napari_embed.prepare_qt_app` (OpenGL context
-    sharing on before the QApplication exists), as in ``tests/ui``.
+    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.napari_embed.prepare_qt_app`).
 ``bead_layers`` (session)
     The plugin's bead sample, computed once (about 2 s); :func:`add_layers` puts copies into a viewer.
 ``notes``
@@ -16,14 +15,7 @@ import copy
 import pytest
 from napari.layers import Layer
 
-from lfm_studio.widgets import napari_embed
-
 PLUGIN = "lfm-studio"
-
-
-@pytest.fixture(scope="session")
-def qapp(qapp_args, pytestconfig):
-    return napari_embed.prepare_qt_app(qapp_args, name=pytestconfig.getini("qt_qapp_name"))
 
 
 @pytest.fixture(scope="session")

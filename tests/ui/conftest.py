@@ -1,9 +1,7 @@
 """Shared fixtures for the UI tests (pytest-qt under pytest-xvfb; ``QT_QPA_PLATFORM`` unset).
 
 ``qapp`` (session)
-    Overrides pytest-qt's fixture (``qtbot`` uses it): the application comes from
-    :func:`lfm_studio.widgets.napari_embed.prepare_qt_app`, so OpenGL context sharing is on
-    before the QApplication exists, as in the studio.
+    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.napari_embed.prepare_qt_app`).
 ``close_napari_viewers`` (autouse)
     After each test, closes any napari ``QtViewer`` still alive (e.g. a window the test
     forgot to close, or a failing test) and runs the pending deletions, so napari's
@@ -20,11 +18,6 @@ import sys
 import pytest
 
 from lfm_studio.widgets import napari_embed
-
-
-@pytest.fixture(scope="session")
-def qapp(qapp_args, pytestconfig):
-    return napari_embed.prepare_qt_app(qapp_args, name=pytestconfig.getini("qt_qapp_name"))
 
 
 def collect_widgets() -> None:
