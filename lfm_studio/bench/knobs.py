@@ -28,17 +28,18 @@ NOT_APPLICABLE: dict[str, dict[str, str]] = {
     "fourier": {
         "debye_points": "the pupil-plane field is closed-form (exact defocus phase), no quadrature",
         "propagator=fresnel_ir": "changes the grid; the per-lenslet path is the single-FFT Fresnel transform",
-        "pixel integration": "exact s x s binning of aligned sub-samples: the oversampling rows",
     },
     "conventional": {
         "propagator": "no FFT propagation: each lenslet is a direct Fresnel matrix product onto its window",
         "padding": "no FFT, so no wrap-around; light_margin is the truncation knob",
         "per_lenslet": "lenslets are always summed coherently on one sensor grid",
+        "pixel_integration": "always the midpoint rule with m sub-samples: the pixel_oversampling rows",
     },
 }
 """Knobs that do not reach a system kind's computation, with the reason."""
 
 REFERENCE_MARGIN_AIRY = (64.0, 96.0)  # per-lenslet window margin: reference, refined
+REFERENCE_FOURIER_SAMPLING = {"per_lenslet": (2, 3), "full_field": (6, 8)}  # s: reference, refined
 
 
 @dataclass(frozen=True)
@@ -82,20 +83,21 @@ def _extrapolated(
 def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[EngineOptions, float]]:
     """The converged reference as weighted engine runs: ``sum(weight * stack(options))``.
 
-    The pixel integral (``s x s`` / ``m x m`` midpoint rule) converges as ``1/s^2`` (measured
-    on the XLFM lenslets: 6.4 %, 1.5 %, 0.66 %, 0.37 %, 0.16 %, 0.09 % for s = 1, 2, 3, 4, 6, 8),
-    so the reference is the Richardson extrapolation of two samplings, in float64:
-
-    - Fourier, per lenslet: s = 3 and 4 (refined: 4 and 6), window margin 64 (96) Airy lengths;
-    - Fourier, full field (sub-images overlap): s = 3 and 4 (4 and 6), band-limited ASM, padding 2;
-    - conventional: m = 5 and 7 (7 and 9) sensor sub-samples per pixel, NIP grid x1.5 (x2),
-      light margin 24 (32) diffraction lengths, the engine's converged Debye quadrature.
+    - Fourier: one float64 run with the exact (Fourier) pixel integration, which is exact once
+      the intensity is sampled without aliasing (XLFM lenslets: s = 1, 2 and 3 agree to 1.5e-6
+      and 2e-14). Per lenslet: s = 2 (refined: 3), window margin 64 (96) Airy lengths. Full field
+      (sub-images overlap): s = 6 (refined: 8), band-limited ASM, padding 2; there the lenslet
+      edges are sampled on the same grid, so the result still moves with s (Guo: 5e-4 from
+      s = 3 to 6).
+    - conventional: the midpoint pixel integral (``m x m`` sub-samples) converges as ``1/m^2``,
+      so the reference is the Richardson extrapolation of m = 5 and 7 (refined: 7 and 9), NIP
+      grid x1.5 (x2), light margin 24 (32) diffraction lengths, the converged Debye quadrature.
     """
     if case.kind == "fourier":
         full = uses_full_field(case, FourierAccuracy())
-        a, b = (4, 6) if refined else (3, 4)
-        base = FourierAccuracy(
-            oversampling=a,
+        s = REFERENCE_FOURIER_SAMPLING["full_field" if full else "per_lenslet"][int(refined)]
+        options = FourierAccuracy(
+            oversampling=s,
             margin_airy=REFERENCE_MARGIN_AIRY[int(refined)],
             model="debye",
             dtype=torch.float64,
@@ -103,8 +105,9 @@ def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[Engi
             depth_chunk=1,
             propagator="bandlimited_asm",
             padding=2.0,
+            pixel_integration="fourier",
         )
-        return _extrapolated(base, dataclasses.replace(base, oversampling=b), a, b)
+        return [(options, 1.0)]
     from lfm_studio.engine.systems.conventional_patterns import sub_samples
     from lfm_studio.engine.systems.from_design import conventional_system_of
 
@@ -149,7 +152,14 @@ def fourier_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSettin
     """One-knob-at-a-time Fourier settings around the standard preset."""
     base = preset_options(case, "standard")
     full = uses_full_field(case, base)
-    settings = _vary(base, "oversampling", (1,) if quick else (1, 2, 4, 6))
+    settings = _vary(base, "oversampling", (1,) if quick else (1, 2, 3, 4))
+    # The sub-sample sum (midpoint rule) at the standard sampling and at finer ones.
+    midpoint = dataclasses.replace(base, pixel_integration="midpoint")
+    for s in (base.oversampling,) if quick else (base.oversampling, 3, 6):
+        value = "midpoint" if s == base.oversampling else f"midpoint, s={s}"
+        settings.append(
+            KnobSetting("pixel_integration", value, dataclasses.replace(midpoint, oversampling=s))
+        )
     settings += _vary(base, "dtype", (torch.float64,))
     settings += _vary(base, "objective_model", ("paraxial",), field="model")
     if full:  # the per-lenslet path for a case whose sub-images overlap (interference is lost)

@@ -51,9 +51,9 @@ class Context(Protocol):
 def preview_design(design: Design) -> Design | None:
     """A cheaper variant of ``design`` for the quick preview, or None when the design is small already.
 
-    The "preview" accuracy preset (2 sub-samples per pixel, Debye objective: <= 5 % PSF error,
-    :data:`PRESET_ERROR_BOUNDS`) and, for big Fourier sensors, 2 x 2 pixel binning (same sensor
-    area, same sub-image positions; 2 sub-samples of a binned pixel cost what 1 of a full one does).
+    The "preview" accuracy preset (1 sub-sample per pixel with the exact pixel integration, Debye
+    objective: <= 5 % PSF error, :data:`PRESET_ERROR_BOUNDS`) and, for big Fourier sensors, 2 x 2
+    pixel binning (same sensor area, same sub-image positions).
     """
     ny, nx = design.camera.pixel_count
     big_sensor = min(ny, nx) >= PREVIEW_BINNING_FROM

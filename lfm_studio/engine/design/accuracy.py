@@ -19,28 +19,27 @@ PresetName = Literal["preview", "standard", "reference", "custom"]
 Propagator = Literal["auto", "asm", "bandlimited_asm", "fresnel_tf", "fresnel_ir"]
 
 ACCURACY_PRESETS: dict[str, dict[str, Any]] = {
-    # Fast look while editing: 2 sub-samples per pixel (1 costs 4x less but measured 6 % on
-    # the XLFM), Debye objective (the paraxial one costs the same and is off by 10-100 %).
+    # Fast look while editing: 1 sub-sample per pixel, exact (Fourier) pixel integration, Debye
+    # objective (the paraxial one costs the same and is off by 13-98 %).
     "preview": dict(
-        propagator="auto", oversampling=2, padding=1.5, dtype="float32",
+        propagator="auto", oversampling=1, pixel_integration="fourier", padding=1.5, dtype="float32",
         debye_points=32, objective_model="debye", per_lenslet=True, depth_chunk=8,
     ),
-    # Default: 3 sub-samples per pixel (pixel integration error ~ 6 % / s^2), float32.
+    # Default: 2 sub-samples per pixel (enough for the intensity's band limit), float32.
     "standard": dict(
-        propagator="auto", oversampling=3, padding=2.0, dtype="float32",
+        propagator="auto", oversampling=2, pixel_integration="fourier", padding=2.0, dtype="float32",
         debye_points=64, objective_model="debye", per_lenslet=True, depth_chunk=4,
     ),
-    # For benchmarks and checks: 6 sub-samples per pixel, float64, band-limited ASM where a
-    # full field is computed. Per lenslet when sub-images do not overlap: the full sensor
-    # field at this sampling needs tens of GB for the XLFM.
+    # For benchmarks and checks: 3 sub-samples per pixel, float64, band-limited ASM where a
+    # full field is computed. Per lenslet when sub-images do not overlap.
     "reference": dict(
-        propagator="bandlimited_asm", oversampling=6, padding=2.0, dtype="float64",
-        debye_points=256, objective_model="debye", per_lenslet=True, depth_chunk=4,
+        propagator="bandlimited_asm", oversampling=3, pixel_integration="fourier", padding=2.0,
+        dtype="float64", debye_points=256, objective_model="debye", per_lenslet=True, depth_chunk=4,
     ),
 }  # fmt: skip
 
 PRESET_ERROR_BOUNDS: dict[str, dict[str, float]] = {
-    "fourier": {"preview": 0.05, "standard": 0.01, "reference": 0.005},
+    "fourier": {"preview": 0.05, "standard": 0.01, "reference": 0.001},
     "conventional": {"preview": 0.05, "standard": 0.01, "reference": 0.005},
 }
 """Worst-depth relative L2 error of each preset's PSF stack against the converged reference,
@@ -68,7 +67,12 @@ class AccuracySpec(SpecModel):
     propagator : "auto", "asm", "bandlimited_asm", "fresnel_tf" or "fresnel_ir"
         Free-space propagation method ("auto" chooses from the Fresnel number and sampling).
     oversampling : int
-        Simulation grid points per camera pixel along each axis (>= 1).
+        Simulation grid points per camera pixel along each axis (>= 1). Conventional LFM:
+        ``2^o + 1`` sensor-field sub-samples per pixel.
+    pixel_integration : "fourier" or "midpoint"
+        Fourier LFM: how a pixel's power is taken from its sub-samples: the exact box integral
+        of the band-limited intensity ("fourier") or their sum ("midpoint", error ~ 1/s^2).
+        Conventional LFM: always the midpoint rule.
     padding : float
         Grid size factor applied before propagating (>= 1; 2 avoids wrap-around).
     dtype : "float32" or "float64"
@@ -91,6 +95,7 @@ class AccuracySpec(SpecModel):
     preset: PresetName = "standard"
     propagator: Propagator
     oversampling: int
+    pixel_integration: Literal["fourier", "midpoint"]
     padding: float
     dtype: Literal["float32", "float64"]
     debye_points: int

@@ -25,18 +25,11 @@ from lfm_studio.engine.dtypes import real_dtype
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla_layout import Lenslet
 from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.optics.pixel_integration import integrate_pixels
 from lfm_studio.engine.optics.pupil_field import pupil_terms
 from lfm_studio.engine.optics.pupils import disk_coverage, square_coverage
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 from lfm_studio.engine.systems.fourier_windows import LensletWindow
-
-
-def bin_pixels(power: torch.Tensor, factor: int) -> torch.Tensor:
-    """Sum ``factor x factor`` blocks of the last two dims (exact pixel integration of aligned sub-samples)."""
-    if factor == 1:
-        return power
-    *lead, ny, nx = power.shape
-    return power.reshape(*lead, ny // factor, factor, nx // factor, factor).sum(dim=(-3, -1))
 
 
 def lenslet_psf(
@@ -51,6 +44,7 @@ def lenslet_psf(
     dtype: torch.dtype = torch.float32,
     source_position: tuple[float, float] = (0.0, 0.0),
     depth_chunk: int = 8,
+    pixel_integration: str = "midpoint",
 ) -> torch.Tensor:
     """Power per sensor pixel behind one lenslet for each depth.
 
@@ -69,6 +63,7 @@ def lenslet_psf(
         the defocus part is radially symmetric, which leaves the tilt: evaluated at
         ``+r / m_r`` with the source at ``(-x0, -y0)``.
     depth_chunk : depths per FFT batch (bounds memory; small chunks are cache-friendly on CPU).
+    pixel_integration : ``"midpoint"`` or ``"fourier"`` (:func:`integrate_pixels`).
 
     Returns
     -------
@@ -93,7 +88,11 @@ def lenslet_psf(
         if dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
             phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
         parts.append(
-            bin_pixels(fft.centered_power(torch.polar(amplitude.expand_as(phase), phase)), oversampling)
+            integrate_pixels(
+                fft.centered_power(torch.polar(amplitude.expand_as(phase), phase)),
+                oversampling,
+                pixel_integration,
+            )
         )
     return torch.cat(parts, dim=0)
 

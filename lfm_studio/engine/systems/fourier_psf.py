@@ -21,11 +21,12 @@ from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS, integrate_pixels
 from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.fourier_lenslet import bin_pixels, lenslet_psf
+from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 from lfm_studio.engine.systems.fourier_windows import LensletWindow, plan_window, windows_overlap
 from lfm_studio.engine.systems.lenslet_cache import LensletCache, stable_key
@@ -39,7 +40,9 @@ class FourierAccuracy:
 
     Attributes
     ----------
-    oversampling : sub-samples per sensor pixel per axis (pixel integration by exact binning).
+    oversampling : sub-samples per sensor pixel per axis.
+    pixel_integration : ``"midpoint"`` (sum of the sub-samples, error ~ 1/s^2) or ``"fourier"``
+        (exact box integral of the band-limited intensity, :func:`integrate_pixels`).
     margin_airy : diffraction margin of each lenslet window in ``lambda d / D`` (per-lenslet path).
     model : objective model, ``"debye"`` (exact defocus phase) or ``"paraxial"``.
     antialias : area-weighted lenslet aperture edges.
@@ -62,6 +65,7 @@ class FourierAccuracy:
     depth_chunk: int = 8
     propagator: str = "auto"
     padding: float = 2.0
+    pixel_integration: str = "midpoint"
 
     def __post_init__(self) -> None:
         if int(self.oversampling) != self.oversampling or self.oversampling < 1:
@@ -78,6 +82,11 @@ class FourierAccuracy:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
         if not self.padding >= 1.0:
             raise ValueError(f"padding must be >= 1 (1 = none); got {self.padding!r}. Fix: use 2.")
+        if self.pixel_integration not in PIXEL_INTEGRATIONS:
+            raise ValueError(
+                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {self.pixel_integration!r}. "
+                "Fix: use 'fourier'."
+            )
 
 
 @dataclass
@@ -99,7 +108,14 @@ def _lenslet_key(
         system.pixel_pitch, system.sensor_shape, system.wavelength,
     )  # fmt: skip
     lens_key = (lens.center, lens.aperture_diameter, float(_value(lens.focal_length)), lens.shape)
-    knobs = (acc.oversampling, acc.margin_airy, acc.model, acc.antialias, str(acc.dtype))
+    knobs = (
+        acc.oversampling,
+        acc.margin_airy,
+        acc.model,
+        acc.antialias,
+        str(acc.dtype),
+        acc.pixel_integration,
+    )
     return stable_key(optics, lens_key, depths, knobs, str(torch.device(device)))
 
 
@@ -186,7 +202,12 @@ def fourier_psf_stack(
         system.magnification,
         system.wavelength,
         design=design,
-        metadata={"method": method, "oversampling": acc.oversampling, "model": acc.model},
+        metadata={
+            "method": method,
+            "oversampling": acc.oversampling,
+            "model": acc.model,
+            "pixel_integration": acc.pixel_integration,
+        },
     )
 
 
@@ -203,6 +224,7 @@ def _per_lenslet(
             patch = lenslet_psf(
                 system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
                 antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
+                pixel_integration=acc.pixel_integration,
             )  # fmt: skip
             report.lenslets_computed.append(index)
             if cache is not None:
@@ -272,7 +294,7 @@ def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tenso
         )  # fmt: skip
         field = relayed.with_data(relayed.data / m_r * mla, grid=grid)
         at_sensor = propagate(field, system.mla_to_camera, method=acc.propagator, padding=acc.padding)
-        power = bin_pixels(at_sensor.intensity() * (step * step), s)[0]
+        power = integrate_pixels(at_sensor.intensity() * (step * step), s, acc.pixel_integration)[0]
         out[i] = power[pad_y : pad_y + ny, pad_x : pad_x + nx].to(acc.dtype)
     checkpoint(cancel, progress, z.numel(), z.numel(), "done")
     return out

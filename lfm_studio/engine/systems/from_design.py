@@ -10,9 +10,11 @@ knob                Fourier LFM (:class:`FourierAccuracy`)      conventional LFM
 ==================  ==========================================  ==========================================
 propagator          full-field path only                        n/a: no FFT propagation (each lenslet is a
                                                                 direct Fresnel matrix product onto its window)
-oversampling        sub-samples per pixel (``s x s`` binning)   ``2 o - 1`` sensor-field sub-samples per
+oversampling        sub-samples per pixel                       ``2^o + 1`` sensor-field sub-samples per
                                                                 pixel (midpoint rule); NIP grid factor
-                                                                ``clip(o / 2, 1, 1.5)``
+                                                                ``clip(o, 1, 1.5)``
+pixel_integration   exact box integral ("fourier") or the       n/a: midpoint rule
+                    sub-sample sum ("midpoint")
 padding             full-field propagation padding               n/a: no FFT, no wrap-around
 dtype               field precision                             field precision
 debye_points        n/a: the pupil-plane field is closed-form   not used: the engine's converged order for the
@@ -79,28 +81,29 @@ def fourier_accuracy_of(design: Design) -> FourierAccuracy:
         depth_chunk=spec.depth_chunk,
         propagator=spec.propagator,
         padding=float(spec.padding),
+        pixel_integration=spec.pixel_integration,
     )
 
 
 def conventional_accuracy_of(design: Design) -> ConventionalAccuracy:
     """The conventional-LFM accuracy knobs of ``design.accuracy`` (see the module table).
 
-    ``oversampling`` ``o`` gives ``2 o - 1`` sensor-field sub-samples per rectified pixel
-    (odd, one on the pixel centre; 2 -> 3, the engine's default for the shipped designs)
-    and the NIP grid factor ``clip(o / 2, 1, 1.5)`` (1 for preview; 1.5 for standard and
+    ``oversampling`` ``o`` gives ``2^o + 1`` sensor-field sub-samples per rectified pixel
+    (odd, one on the pixel centre: 3, 5, 9 for the presets; 3 is the engine's default)
+    and the NIP grid factor ``clip(o, 1, 1.5)`` (1 for preview; 1.5 for standard and
     reference: it cut the standard preset's error by 40 % for 1.2-1.3x the time, docs/benchmarks.md).
     """
     spec = design.accuracy
     system = conventional_system_of(design)
     # sub_samples() counts ceil(pixel * pixel_oversampling / nyquist), made odd: aim inside the bin.
     nyquist_per_pixel = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
-    samples = 2 * int(spec.oversampling) - 1
+    samples = 2 ** int(spec.oversampling) + 1
     return ConventionalAccuracy(
         dtype=real_dtype_named(spec.dtype),
         model=spec.objective_model,
         debye_points=None,
         pixel_oversampling=(samples - 0.5) * nyquist_per_pixel,
-        nip_oversampling=max(1.0, min(1.5, spec.oversampling / 2.0)),
+        nip_oversampling=max(1.0, min(1.5, float(spec.oversampling))),
         depth_chunk=spec.depth_chunk,
     )
 

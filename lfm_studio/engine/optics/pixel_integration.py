@@ -1,0 +1,74 @@
+"""Power per camera pixel from an intensity sampled ``s x s`` times per pixel.
+
+Two methods (the ``pixel_integration`` accuracy knob):
+
+- ``"midpoint"``: the sum of the ``s x s`` sub-samples of each pixel (each already holds
+  intensity x sub-sample area), i.e. the midpoint rule; its error falls as ``1/s^2``
+  (6.4 % at s = 1 and 0.66 % at s = 3 on the XLFM lenslets, docs/benchmarks.md).
+- ``"fourier"``: the exact box integral of the band-limited intensity that the samples
+  represent. The pixel integral is the intensity convolved with the pixel's box and read at
+  the pixel centre; in the Fourier domain that is a product with ``sinc(f p)`` per axis
+  (``f`` in cycles per pixel). Exact whenever the intensity is sampled without aliasing:
+  its spectrum is the autocorrelation of the field's, so a field band-limited to ``B`` needs
+  sub-samples finer than ``1 / (2 B)``. On the XLFM lenslets this gave 2.5e-4 at s = 1
+  (against 6.4 % for the midpoint rule); the sampled grid is treated as periodic, so it
+  must hold the light's whole footprint (the lenslet windows and padded full fields do).
+
+Both keep the total power (the sinc is 1 at ``f = 0``); the Fourier one clips the dark
+tails' rounding-level negative values to 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from lfm_studio.engine import fft
+
+PIXEL_INTEGRATIONS = ("midpoint", "fourier")
+
+
+def integrate_pixels(power: torch.Tensor, factor: int, method: str = "midpoint") -> torch.Tensor:
+    """Power per pixel ``(..., ny / factor, nx / factor)`` from sub-samples ``(..., ny, nx)``.
+
+    Parameters
+    ----------
+    power : real tensor, last two dims multiples of ``factor``; each value is intensity times
+        the sub-sample area (W), so a pixel's midpoint-rule power is the sum of its block.
+    factor : sub-samples per pixel per axis (>= 1).
+    method : ``"midpoint"`` or ``"fourier"`` (module docstring).
+    """
+    if method not in PIXEL_INTEGRATIONS:
+        raise ValueError(
+            f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {method!r}. "
+            "Fix: 'fourier' (exact for band-limited intensity) or 'midpoint'."
+        )
+    *lead, ny, nx = power.shape
+    if ny % factor or nx % factor:
+        raise ValueError(f"the sampled grid {ny} x {nx} is not a multiple of {factor} sub-samples per pixel.")
+    if method == "midpoint":
+        if factor == 1:
+            return power
+        return power.reshape(*lead, ny // factor, factor, nx // factor, factor).sum(dim=(-3, -1))
+    return _box_integral(power, factor)
+
+
+def _box_integral(power: torch.Tensor, factor: int) -> torch.Tensor:
+    """Fourier-domain box filter of one pixel, then the samples at the pixel centres."""
+    ny, nx = power.shape[-2:]
+    real = power.dtype
+    fy = torch.fft.fftfreq(ny, d=1.0 / factor, dtype=torch.float64, device=power.device)  # cycles per pixel
+    fx = torch.fft.rfftfreq(nx, d=1.0 / factor, dtype=torch.float64, device=power.device)
+    # A pixel's centre lies (factor - 1) / 2 sub-samples after its first sub-sample: shift it onto
+    # that sample, so decimating by ``factor`` reads the centres. ``factor`` per axis turns the
+    # sum-normalised samples (intensity x sub-sample area) into a whole pixel's power.
+    shift = (factor - 1) / (2.0 * factor)
+    transfer_y = factor * torch.sinc(fy) * torch.exp(2j * math.pi * fy * shift)
+    transfer_x = factor * torch.sinc(fx) * torch.exp(2j * math.pi * fx * shift)
+    cdtype = torch.complex64 if real == torch.float32 else torch.complex128
+    transfer = (transfer_y[:, None] * transfer_x[None, :]).to(cdtype)
+    filtered = fft.irfft2(fft.rfft2(power) * transfer, s=(ny, nx))
+    # The dark tails come out a rounding error (or, when undersampled, an aliasing ripple) below
+    # 0: a pixel's power is never negative.
+    return filtered[..., ::factor, ::factor].clamp_min(0.0)
