@@ -59,8 +59,8 @@ def simulate_psf(
     if design.kind == "fourier":
         system, accuracy, compute = fourier_system_of(design), fourier_accuracy_of(design), fourier_psf_stack
     else:
-        system, accuracy = conventional_system_of(design), conventional_accuracy_of(design)
-        compute = conventional_psf_stack
+        system = conventional_system_of(design)
+        accuracy, compute = conventional_accuracy_of(design, system), conventional_psf_stack
     if dtype is not None:
         accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
     return compute(

@@ -85,7 +85,9 @@ def fourier_accuracy_of(design: Design) -> FourierAccuracy:
     )
 
 
-def conventional_accuracy_of(design: Design) -> ConventionalAccuracy:
+def conventional_accuracy_of(
+    design: Design, system: ConventionalLFMSystem | None = None
+) -> ConventionalAccuracy:
     """The conventional-LFM accuracy knobs of ``design.accuracy`` (see the module table).
 
     ``oversampling`` ``o`` gives ``2^o + 1`` sensor-field sub-samples per rectified pixel
@@ -94,7 +96,7 @@ def conventional_accuracy_of(design: Design) -> ConventionalAccuracy:
     reference: it cut the standard preset's error by 40 % for 1.2-1.3x the time, docs/benchmarks.md).
     """
     spec = design.accuracy
-    system = conventional_system_of(design)
+    system = system or conventional_system_of(design)  # (the caller's, when it has built it)
     # sub_samples() counts ceil(pixel * pixel_oversampling / nyquist), made odd: aim inside the bin.
     nyquist_per_pixel = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
     samples = 2 ** int(spec.oversampling) + 1
