@@ -21,6 +21,7 @@ import torch
 from lfm_studio.cli_progress import progress_bar
 from lfm_studio.cli_simulate import parse_depths, resolve_device
 from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
+from lfm_studio.engine.simulation import depth_grid
 
 METHODS = ("rl", "rl-accelerated", "wiener", "tikhonov")  # the engine's reconstruct_frame methods
 _READ_FLAGS = {
@@ -38,15 +39,7 @@ def _refuse_existing(path: str, overwrite: bool) -> None:
 
 def _depth_list(depths_um: tuple[float, float, float] | None) -> tuple[float, ...] | None:
     """START:STOP:STEP in um -> depths in metres (STOP included when on the grid)."""
-    if depths_um is None:
-        return None
-    start, stop, step = depths_um
-    if not step > 0 or stop < start:
-        raise ValueError(
-            f"--depths must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
-        )
-    count = math.floor((stop - start) / step + 1e-9) + 1
-    return tuple((start + i * step) * 1e-6 for i in range(count))
+    return None if depths_um is None else depth_grid(depths_um, "--depths")
 
 
 def _read_psf(args: argparse.Namespace, device: str):

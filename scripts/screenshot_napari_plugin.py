@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import argparse
 import os
-import time
 from pathlib import Path
+
+from qt_events import settle, wait_until  # scripts/, on sys.path when run as a script
 
 os.environ.setdefault("QT_API", "pyside6")
 os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
@@ -24,23 +25,6 @@ os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 REPO = Path(__file__).resolve().parents[1]
 WINDOW_SIZE = (1600, 1000)
 PLUGIN = "lfm-studio"
-
-
-def _wait(app, predicate, timeout_s: float, what: str) -> None:
-    """Process events until ``predicate()`` holds (the GUI stays live meanwhile)."""
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > end:
-            raise SystemExit(f"screenshot: timed out after {timeout_s:.0f} s waiting for {what}")
-        app.processEvents()
-        time.sleep(0.02)
-
-
-def _settle(app, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        app.processEvents()
-        time.sleep(0.02)
 
 
 def _frame(viewer, layer, fill: float = 0.8) -> None:
@@ -81,7 +65,7 @@ def main() -> None:
     widget.iterations.setValue(args.iterations)
     if not widget.start():
         raise SystemExit("screenshot: the reconstruction was refused (see the notification)")
-    _wait(app, lambda: not widget.busy, 600, "the reconstruction")
+    wait_until(app, lambda: not widget.busy, 600, "the reconstruction")
     result, truth = viewer.layers[-1], viewer.layers["beads ground truth"]
     for layer in viewer.layers:
         layer.visible = layer in (result, truth) if not args.two_d else layer.name == "beads light field"
@@ -101,7 +85,7 @@ def main() -> None:
         viewer.layers.move(viewer.layers.index(truth), len(viewer.layers))  # the truth on top
         viewer.layers.selection.active = result
     _frame(viewer, viewer.layers.selection.active)
-    _settle(app, 3.0)
+    settle(app, 3.0)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     window.grab().save(args.out)
     print(f"wrote {args.out}")

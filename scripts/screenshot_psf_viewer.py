@@ -11,16 +11,10 @@ Writes the whole viewer widget (toolbar, canvas, info line) to ``OUT.png``.
 from __future__ import annotations
 
 import argparse
-import time
+
+from qt_events import settle  # scripts/, on sys.path when run as a script
 
 from lfm_studio.widgets.napari_embed import flush_deletions, prepare_qt_app
-
-
-def _settle(app, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        app.processEvents()
-        time.sleep(0.02)
 
 
 def main() -> None:
@@ -50,7 +44,7 @@ def main() -> None:
         viewer._button_layers.setChecked(True)
     if args.three_d:
         viewer.set_3d(True)
-    _settle(app, 2.0)
+    settle(app, 2.0)
     viewer.grab().save(args.out)
     print(f"wrote {args.out} ({viewer.backend})")
     viewer.close_viewer()

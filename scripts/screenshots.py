@@ -20,31 +20,15 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import time
 from pathlib import Path
+
+from qt_events import settle, wait_until  # scripts/, on sys.path when run as a script
 
 os.environ.setdefault("QT_API", "pyside6")
 os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
 
 REPO = Path(__file__).resolve().parents[1]
 WINDOW_SIZE = (1600, 1000)
-
-
-def _wait(app, predicate, timeout_s: float, what: str) -> None:
-    """Process events until ``predicate()`` holds (the GUI stays live meanwhile)."""
-    end = time.monotonic() + timeout_s
-    while not predicate():
-        if time.monotonic() > end:
-            raise SystemExit(f"screenshots: timed out after {timeout_s:.0f} s waiting for {what}")
-        app.processEvents()
-        time.sleep(0.02)
-
-
-def _settle(app, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    while time.monotonic() < end:
-        app.processEvents()
-        time.sleep(0.02)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -67,15 +51,17 @@ def main(argv: list[str] | None = None) -> int:
     state = window.state
     window.controller.start()
     if args.full:
-        _wait(
+        wait_until(
             app,
             lambda: state.psf is not None and state.job("metrics").state == "done",
             args.timeout,
             "the PSF",
         )
     else:
-        _wait(app, lambda: state.preview is not None or state.psf is not None, args.timeout, "the preview")
-    _settle(app, 2.0)  # let napari and the plots draw
+        wait_until(
+            app, lambda: state.preview is not None or state.psf is not None, args.timeout, "the preview"
+        )
+    settle(app, 2.0)  # let napari and the plots draw
 
     args.out.mkdir(parents=True, exist_ok=True)
     shots = {
@@ -95,7 +81,7 @@ def main(argv: list[str] | None = None) -> int:
     window.controller.cancel()
     state.set_dirty(False)
     window.close()
-    _settle(app, 0.5)
+    settle(app, 0.5)
     return 0
 
 

@@ -56,19 +56,10 @@ def case_depths(design: Design) -> tuple[float, ...]:
 
 def _sub_images_overlap(design: Design, depths: tuple[float, ...]) -> bool:
     """Whether the Fourier path's "auto" method falls back to the full field for ``design``."""
-    from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
-    from lfm_studio.engine.systems.fourier_windows import plan_window, windows_overlap
+    from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, resolve_method
     from lfm_studio.engine.systems.from_design import fourier_system_of
 
-    system = fourier_system_of(design)
-    lenses = system.mla.lenslets
-    margin = FourierAccuracy().margin_airy
-    windows = [plan_window(system, lens, depths, oversampling=1, margin_airy=margin) for lens in lenses]
-    return any(
-        windows_overlap(windows[i], windows[j], lenses[i].center, lenses[j].center)
-        for i in range(len(lenses))
-        for j in range(i + 1, len(lenses))
-    )
+    return resolve_method(fourier_system_of(design), depths, FourierAccuracy())[0] == "full_field"
 
 
 def _array_reach_pixels(design: Design) -> float:

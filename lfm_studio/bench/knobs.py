@@ -64,13 +64,12 @@ def preset_options(case: BenchCase, preset: str) -> EngineOptions:
 
 def uses_full_field(case: BenchCase, options: EngineOptions) -> bool:
     """Whether a Fourier case computes the full sensor field with these options."""
-    from lfm_studio.bench.cases import _sub_images_overlap
+    from lfm_studio.engine.systems.fourier_psf import resolve_method
+    from lfm_studio.engine.systems.from_design import fourier_system_of
 
     if not isinstance(options, FourierAccuracy):
         return False
-    if options.method != "auto":
-        return options.method == "full_field"
-    return _sub_images_overlap(case.design, case.depths)
+    return resolve_method(fourier_system_of(case.design), case.depths, options)[0] == "full_field"
 
 
 def _extrapolated(

@@ -31,17 +31,21 @@ from lfm_studio.engine.systems.from_design import (
 Projector = ShiftInvariantProjector | LensletLatticeProjector
 
 
-def design_depths(design: Design, depths_um: tuple[float, float, float] | None = None) -> tuple[float, ...]:
-    """Depths in metres: ``depths_um = (start, stop, step)`` (stop included when on the grid) or the design's."""
-    if depths_um is None:
-        return tuple(design.depths.values)
+def depth_grid(depths_um: tuple[float, float, float], name: str = "depths") -> tuple[float, ...]:
+    """Depths in metres from ``depths_um = (start, stop, step)`` in um (stop included when on the
+    grid); ``name`` is the parameter named in the error."""
     start, stop, step = depths_um
     if not step > 0 or stop < start:
         raise ValueError(
-            f"depths must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
+            f"{name} must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
         )
     count = math.floor((stop - start) / step + 1e-9) + 1
     return tuple((start + i * step) * 1e-6 for i in range(count))
+
+
+def design_depths(design: Design, depths_um: tuple[float, float, float] | None = None) -> tuple[float, ...]:
+    """Depths in metres: :func:`depth_grid` of ``depths_um`` or, when ``None``, the design's."""
+    return tuple(design.depths.values) if depths_um is None else depth_grid(depths_um)
 
 
 def simulate_psf(

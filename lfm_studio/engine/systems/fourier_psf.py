@@ -140,6 +140,24 @@ def _any_overlap(system: FourierLFMSystem, windows: list[LensletWindow]) -> bool
     )
 
 
+def resolve_method(
+    system: FourierLFMSystem, depths: tuple[float, ...], accuracy: FourierAccuracy
+) -> tuple[str, list[LensletWindow]]:
+    """The path :func:`fourier_psf_stack` takes (``"per_lenslet"`` or ``"full_field"``: "auto"
+    picks the full field when lenslet windows overlap, since their fields interfere) and the
+    lenslet windows planned for it."""
+    windows = [
+        plan_window(
+            system, lens, depths, oversampling=accuracy.oversampling, margin_airy=accuracy.margin_airy
+        )
+        for lens in system.mla.lenslets
+    ]
+    method = accuracy.method
+    if method == "auto":
+        method = "full_field" if _any_overlap(system, windows) else "per_lenslet"
+    return method, windows
+
+
 def fourier_psf_stack(
     system: FourierLFMSystem,
     depths: tuple[float, ...],
@@ -178,13 +196,7 @@ def fourier_psf_stack(
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
     report = report if report is not None else FourierPSFReport()
-    windows = [
-        plan_window(system, lens, depths, oversampling=acc.oversampling, margin_airy=acc.margin_airy)
-        for lens in system.mla.lenslets
-    ]
-    method = acc.method
-    if method == "auto":
-        method = "full_field" if _any_overlap(system, windows) else "per_lenslet"
+    method, windows = resolve_method(system, depths, acc)
     report.method = method
     z = torch.tensor(depths, dtype=torch.float64, device=device)
     if method == "per_lenslet":
