@@ -12,6 +12,19 @@ scratch="$(mktemp -d)"
 trap 'rm -rf "$scratch"' EXIT
 export XDG_CONFIG_HOME="$scratch/config" XDG_CACHE_HOME="$scratch/cache" MPLCONFIGDIR="$scratch/mpl"
 unset QT_QPA_PLATFORM   # pytest-xvfb provides a real X server for napari's OpenGL canvas
+# Idle OpenMP threads sleep instead of spinning: with another job on one of the 2 cores,
+# spinning 2-thread torch runs were up to 16x slower (PLATFORM.md). Results do not depend on it.
+export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
+
+echo "== machine"
+python - <<'PY'
+import os, platform, torch
+print(f"python {platform.python_version()}, torch {torch.__version__}, numpy {__import__('numpy').__version__}")
+print(f"CPU capability {torch.backends.cpu.get_cpu_capability()}, {os.cpu_count()} cores, "
+      f"torch intra-op threads {torch.get_num_threads()}, interop {torch.get_num_interop_threads()}")
+print("OMP_NUM_THREADS=%s MKL_NUM_THREADS=%s OMP_WAIT_POLICY=%s ATEN_CPU_CAPABILITY=%s" % tuple(
+    os.environ.get(k, "(unset)") for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OMP_WAIT_POLICY", "ATEN_CPU_CAPABILITY")))
+PY
 
 echo "== ruff"
 ruff check .

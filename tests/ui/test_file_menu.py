@@ -153,7 +153,7 @@ def test_export_psf_stack_as_tiff(menu, qtbot, design, tmp_path):
     assert actions.export_psf_action.isEnabled()
     menu.dialogs.save_path = tmp_path / "psf.tif"
     actions.export_psf_action.trigger()
-    qtbot.waitUntil(lambda: menu.state.job("export").state == "done", timeout=10_000)
+    qtbot.waitUntil(lambda: menu.state.job("export").state == "done", timeout=60_000)
     stack = read_psf_stack(tmp_path / "psf.tif")
     assert stack.data.shape == (3, 256, 256) and stack.design == design
 
@@ -176,7 +176,7 @@ def test_export_image_and_reconstruction_as_tiff(menu, qtbot, tmp_path):
     state.set_reconstruction(ReconstructionResult(volume, (2e-6, 1e-6, 1e-6), 4, psnr=30.0, ssim=0.9))
     dialogs.save_path = tmp_path / "lf.tif"
     actions.export_image_action.trigger()
-    qtbot.waitUntil(lambda: state.job("export").state == "done", timeout=10_000)
+    qtbot.waitUntil(lambda: state.job("export").state == "done", timeout=60_000)
     image = read_image(tmp_path / "lf.tif")
     assert torch.equal(image.data, counts) and image.pixel_size == pytest.approx(6.5e-6)
     dialogs.save_path = tmp_path / "lf.tif"  # exists now: refused without confirmation
@@ -185,7 +185,7 @@ def test_export_image_and_reconstruction_as_tiff(menu, qtbot, tmp_path):
     dialogs.save_path = tmp_path / "volume.tif"
     actions.export_reconstruction_action.trigger()
     qtbot.waitUntil(
-        lambda: (tmp_path / "volume.tif").exists() and state.job("export").state == "done", timeout=10_000
+        lambda: (tmp_path / "volume.tif").exists() and state.job("export").state == "done", timeout=60_000
     )
     saved = read_volume(tmp_path / "volume.tif")
     assert torch.allclose(saved.data, volume) and saved.voxel_size == pytest.approx((2e-6, 1e-6, 1e-6))
