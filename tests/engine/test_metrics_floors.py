@@ -133,3 +133,13 @@ def test_zero_constant_and_shuffled_volumes_score_clearly_below_a_reconstruction
         for s in real.scores:
             assert s.floors[name] == pytest.approx(own.score(s.key).value, abs=1e-12)
     assert real.peaks.rms_error < 1.0  # um; a wrong bead would be >= 2 voxels (1.4 um) off
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_scorecard_on_cuda_matches_cpu():
+    truth = _sparse_truth()
+    estimate = truth + 0.005 * torch.rand(truth.shape, generator=torch.Generator().manual_seed(0))
+    cpu = scorecard(truth, estimate, normalize="scale").to_dict()
+    gpu = scorecard(truth.cuda(), estimate.cuda(), normalize="scale").to_dict()
+    for a, b in zip(cpu["scores"], gpu["scores"], strict=True):
+        assert a["metric"] == b["metric"] and b["value"] == pytest.approx(a["value"], rel=1e-9, abs=1e-12)

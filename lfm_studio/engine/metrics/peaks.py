@@ -118,14 +118,21 @@ def _first_of_ties(mask: torch.Tensor, r: int) -> torch.Tensor:
     return mask & ~earlier
 
 
-def looks_point_like(truth, *, threshold: float = DEFAULT_THRESHOLD, voxels_per_object: int = 8) -> bool:
+def looks_point_like(
+    truth,
+    *,
+    threshold: float = DEFAULT_THRESHOLD,
+    voxels_per_object: int = 8,
+    peaks: Peaks | None = None,
+) -> bool:
     """Whether ``truth`` looks like a point or small-bead phantom (so peak matching applies).
 
     True when it has at least one peak and at most ``voxels_per_object`` non-zero voxels per
-    peak (a point bead is one voxel; a cell-like sphere has hundreds).
+    peak (a point bead is one voxel; a cell-like sphere has hundreds). ``peaks``: the truth's
+    peaks when already found (else found here with ``threshold``).
     """
     x = _as_volume(truth, "truth")
-    count = len(find_peaks(x, threshold=threshold))
+    count = len(find_peaks(x, threshold=threshold) if peaks is None else peaks)
     return count > 0 and int((x != 0).sum()) <= voxels_per_object * count
 
 

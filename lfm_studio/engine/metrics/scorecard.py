@@ -30,6 +30,7 @@ from lfm_studio.engine.metrics.peaks import (
     DEFAULT_THRESHOLD,
     DEFAULT_TOLERANCE,
     PeakMatch,
+    find_peaks,
     looks_point_like,
     peak_match,
 )
@@ -191,7 +192,11 @@ def scorecard(
     if truth.ndim != 3:
         raise ValueError(f"scorecard needs volumes (Z, Y, X); got shape {tuple(truth.shape)}.")
     options = peak_options or PeakOptions()
-    use_peaks = (reference is not None or looks_point_like(truth)) if peaks is None else bool(peaks)
+    if reference is None and peaks is not False:  # the truth's objects, found once for all volumes
+        reference = find_peaks(truth, threshold=options.truth_threshold, min_distance=options.min_distance)
+        use_peaks = looks_point_like(truth, peaks=reference) if peaks is None else True
+    else:
+        use_peaks = reference is not None if peaks is None else bool(peaks)
     settings = {"normalize": normalize, "data_range": data_range}
 
     def peak(volume) -> PeakMatch:
