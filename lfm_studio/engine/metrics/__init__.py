@@ -28,14 +28,8 @@ from lfm_studio.engine.metrics.basic import NORMALIZATIONS, data_range_of, match
 from lfm_studio.engine.metrics.correlation import ncc
 from lfm_studio.engine.metrics.curves import DepthCurves, MetricReport, compare, depth_curves
 from lfm_studio.engine.metrics.floors import FLOORS, floor_volume, shuffled
-from lfm_studio.engine.metrics.peaks import (
-    PeakMatch,
-    Peaks,
-    find_peaks,
-    looks_point_like,
-    match_peaks,
-    peak_match,
-)
+from lfm_studio.engine.metrics.matching import PeakMatch, match_peaks, peak_match
+from lfm_studio.engine.metrics.peaks import Peaks, find_peaks, looks_point_like
 from lfm_studio.engine.metrics.perceptual import LPIPSUnavailableError, lpips, lpips_available
 from lfm_studio.engine.metrics.scorecard import NORMALIZATION_TEXT, PeakOptions, Score, Scorecard, scorecard
 from lfm_studio.engine.metrics.ssim import gaussian_filter, ssim, ssim_map

@@ -5,7 +5,7 @@ a reconstruction. Default scores, in the order they should be read:
 
 1. **NCC**: Pearson correlation with the truth (:func:`~.correlation.ncc`); scale free.
 2. **F1** (point and bead phantoms): local maxima matched to the truth's objects
-   (:mod:`.peaks`), with precision, recall and the localisation error beside it.
+   (:mod:`.peaks`, :mod:`.matching`), with precision, recall and the localisation error beside it.
 3. **PSNR** (dB) and 4. **SSIM** on the stated normalisation (:data:`NORMALIZATION_TEXT`):
    the estimate is first put on the truth's scale (``normalize``), then both use the
    data range ``R`` (default the truth's ``max - min``).
@@ -26,14 +26,8 @@ from lfm_studio.engine.metrics.basic import Normalization, as_pair
 from lfm_studio.engine.metrics.correlation import ncc
 from lfm_studio.engine.metrics.curves import MetricReport, compare
 from lfm_studio.engine.metrics.floors import FLOORS, floor_volume
-from lfm_studio.engine.metrics.peaks import (
-    DEFAULT_THRESHOLD,
-    DEFAULT_TOLERANCE,
-    PeakMatch,
-    find_peaks,
-    looks_point_like,
-    peak_match,
-)
+from lfm_studio.engine.metrics.matching import DEFAULT_TOLERANCE, PeakMatch, peak_match
+from lfm_studio.engine.metrics.peaks import DEFAULT_THRESHOLD, find_peaks, looks_point_like
 
 NORMALIZATION_TEXT = {
     "none": "in the truth's units (no scaling)",
