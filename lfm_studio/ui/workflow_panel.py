@@ -79,9 +79,10 @@ def quality_text(result: ReconstructionResult | None) -> str:
         return (
             f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b> after {result.iterations} iterations"
         )
-    summary = html.escape(result.summary).replace("  ", "&nbsp;&nbsp;&nbsp;")
+    parts = [html.escape(part) for part in result.summary.split("  ")]  # Scorecard.summary's separator
+    parts = [f"<b>{p}</b>" if p.startswith(("NCC", "F1")) else p for p in parts]
     return (
-        f"<b>{summary}</b> after {result.iterations} iterations"
+        f"{'&nbsp;&nbsp;&nbsp;'.join(parts)} after {result.iterations} iterations"
         f"<br><small>{html.escape(result.scores.normalization)}</small>"
     )
 

@@ -95,7 +95,8 @@ def test_quality_label_shows_ncc_and_f1_first_and_names_the_normalisation(qtbot,
     state.set_reconstruction(result)
     text = panel.quality.text()
     assert text == quality_text(result)
-    assert text.startswith(f"<b>NCC&nbsp;&nbsp;&nbsp;{result.ncc:.3f}".replace("&nbsp;&nbsp;&nbsp;", " "))
+    assert text.startswith(f"<b>NCC {result.ncc:.3f}</b>&nbsp;&nbsp;&nbsp;<b>F1 {result.f1:.2f} (")
+    assert f"&nbsp;PSNR {result.psnr:.2f} dB (zero floor" in text  # not bold: read after NCC and F1
     assert "least-squares scale matching" in text and "&lt;t, e&gt;" in text  # escaped, not eaten as HTML
     assert f"F1 {result.f1:.2f}" in text and "after 6 iterations" in text
     assert "zero floor" in panel.quality.toolTip()
