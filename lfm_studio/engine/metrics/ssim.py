@@ -116,9 +116,19 @@ def ssim_map(
             )
     r = data_range_of(truth, data_range)
     c1, c2 = (k1 * r) ** 2, (k2 * r) ** 2
-    stacked = torch.stack((truth, estimate, truth * truth, estimate * estimate, truth * estimate))
-    mu_t, mu_e, tt, ee, te = gaussian_filter(stacked, sigmas, truncate=truncate, axes=truth.ndim)
-    var_t, var_e, cov = tt - mu_t * mu_t, ee - mu_e * mu_e, te - mu_t * mu_e
+    value = estimate.reshape(-1)[0]
+    if not estimate.requires_grad and bool((estimate == value).all()):
+        # A constant estimate (e.g. the all-zero floor): its local mean is the constant and its
+        # variance and covariance with the truth are 0, so only the truth's moments are filtered.
+        mu_t, tt = gaussian_filter(
+            torch.stack((truth, truth * truth)), sigmas, truncate=truncate, axes=truth.ndim
+        )
+        mu_e, var_t = torch.full_like(mu_t, float(value)), tt - mu_t * mu_t
+        var_e = cov = torch.zeros_like(mu_t)
+    else:
+        stacked = torch.stack((truth, estimate, truth * truth, estimate * estimate, truth * estimate))
+        mu_t, mu_e, tt, ee, te = gaussian_filter(stacked, sigmas, truncate=truncate, axes=truth.ndim)
+        var_t, var_e, cov = tt - mu_t * mu_t, ee - mu_e * mu_e, te - mu_t * mu_e
     numerator = (2 * mu_t * mu_e + c1) * (2 * cov + c2)
     denominator = (mu_t * mu_t + mu_e * mu_e + c1) * (var_t + var_e + c2)
     return numerator / denominator
