@@ -9,6 +9,7 @@ import pytest
 import torch
 
 from lfm_studio.engine.metrics import find_peaks, looks_point_like, match_peaks, ncc, peak_match
+from lfm_studio.engine.metrics.peaks import _box_max
 
 # ----- NCC -----
 
@@ -56,6 +57,13 @@ def _blobs(shape, centres, heights, sigma=0.8) -> torch.Tensor:
     for (cz, cy, cx), h in zip(centres, heights, strict=True):
         volume += h * torch.exp(-((z - cz) ** 2 + (y - cy) ** 2 + (x - cx) ** 2) / (2 * sigma**2))
     return volume
+
+
+@pytest.mark.parametrize(("shape", "r"), [((5, 7, 9), 1), ((4, 30, 31), 2), ((1, 6, 6), 1)])
+def test_separable_box_maximum_equals_max_pool3d(shape, r):
+    x = torch.randn(shape, generator=torch.Generator().manual_seed(r), dtype=torch.float64)
+    reference = torch.nn.functional.max_pool3d(x[None, None], 2 * r + 1, stride=1, padding=r)[0, 0]
+    assert torch.equal(_box_max(x, r), reference)  # maxima of the same values: exact
 
 
 def test_find_peaks_returns_the_constructed_maxima_brightest_first():

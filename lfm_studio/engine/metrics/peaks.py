@@ -16,10 +16,10 @@ Positions are ``(z, y, x)`` voxel coordinates (index ``i`` at coordinate ``i``).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
-from torch.nn.functional import max_pool3d
 
 DEFAULT_THRESHOLD = 0.1
 """Peaks are kept above this fraction of the volume's maximum."""
@@ -75,16 +75,32 @@ def find_peaks(volume, *, threshold: float = DEFAULT_THRESHOLD, min_distance: in
     empty = Peaks(torch.zeros((0, 3), dtype=torch.float64), torch.zeros(0, dtype=torch.float64))
     if not top > 0:
         return empty
-    size, r = 2 * min_distance + 1, min_distance
-    batch = x[None, None]
-    local_max = max_pool3d(batch, size, stride=1, padding=r)[0, 0]
-    local_min = -max_pool3d(-batch, size, stride=1, padding=r)[0, 0]
+    r = min_distance
+    local_max, local_min = _box_max(x, r), -_box_max(-x, r)
     mask = (x == local_max) & (x > local_min) & (x > threshold * top)
     mask = _first_of_ties(mask, r)
     index = mask.nonzero()
     values = x[mask]
     order = torch.argsort(values, descending=True, stable=True)
     return Peaks(index[order].to(torch.float64).cpu(), values[order].cpu())
+
+
+def _box_max(x: torch.Tensor, r: int) -> torch.Tensor:
+    """Maximum over the ``(2 r + 1)^3`` box around each voxel (outside the volume ignored).
+
+    Separable: a running maximum of shifted views along each axis (several times faster
+    on the CPU than ``max_pool3d``, which is not separable).
+    """
+    for dim in range(3):
+        n = x.shape[dim]
+        pad = [0, 0] * 3
+        pad[2 * (2 - dim)] = pad[2 * (2 - dim) + 1] = r
+        padded = torch.nn.functional.pad(x, pad, value=-math.inf)
+        out = padded.narrow(dim, 0, n).clone()
+        for k in range(1, 2 * r + 1):
+            torch.maximum(out, padded.narrow(dim, k, n), out=out)
+        x = out
+    return x
 
 
 def _first_of_ties(mask: torch.Tensor, r: int) -> torch.Tensor:
