@@ -1,7 +1,7 @@
 """The ``lfm-studio`` command line.
 
 ``lfm-studio`` (or ``lfm-studio gui``) opens the desktop studio; further
-sub-commands (simulate, image, info, reconstruct, bench) run headless.
+sub-commands (simulate, image, info, reconstruct, metrics, bench) run headless.
 GUI packages are imported only by the ``gui`` sub-command.
 """
 
@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from lfm_studio import __version__
 from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_info import add_info_parser
+from lfm_studio.cli_metrics import add_metrics_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
 
@@ -39,6 +40,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_simulate_parsers(sub)
     add_info_parser(sub)
     add_reconstruct_parsers(sub)
+    add_metrics_parser(sub)
     add_bench_parser(sub)
     return parser
 

@@ -1,17 +1,16 @@
-"""``lfm-studio reconstruct`` and ``lfm-studio metrics``: volumes from light-field images, and their quality.
+"""``lfm-studio reconstruct``: volumes from light-field images.
 
 ``reconstruct`` reads a PSF stack (simulated, or bead-measured with ``--measured``) and
 a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one into a
 ``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. The
 file is written once, atomically, after the last frame: a failed or interrupted run
-leaves no partial output. ``metrics`` compares a volume with a ground truth (PSNR,
-SSIM, optionally per depth and LPIPS). Register both with :func:`add_reconstruct_parsers`.
+leaves no partial output. Register it with :func:`add_reconstruct_parsers`; their quality
+is scored by ``lfm-studio metrics`` (:mod:`lfm_studio.cli_metrics`).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -170,82 +169,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read_for_metrics(path: str):
-    from lfm_studio.engine.io import MissingMetadataError, read_volume
-
-    try:
-        return read_volume(path, dtype=torch.float64), True
-    except MissingMetadataError:  # metrics need no voxel size; only the consistency check is skipped
-        return read_volume(path, voxel_size=(1.0, 1.0, 1.0), dtype=torch.float64), False
-
-
-def run_metrics(args: argparse.Namespace) -> int:
-    """Handler of ``metrics``: print PSNR/SSIM (and per-depth curves, LPIPS) as text or JSON."""
-    from lfm_studio.engine.metrics import LPIPSUnavailableError, compare, lpips
-
-    (truth, truth_known), (estimate, estimate_known) = (
-        _read_for_metrics(args.truth),
-        _read_for_metrics(args.estimate),
-    )
-    if truth.data.ndim != 3:
-        raise ValueError(
-            f"--truth {args.truth} must be one volume (Z, Y, X); got shape {tuple(truth.data.shape)}."
-        )
-    if tuple(estimate.data.shape[-3:]) != tuple(truth.data.shape):
-        raise ValueError(
-            f"--estimate {args.estimate} has shape {tuple(estimate.data.shape)} but --truth {args.truth} has "
-            f"{tuple(truth.data.shape)} (Z, Y, X). Fix: reconstruct on the truth's grid (same PSF depths and "
-            "field of view)."
-        )
-    if truth_known and estimate_known:
-        for a, b in zip(truth.voxel_size, estimate.voxel_size, strict=True):
-            if not math.isclose(a, b, rel_tol=1e-6):
-                raise ValueError(
-                    f"--truth {args.truth} has voxels {tuple(v * 1e6 for v in truth.voxel_size)} um but "
-                    f"--estimate {args.estimate} has {tuple(v * 1e6 for v in estimate.voxel_size)} um. "
-                    "Fix: compare volumes on the same grid."
-                )
-    frames = estimate.data if estimate.data.ndim == 4 else estimate.data[None]
-    reports = []
-    for frame in frames:
-        report = compare(
-            truth.data,
-            frame,
-            data_range=args.data_range,
-            normalize=args.normalize,
-            per_depth=args.per_depth,
-            depths=truth.depth_values(),
-        ).to_dict()
-        if args.lpips:
-            try:
-                report["lpips"] = float(lpips(truth.data, frame, data_range=report["data_range"]))
-            except LPIPSUnavailableError as error:
-                raise ValueError(str(error)) from error
-        reports.append(report)
-    output = reports[0] if estimate.data.ndim == 3 else {"frames": reports}
-    if args.json:
-        print(json.dumps(output, indent=2, allow_nan=False))
-        return 0
-    for t, report in enumerate(reports):
-        prefix = f"frame {t}: " if len(reports) > 1 else ""
-        psnr = "inf" if report["psnr_db"] is None else f"{report['psnr_db']:.3f}"
-        sigma = ", ".join(f"{s:g}" for s in report["ssim_sigma_samples"])
-        print(
-            f"{prefix}PSNR {psnr} dB (data range {report['data_range']:.6g}, normalize {report['normalize']})"
-        )
-        print(f"{prefix}SSIM {report['ssim']:.4f} (Gaussian window sigma ({sigma}) voxels)")
-        if "lpips" in report:
-            print(f"{prefix}LPIPS {report['lpips']:.4f}")
-        if "per_depth" in report:
-            curves = report["per_depth"]
-            print(f"{prefix}{'depth (um)':>12} {'PSNR (dB)':>10} {'SSIM':>7}")
-            for z, p, s in zip(curves["depths_um"], curves["psnr_db"], curves["ssim"], strict=True):
-                print(f"{prefix}{z:12.3f} {'inf' if p is None else f'{p:.3f}':>10} {s:7.4f}")
-    return 0
-
-
 def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
-    """Register ``reconstruct`` and ``metrics`` on ``subparsers`` (from ``parser.add_subparsers()``)."""
+    """Register ``reconstruct`` on ``subparsers`` (from ``parser.add_subparsers()``)."""
     rec = subparsers.add_parser(
         "reconstruct",
         help="reconstruct a volume from a light-field image and a PSF stack",
@@ -316,27 +241,3 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         help="START:STOP:STEP in um, one depth per slice (write --depths=-20:20:5 for a negative START)",
     )
     rec.set_defaults(handler=run_reconstruct)
-
-    met = subparsers.add_parser(
-        "metrics",
-        help="PSNR / SSIM of a reconstructed volume against a ground truth",
-        description="PSNR and SSIM (Gaussian window, sigma 1.5; Wang et al. 2004) with an explicit data range "
-        "(default: the truth's max - min). A (T, Z, Y, X) estimate is scored frame by frame.",
-    )
-    met.add_argument("--truth", required=True, help="ground-truth volume TIFF (Z, Y, X)")
-    met.add_argument("--estimate", required=True, help="reconstructed volume TIFF (Z, Y, X) or (T, Z, Y, X)")
-    met.add_argument(
-        "--data-range", type=float, default=None, help="R of PSNR/SSIM (default: truth max - min)"
-    )
-    met.add_argument(
-        "--normalize",
-        choices=("none", "scale", "affine", "sum"),
-        default="none",
-        help="fit the estimate to the truth's scale first (least squares; default none)",
-    )
-    met.add_argument("--per-depth", action="store_true", help="also PSNR/SSIM of each z slice")
-    met.add_argument(
-        "--lpips", action="store_true", help="also LPIPS (needs lpips and its weights installed locally)"
-    )
-    met.add_argument("--json", action="store_true", help="print JSON (null = infinite PSNR)")
-    met.set_defaults(handler=run_metrics)

@@ -257,6 +257,8 @@ class FileActions(QObject):
             psf.stack.depths if psf is not None and len(psf.stack.depths) == result.volume.shape[0] else None
         )
         meta = {"iterations": result.iterations, "psnr_db": result.psnr, "ssim": result.ssim}
+        if result.scores is not None:  # NCC and F1 first; floors and the PSNR/SSIM normalisation
+            meta = {"iterations": result.iterations, **_scores_metadata(result.scores)}
         write = partial(
             write_volume, volume=result.volume, voxel_size=result.voxel_size, depths=depths, metadata=meta,
             overwrite=True,
@@ -290,3 +292,16 @@ class FileActions(QObject):
 
     def _on_quit(self, *_: Any) -> None:
         self.window.close()
+
+
+def _scores_metadata(card: Any) -> dict[str, Any]:
+    """A scorecard as flat JSON-ready metadata: each score, its zero floor, and the normalisation."""
+    out: dict[str, Any] = {}
+    for score in card.scores:
+        entry = score.to_dict()
+        out[score.key] = entry["value"]
+        out[f"{score.key}_zero_floor"] = entry.get("zero_floor")
+    out["normalization"] = card.normalization
+    if card.peaks is not None:
+        out["peaks"] = card.peaks.to_dict()
+    return out

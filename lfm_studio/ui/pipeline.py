@@ -6,7 +6,7 @@ returns detached CPU tensors in the records of :mod:`lfm_studio.ui.results`.
 
 Stages: design -> PSF stack (a quick preview first for big designs) -> design metrics
 measured on it; PSF -> light-field image of a phantom -> Richardson-Lucy reconstruction
-with PSNR/SSIM against the phantom.
+scored against the phantom (NCC, bead F1, PSNR/SSIM beside the all-zero volume's).
 """
 
 from __future__ import annotations
@@ -243,17 +243,28 @@ def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
     return ((image.counts - camera.baseline_adu) / camera.gain_adu_per_e).clamp_min(0.0)
 
 
+def peak_mode(settings: WorkflowSettings) -> bool | None:
+    """Whether to score bead F1: on for beads, off for cells, judged from the volume for a TIFF."""
+    return {"beads": True, "cells": False}.get(settings.phantom)
+
+
 def reconstruct(
     ctx: Context, design: Design, image: ImageResult, settings: WorkflowSettings
 ) -> ReconstructionResult:
-    """Accelerated Richardson-Lucy (accelerated_rl_options) of the image; PSNR per iteration and final PSNR/SSIM."""
-    from lfm_studio.engine.metrics import compare, match_scale, psnr
+    """Accelerated Richardson-Lucy (accelerated_rl_options) of the image, scored against the phantom.
+
+    After each iteration: NCC with the truth and PSNR after least-squares scale matching
+    (handed over with ``ctx.partial`` as ``(ncc per iteration, relative change per iteration)``).
+    At the end: the scorecard (NCC, bead F1, PSNR, SSIM, each beside the all-zero volume's score).
+    """
+    from lfm_studio.engine.metrics import match_scale, ncc, psnr, scorecard
     from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy_iterates
 
     projector = image.setup.projector
     counts = photon_counts(image, design)
     truth = image.ground_truth
     total = settings.iterations
+    nccs: list[float] = []
     psnrs: list[float] = []
     changes: list[float] = []
     estimate = None
@@ -264,20 +275,29 @@ def reconstruct(
     for it in iterates:
         estimate = it.estimate.detach().cpu()
         changes.append(float(it.relative_change))
+        nccs.append(float(ncc(truth, estimate)))
         psnrs.append(float(psnr(truth, match_scale(estimate, truth))))
-        ctx.partial((tuple(psnrs), tuple(changes)))
+        ctx.partial((tuple(nccs), tuple(changes)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
-    report = compare(truth, estimate, normalize="scale")
+    ctx.progress(total, total, "reconstruction: scoring against the phantom")
+    card = scorecard(
+        truth, estimate, normalize="scale", peaks=peak_mode(settings), voxel_size=image.voxel_size,
+        floors=("zero",),
+    )  # fmt: skip
+    noun = "beads" if settings.phantom == "beads" else "objects"
     return ReconstructionResult(
         estimate,
         image.voxel_size,
         len(changes),
         tuple(psnrs),
         tuple(changes),
-        float(report.psnr),
-        float(report.ssim),
+        float(card.report.psnr),
+        float(card.report.ssim),
         display=volume_display(estimate, image.voxel_size, "reconstruction"),
+        ncc_curve=tuple(nccs),
+        scores=card,
+        summary=card.summary(noun=noun),
     )
 
 

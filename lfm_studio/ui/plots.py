@@ -207,17 +207,29 @@ class RequirementsView(_StateView):
 
 
 class ConvergencePlot(_StateView):
-    """Richardson-Lucy convergence: PSNR against the ground truth after each iteration (live)."""
+    """Richardson-Lucy convergence: NCC with the ground truth after each iteration (live).
+
+    NCC (Pearson correlation) is read against 0, the score of the all-zero, a constant or a
+    shuffled volume (the dashed line); PSNR on a sparse phantom starts near its ceiling.
+    """
 
     def __init__(self, state: StudioState | None = None, parent: QWidget | None = None) -> None:
         super().__init__(state, parent)
-        self.plot = _plot("Richardson-Lucy convergence", "iteration", "PSNR (dB)")
+        self.plot = _plot("Richardson-Lucy convergence", "iteration", "NCC with the ground truth")
         self.layout().addWidget(self.plot)
         pen = pg.mkPen("#6a1b9a", width=2)
         self.curve = self.plot.plot(pen=pen, symbol="o", symbolSize=4, symbolBrush="#6a1b9a")
+        self.floor = pg.InfiniteLine(
+            pos=0.0, angle=0, pen=pg.mkPen("#757575", width=1, style=Qt.PenStyle.DashLine),
+            label="all-zero floor", labelOpts={"position": 0.85, "color": "#757575"},
+        )  # fmt: skip
+        self.plot.addItem(self.floor)
+        self.plot.setYRange(0.0, 1.0)
         if state is not None:
             self._observe(state.convergence_changed, self.show_curves, state.convergence)
 
     def show_curves(self, curves: tuple[tuple[float, ...], tuple[float, ...]]) -> None:
-        psnr = list(curves[0])
-        self.curve.setData(list(range(1, len(psnr) + 1)), psnr)
+        """Plot the first curve of ``(NCC per iteration, relative change per iteration)``."""
+        ncc = list(curves[0])
+        self.curve.setData(list(range(1, len(ncc) + 1)), ncc)
+        self.plot.setYRange(min(0.0, *ncc) if ncc else 0.0, 1.0)

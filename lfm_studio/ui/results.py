@@ -93,17 +93,21 @@ class ImageResult:
 
 @dataclass(frozen=True)
 class ReconstructionResult:
-    """A reconstructed volume with its convergence curve and quality against the ground truth.
+    """A reconstructed volume with its convergence curves and quality against the ground truth.
 
     Attributes
     ----------
     volume : (Z, Y, X) estimate.
     voxel_size : (dz, dy, dx) metres.
     iterations : iterations run.
-    psnr_curve : PSNR (dB) after each iteration (empty without a ground truth).
+    psnr_curve : PSNR (dB, after least-squares scale matching) after each iteration.
     change_curve : relative change ``|x_k - x_{k-1}| / |x_{k-1}|`` after each iteration.
-    psnr, ssim : final quality against the ground truth (None when it cannot be computed).
+    psnr, ssim : final PSNR (dB) and SSIM after scale matching (None when they cannot be computed).
     display : ``volume`` prepared for the viewer on the worker thread (``volume_display``), or None.
+    ncc_curve : NCC (Pearson correlation) with the ground truth after each iteration.
+    scores : the final :class:`~lfm_studio.engine.metrics.Scorecard` (NCC, F1 for beads, PSNR,
+        SSIM with their all-zero floors), or None.
+    summary : ``scores`` in one line, NCC and F1 first (what the workflow panel shows).
     """
 
     volume: torch.Tensor
@@ -114,6 +118,20 @@ class ReconstructionResult:
     psnr: float | None = None
     ssim: float | None = None
     display: Any = None
+    ncc_curve: tuple[float, ...] = ()
+    scores: Any = None
+    summary: str = ""
+
+    @property
+    def ncc(self) -> float | None:
+        """Final NCC with the ground truth, or None."""
+        return None if self.scores is None else self.scores.score("ncc").value
+
+    @property
+    def f1(self) -> float | None:
+        """Final bead F1 (matched local maxima), or None when peaks were not matched."""
+        score = None if self.scores is None else self.scores.score("f1")
+        return None if score is None else score.value
 
 
 @dataclass(frozen=True)

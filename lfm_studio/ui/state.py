@@ -69,7 +69,7 @@ class StudioState:
     preview_changed = Signal(object)  # PSFResult | None (quick preview)
     image_changed = Signal(object)  # ImageResult | None (camera image + ground truth)
     reconstruction_changed = Signal(object)  # ReconstructionResult | None
-    convergence_changed = Signal(object)  # (psnr per iteration, relative change per iteration)
+    convergence_changed = Signal(object)  # (NCC per iteration, relative change per iteration)
     metrics_changed = Signal(object)  # DesignMetrics | None
     workflow_changed = Signal(object)  # WorkflowSettings
     stale_changed = Signal(object)  # frozenset[str] of STAGES
@@ -238,15 +238,15 @@ class StudioState:
         self._reconstruction = result
         self.reconstruction_changed.emit(result)
         if result is not None:
-            self.set_convergence(result.psnr_curve, result.change_curve)
+            self.set_convergence(result.ncc_curve, result.change_curve)
 
     @property
     def convergence(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Richardson-Lucy convergence: PSNR (dB) and relative change after each iteration (live)."""
+        """Richardson-Lucy convergence: NCC with the truth and relative change after each iteration (live)."""
         return self._convergence
 
-    def set_convergence(self, psnr: tuple[float, ...], change: tuple[float, ...]) -> None:
-        value = (tuple(psnr), tuple(change))
+    def set_convergence(self, quality: tuple[float, ...], change: tuple[float, ...]) -> None:
+        value = (tuple(quality), tuple(change))
         if value != self._convergence:
             self._convergence = value
             self.convergence_changed.emit(value)

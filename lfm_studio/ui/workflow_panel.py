@@ -1,12 +1,14 @@
-"""The workflow panel: phantom and photon budget -> light-field image -> reconstruction -> PSNR/SSIM.
+"""The workflow panel: phantom and photon budget -> light-field image -> reconstruction -> its scores.
 
 state -> view: the workflow settings, what is available, the quality of the last
-reconstruction. view -> state: new :class:`~lfm_studio.ui.results.WorkflowSettings`;
+reconstruction (NCC and bead F1 first, then PSNR/SSIM beside the all-zero volume's, with
+their normalisation named). view -> state: new :class:`~lfm_studio.ui.results.WorkflowSettings`;
 the buttons ask the controller to run the image and reconstruction stages.
 """
 
 from __future__ import annotations
 
+import html
 import math
 from dataclasses import replace
 
@@ -63,6 +65,26 @@ class PhotonBox(QDoubleSpinBox):
 
     def stepBy(self, steps: int) -> None:
         self.setValue(10.0 ** (round(math.log10(max(self.value(), 1.0))) + steps))
+
+
+NO_QUALITY = "NCC: –    F1: –    PSNR: –    SSIM: –"
+
+
+def quality_text(result: ReconstructionResult | None) -> str:
+    """Rich text of a reconstruction's scores: NCC and F1 first (bold), then PSNR/SSIM with their
+    zero floors, the iteration count and, in small print, how PSNR/SSIM were normalised."""
+    if result is None or result.psnr is None:
+        return NO_QUALITY
+    if result.scores is None:  # a result without a scorecard (e.g. read back from elsewhere)
+        return (
+            f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b> after {result.iterations} iterations"
+        )
+    parts = [html.escape(part) for part in result.summary.split("  ")]  # Scorecard.summary's separator
+    parts = [f"<b>{p}</b>" if p.startswith(("NCC", "F1")) else p for p in parts]
+    return (
+        f"{'&nbsp;&nbsp;&nbsp;'.join(parts)} after {result.iterations} iterations"
+        f"<br><small>{html.escape(result.scores.normalization)}</small>"
+    )
 
 
 class WorkflowPanel(QWidget):
@@ -126,7 +148,8 @@ class WorkflowPanel(QWidget):
             self.reconstruct_button.setToolTip(
                 "Reconstruction needs lfm_studio.engine.reconstruct, which this installation lacks."
             )
-        self.quality = QLabel("PSNR: –    SSIM: –", self)
+        self.quality = QLabel(NO_QUALITY, self)
+        self.quality.setWordWrap(True)
         layout.addWidget(self.quality)
         layout.addStretch(1)
 
@@ -170,11 +193,13 @@ class WorkflowPanel(QWidget):
             w.blockSignals(False)
 
     def _on_reconstruction(self, result: ReconstructionResult | None) -> None:
-        if result is None or result.psnr is None:
-            self.quality.setText("PSNR: –    SSIM: –")
-            return
-        self.quality.setText(
-            f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b> after {result.iterations} iterations"
+        self.quality.setText(quality_text(result))
+        self.quality.setToolTip(
+            ""
+            if result is None or result.scores is None
+            else "Read NCC (Pearson correlation with the phantom) and F1 (beads found within 2 voxels) first: "
+            "on a sparse phantom an all-zero volume already scores a high PSNR and an SSIM near 1 (its "
+            "'zero floor'), so only the margin above that floor means something."
         )
 
     # ----- view -> state -----

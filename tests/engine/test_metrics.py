@@ -89,6 +89,17 @@ def test_ssim_matches_reference_2d_and_3d(rng, shape):
     )
 
 
+@pytest.mark.parametrize("value", [0.0, 7.5])
+def test_ssim_of_a_constant_estimate_matches_the_reference(rng, value):
+    # A constant estimate (the all-zero and constant floors) takes a shorter path in ssim_map.
+    truth, _ = _smooth_pair(rng, (12, 24, 20), noise=0.0)
+    constant = np.full_like(truth, value)
+    r = float(truth.max() - truth.min())
+    assert float(ssim(truth, constant, data_range=r)) == pytest.approx(
+        _reference_ssim(truth, constant, r), abs=1e-9
+    )
+
+
 def test_paper_formula_agrees_with_skimage_so_the_fallback_reference_is_valid(rng):
     if _skimage_ssim is None:
         pytest.skip("scikit-image not installed")

@@ -24,7 +24,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import torch
-from torch.nn.functional import conv1d
 
 from lfm_studio.engine.metrics.basic import as_pair, data_range_of
 
@@ -75,11 +74,14 @@ def gaussian_filter(
             continue
         dim = x.ndim - axes + offset
         n, radius = x.shape[dim], window_radius(s, truncate)
-        moved = x.index_select(dim, _reflect_indices(n, radius, x.device)).movedim(dim, -1)
-        shape = moved.shape
-        kernel = _kernel(s, radius, x.device).to(x.dtype).view(1, 1, -1)
-        out = conv1d(moved.reshape(-1, 1, shape[-1]), kernel)  # correlation; the kernel is symmetric
-        x = out.reshape(*shape[:-1], n).movedim(-1, dim)
+        padded = x.index_select(dim, _reflect_indices(n, radius, x.device))
+        weights = _kernel(s, radius, torch.device("cpu")).tolist()
+        # A weighted sum of 2 r + 1 shifted views: about 10x faster on the CPU than a
+        # one-channel float64 conv1d (no im2col), and the same sums.
+        out = padded.narrow(dim, 0, n) * weights[0]
+        for k in range(1, len(weights)):
+            out.add_(padded.narrow(dim, k, n), alpha=weights[k])
+        x = out
     return x
 
 
@@ -114,9 +116,19 @@ def ssim_map(
             )
     r = data_range_of(truth, data_range)
     c1, c2 = (k1 * r) ** 2, (k2 * r) ** 2
-    stacked = torch.stack((truth, estimate, truth * truth, estimate * estimate, truth * estimate))
-    mu_t, mu_e, tt, ee, te = gaussian_filter(stacked, sigmas, truncate=truncate, axes=truth.ndim)
-    var_t, var_e, cov = tt - mu_t * mu_t, ee - mu_e * mu_e, te - mu_t * mu_e
+    value = estimate.reshape(-1)[0]
+    if not estimate.requires_grad and bool((estimate == value).all()):
+        # A constant estimate (e.g. the all-zero floor): its local mean is the constant and its
+        # variance and covariance with the truth are 0, so only the truth's moments are filtered.
+        mu_t, tt = gaussian_filter(
+            torch.stack((truth, truth * truth)), sigmas, truncate=truncate, axes=truth.ndim
+        )
+        mu_e, var_t = torch.full_like(mu_t, float(value)), tt - mu_t * mu_t
+        var_e = cov = torch.zeros_like(mu_t)
+    else:
+        stacked = torch.stack((truth, estimate, truth * truth, estimate * estimate, truth * estimate))
+        mu_t, mu_e, tt, ee, te = gaussian_filter(stacked, sigmas, truncate=truncate, axes=truth.ndim)
+        var_t, var_e, cov = tt - mu_t * mu_t, ee - mu_e * mu_e, te - mu_t * mu_e
     numerator = (2 * mu_t * mu_e + c1) * (2 * cov + c2)
     denominator = (mu_t * mu_t + mu_e * mu_e + c1) * (var_t + var_e + c2)
     return numerator / denominator
