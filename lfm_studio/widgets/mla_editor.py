@@ -98,6 +98,8 @@ class MLAEditor(QWidget):
         e.diameterEdited.connect(self.set_selected_diameter)
         e.focalEdited.connect(self.set_selected_focal_length)
         self.symmetry_bar.changed.connect(self._on_symmetry)
+        for field in self.numeric_fields():
+            field.refused.connect(self._on_refused)
         self._keys = EditorKeys(self)
         self._keys.triggered.connect(self._on_key)
         for w in (self, self.canvas, self.sensor_view, self.table):
@@ -206,6 +208,11 @@ class MLAEditor(QWidget):
         """Show the whole pupil, sensor and every lenslet."""
         self._views.fit()
 
+    def numeric_fields(self) -> tuple:
+        """The typed numbers: preset, edit bar (Ø, f) and snap/symmetry fields."""
+        bar = self.symmetry_bar
+        return (*self.presets.fields(), self.edits.diameter, self.edits.focal, bar.pitch, bar.rotation)
+
     def add_lenslet(self, x_um: float, y_um: float) -> list[int]:
         """Add a lenslet (and its partners) at ``(x, y)`` um, snapped if snapping is on, with the last used
         diameter and focal length; returns the new indices (now selected)."""
@@ -288,6 +295,10 @@ class MLAEditor(QWidget):
 
     def _on_band(self, indices: list[int], additive: bool) -> None:
         self._select(set(indices) | (set(self._session.selected) if additive else set()))
+
+    def _on_refused(self, reason: str) -> None:
+        self._session.refuse(reason)  # the field keeps the text and its red border; the status line says why
+        self._views.render_selection(self._session)
 
     def _on_table_selection(self, rows: list[int]) -> None:
         self._select(rows, from_table=True)

@@ -141,9 +141,10 @@ def test_table_edit_through_the_cell_editor_commits_the_new_value(editor, qtbot)
 @pytest.mark.parametrize(
     ("column", "text", "reason"),
     [
-        (2, "-5", "aperture_diameter_um must be a finite number > 0 um; got -5 um"),
-        (3, "abc", "focal_length_mm must be a number in mm; got 'abc'"),
-        (0, "nan", "x_um must be a finite number in um"),
+        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 um"),
+        (3, "abc", "focal_length_mm must be a number; got 'abc'"),
+        (0, "nan", "x_um cannot be NaN (not a number)"),
+        (3, "1,000.5", "'1,000.5' has 2 decimal marks"),
     ],
 )
 def test_invalid_table_values_are_refused_with_the_reason(editor, column, text, reason):
@@ -403,10 +404,10 @@ def test_presets_produce_the_builders_lenslets(editor):
 
 def test_preset_row_applies_and_bad_preset_is_refused(editor):
     rec = Recorder(editor)
-    editor.presets.count.setValue(5)  # the xlfm preset needs complete shells
+    editor.presets.count.setText("5")  # the xlfm preset needs complete shells (typed, applied)
     editor.presets.apply.click()
     assert rec.committed == [] and "complete-shell counts" in editor.last_error()
-    editor.presets.count.setValue(12)
+    editor.presets.count.setText("12")
     editor.presets.apply.click()
     assert len(rec.committed) == 1 and len(editor.lenslets()) == 12
 

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from qtpy.QtCore import Qt
+from qtpy.QtTest import QTest
 
 from lfm_studio.engine.design import load_preset
 from lfm_studio.ui.edits import apply_changes
@@ -28,9 +30,16 @@ def panel(qtbot, design):
 
 
 def _set(panel, path, *values):
-    """What a user does: type into the box(es) and press Enter (keyboard tracking is off)."""
+    """What a user does: type into the box(es) and press Enter."""
     for box, value in zip(panel.inputs[path].boxes, values, strict=False):
-        box.setValue(value)
+        _type(box, str(value))
+
+
+def _type(box, text):
+    box.setFocus()
+    box.selectAll()
+    QTest.keyClicks(box, text)
+    QTest.keyClick(box, Qt.Key.Key_Return)
 
 
 def test_fields_show_the_design_with_units(panel, design):
