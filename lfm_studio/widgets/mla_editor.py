@@ -98,8 +98,10 @@ class MLAEditor(QWidget):
         e.diameterEdited.connect(self.set_selected_diameter)
         e.focalEdited.connect(self.set_selected_focal_length)
         self.symmetry_bar.changed.connect(self._on_symmetry)
+        self._refused_input = ""  # the last number a field refused, while the status line shows it
         for field in self.numeric_fields():
             field.refused.connect(self._on_refused)
+            field.committed.connect(self._on_number_committed)
         self._keys = EditorKeys(self)
         self._keys.triggered.connect(self._on_key)
         for w in (self, self.canvas, self.sensor_view, self.table):
@@ -298,7 +300,13 @@ class MLAEditor(QWidget):
 
     def _on_refused(self, reason: str) -> None:
         self._session.refuse(reason)  # the field keeps the text and its red border; the status line says why
+        self._refused_input = reason
         self._views.render_selection(self._session)
+
+    def _on_number_committed(self, _value: object) -> None:
+        if self._refused_input and self._session.last_error == self._refused_input:  # corrected
+            self._session.last_error = self._refused_input = ""
+            self._views.render_selection(self._session)
 
     def _on_table_selection(self, rows: list[int]) -> None:
         self._select(rows, from_table=True)
