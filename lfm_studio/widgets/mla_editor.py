@@ -129,6 +129,8 @@ class MLAEditor(QWidget):
 
     def set_pupil_radius(self, radius_um: float | None) -> None:
         """Radius of the pupil footprint at the MLA in micrometres (None: unknown)."""
+        if radius_um == self._views.pupil_radius_um:
+            return  # the application repeats it after every edit: no redraw of a big array
         self._views.set_pupil_radius(radius_um)
         self._refresh()
 
@@ -146,10 +148,12 @@ class MLAEditor(QWidget):
         The sensor view refits only when the sensor or sub-image size changes (a user's zoom survives edits)."""
         v = self._views
         size = None if size_um is None else (float(size_um[0]), float(size_um[1]))
+        magnification = 1.0 if magnification is None else float(magnification)
+        new = (size, sub_image_radius_um, magnification, pixel_pitch_um)
+        if new == (v.sensor_size_um, v.sub_image_radius_um, v.magnification, v.pixel_pitch_um):
+            return  # unchanged (repeated after every edit): no redraw
         refit = (size, sub_image_radius_um) != (v.sensor_size_um, v.sub_image_radius_um)
-        v.pixel_pitch_um = pixel_pitch_um
-        v.sensor_size_um, v.sub_image_radius_um = size, sub_image_radius_um
-        v.magnification = 1.0 if magnification is None else float(magnification)
+        v.sensor_size_um, v.sub_image_radius_um, v.magnification, v.pixel_pitch_um = new
         self._refresh()
         if refit:
             self.sensor_view.fit()

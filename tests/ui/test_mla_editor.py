@@ -9,6 +9,7 @@ screen, so positions reached by dragging are compared to within 1.5 screen pixel
 from __future__ import annotations
 
 import html
+import math
 
 import pytest
 from qtpy.QtCore import QEvent, QPoint, QPointF, Qt
@@ -430,3 +431,24 @@ def test_unknown_sub_image_size_shows_centres_only(editor):
     assert "sub-images apart" not in editor.status_text()
     editor.set_sensor((500.0, 500.0), 0.0)  # lenslets 1 and 2 (x = +-400 um) are off a 0.5 mm sensor
     assert "sub-image centred off the 500 x 500 um sensor" in editor.issues()[1]
+
+
+def test_sub_image_overlaps_match_a_brute_force_search():
+    import random
+
+    from lfm_studio.widgets.mla_editor_checks import disc_overlaps
+
+    rng = random.Random(3)
+    centers = [
+        (rng.uniform(-5000, 5000), rng.uniform(-5000, 5000)) for _ in range(700)
+    ]  # > one block of rows
+    radius, tolerance = 400.0, 2.0
+    brute = [
+        (i, j, 2 * radius - math.dist(centers[i], centers[j]))
+        for i in range(len(centers))
+        for j in range(i + 1, len(centers))
+        if 2 * radius - math.dist(centers[i], centers[j]) > tolerance
+    ]
+    found = disc_overlaps(centers, radius, tolerance)
+    assert len(brute) > 100 and [p[:2] for p in found] == [p[:2] for p in brute]
+    assert [p[2] for p in found] == pytest.approx([p[2] for p in brute], rel=1e-12)
