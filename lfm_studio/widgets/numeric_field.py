@@ -16,6 +16,7 @@ refusing a parsed value) with :meth:`NumericField.set_invalid`.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 from qtpy.QtCore import QLocale, Qt, Signal
 from qtpy.QtGui import QKeyEvent
@@ -119,8 +120,9 @@ class NumericField(QLineEdit):
         text = self.text()
         if self._error is None and text == self._shown:
             return True  # nothing typed since the value was shown
+        rule = self.rule if self.rule.example is not None else replace(self.rule, example=self._value)
         try:
-            value = parse_number(text, self.rule)
+            value = parse_number(text, rule)  # a refusal's "Fix: ... e.g." offers the value in force
         except ValueError as exc:
             self._error = str(exc)
             self._restyle()
