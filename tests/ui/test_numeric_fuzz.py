@@ -238,3 +238,25 @@ def test_every_numeric_widget_takes_the_number_typed_or_keeps_the_previous_with_
             assert not (math.isnan(field.value()) or math.isinf(field.value())), case
     assert errors == []
     assert sum(outcomes.values()) == EXPECTED_FIELDS * len(FUZZ) and min(outcomes.values()) >= 10, outcomes
+
+
+def test_the_workflow_buttons_do_not_run_with_a_refused_number(qtbot):
+    from lfm_studio.ui.state import StudioState
+    from lfm_studio.ui.workflow_panel import WorkflowPanel
+    from tests.ui.standins import small_fourier_design
+
+    state = StudioState(small_fourier_design())
+    panel = WorkflowPanel(state)
+    qtbot.addWidget(panel)
+    requests = []
+    panel.simulate_requested.connect(lambda: requests.append("simulate"))
+    panel.photons.setText("nan")  # typed, not yet committed
+    panel.simulate_button.click()
+    assert requests == [] and state.workflow.photons == 1e6  # not 1e15, not noise-free
+    assert "Photon budget cannot be NaN" in panel.input_error.text() and not panel.input_error.isHidden()
+    _type(panel.iterations, "12,0")
+    _type(panel.photons, "2e5")
+    assert state.workflow.photons == 2e5 and state.workflow.iterations == 12 and panel.input_error.isHidden()
+    panel.simulate_button.click()
+    assert requests == ["simulate"]
+    panel.disconnect_state()
