@@ -2,7 +2,9 @@
 
 state -> view: the workflow settings, what is available, the quality of the last
 reconstruction. view -> state: new :class:`~lfm_studio.ui.results.WorkflowSettings`;
-the buttons ask the controller to run the image and reconstruction stages.
+the buttons ask the controller to run the image and reconstruction stages. Numbers are
+typed into :class:`~lfm_studio.widgets.numeric_field.NumericField`; a refused one is
+shown under the form, keeps the previous setting in force and stops the buttons.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ from qtpy.QtWidgets import (
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
 from lfm_studio.ui.state import StudioState
-from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 PHANTOMS = (("beads", "Beads"), ("cells", "Cells (brain-like ellipsoid)"), ("tiff", "TIFF volume…"))
@@ -177,7 +179,7 @@ class WorkflowPanel(QWidget):
 
     def _commit_typing(self) -> bool:
         """A value still being typed counts; False (nothing is run) when one is refused."""
-        ok = all([f.commit() for f in self.numeric_fields() if f.isEnabled()])
+        ok = commit_all(self.numeric_fields())
         self._on_edited()
         return ok
 

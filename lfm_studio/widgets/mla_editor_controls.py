@@ -20,7 +20,7 @@ from lfm_studio.widgets.mla_editor_presets import (
     PresetParams,
 )
 from lfm_studio.widgets.mla_editor_symmetry import MAX_ROTATION, Symmetry
-from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 MAX_COUNT = 500  # preset size: lenslets per side, rings or lenslets
@@ -33,11 +33,6 @@ def number(name: str, unit: str, *, minimum: float, maximum: float, value: float
     field = NumericField(rule, value, step=step)
     field.setMaximumWidth(120)
     return field
-
-
-def commit_all(fields: tuple[NumericField, ...]) -> bool:
-    """Commit what is typed in ``fields`` (every one, so each shows its reason); True if all hold numbers."""
-    return all([f.commit() for f in fields if f.isEnabled()])
 
 
 def _row(parent: QWidget, *widgets: QWidget | str) -> QHBoxLayout:

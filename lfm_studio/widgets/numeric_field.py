@@ -16,6 +16,7 @@ refusing a parsed value) with :meth:`NumericField.set_invalid`.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterable
 from dataclasses import replace
 
 from qtpy.QtCore import QLocale, Qt, Signal
@@ -188,3 +189,12 @@ class NumericField(QLineEdit):
         self.setStyleSheet("" if reason is None else INVALID_STYLE)
         self.setToolTip(self.tip if reason is None else reason)
         self.setProperty("invalid", reason is not None)
+
+
+def commit_all(fields: Iterable[NumericField]) -> bool:
+    """Commit what is typed in the enabled ``fields`` (every one, so each shows its reason); True if all hold numbers.
+
+    For buttons that act on the fields (Apply, Simulate): a text still being typed counts,
+    and a refused one stops the action instead of running it with the value before.
+    """
+    return all([field.commit() for field in fields if field.isEnabled()])
