@@ -134,8 +134,12 @@ def test_parse_value():
     assert model.parse_value("diameter_um", " 150 um") == 150.0
     assert model.parse_value("diameter_um", "150 µm") == 150.0
     assert model.parse_value("focal_length_mm", "26mm") == 26.0
-    with pytest.raises(ValueError, match="focal_length_mm must be a number in mm; got 'abc'"):
+    with pytest.raises(
+        ValueError, match=r"focal_length_mm must be a number; got 'abc'\. Fix: type a number from"
+    ):
         model.parse_value("focal_length_mm", "abc")
+    with pytest.raises(ValueError, match="x_um cannot be NaN"):  # the policy of every numeric field
+        model.parse_value("x_um", "nan")
 
 
 def test_history_restores_exact_lists():
@@ -221,7 +225,10 @@ def test_session_drag_preview_commit_and_refusals():
     assert session.end_drag(330.0, 70.0)
     assert session.lenslets[1].aperture_diameter_um == 120.0
     assert not session.edit_cell(0, "diameter_um", "-3")
-    assert "lenslet 0 diameter_um: aperture_diameter_um must be a finite number > 0 um" in session.last_error
+    assert (
+        "lenslet 0 diameter_um: diameter_um -3 is out of range. Fix: type a number from 0.001"
+        in session.last_error
+    )
     assert not session.edit_cell(7, "x_um", "1")
     assert "there is no lenslet 7" in session.last_error
     assert session.edit_cell(0, "x_um", "-50")

@@ -6,7 +6,9 @@ existing file other than the open document is never replaced without a confirmat
 Recent files live in :class:`QSettings` under the organisation/application
 ``lfm_studio``; tests pass their own settings object. Exports (PSF stack, light-field
 image, reconstruction) are ImageJ TIFFs from :mod:`lfm_studio.engine.io`, written on a
-worker so a 1.7 GB stack does not freeze the window.
+worker so a 1.7 GB stack does not freeze the window; an export that fails gets a dialog
+(not only the status-bar line). Write errors name the user's file, never the temporary
+file of the atomic writer, and say what to do (:func:`~lfm_studio.ui.failure_notices.write_error_text`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,8 @@ from qtpy.QtWidgets import QFileDialog, QMenu, QMessageBox, QWidget
 
 from lfm_studio.engine.design import list_presets, load_design, load_preset, save_design
 from lfm_studio.ui.edits import with_design_warnings
-from lfm_studio.ui.jobs import JobRunner
+from lfm_studio.ui.failure_notices import show_failure, write_error_text
+from lfm_studio.ui.jobs import JobOutcome, JobRunner
 from lfm_studio.ui.state import StudioState
 
 ORGANIZATION = APPLICATION = "lfm_studio"
@@ -61,6 +64,7 @@ class FileActions(QObject):
         super().__init__(window)
         self.state, self.window, self.runner = state, window, runner
         self.settings = settings if settings is not None else default_settings()
+        self.last_failure: QMessageBox | None = None  # the dialog of the last failed export
         self.new_menu = QMenu("&New from preset", window)
         for name in list_presets():
             action = self.new_menu.addAction(name)
@@ -187,7 +191,7 @@ class FileActions(QObject):
         try:
             written = save_design(self.state.design, path, overwrite=overwrite)
         except OSError as error:
-            QMessageBox.warning(self.window, "Cannot save design", str(error))
+            QMessageBox.warning(self.window, "Cannot save design", write_error_text(path, error))
             return False
         self.state.mark_saved(Path(written).resolve())
         return True
@@ -224,9 +228,7 @@ class FileActions(QObject):
         path = None if result is None else self._export_path("Export PSF stack", "psf")
         if path is None:
             return False
-        self.runner.submit(
-            "export", _write_tiff, partial(write_psf_stack, stack=result.stack, overwrite=True), path
-        )
+        self._submit_export(partial(write_psf_stack, stack=result.stack, overwrite=True), path)
         return True
 
     def export_image(self, *_: Any) -> bool:
@@ -241,7 +243,7 @@ class FileActions(QObject):
         write = partial(
             write_image, image=image.counts, pixel_size=image.pixel_size, metadata=meta, overwrite=True
         )
-        self.runner.submit("export", _write_tiff, write, path)
+        self._submit_export(write, path)
         return True
 
     def export_reconstruction(self, *_: Any) -> bool:
@@ -263,8 +265,18 @@ class FileActions(QObject):
             write_volume, volume=result.volume, voxel_size=result.voxel_size, depths=depths, metadata=meta,
             overwrite=True,
         )  # fmt: skip
-        self.runner.submit("export", _write_tiff, write, path)
+        self._submit_export(write, path)
         return True
+
+    def _submit_export(self, write: Any, path: str) -> None:
+        self.runner.submit("export", _write_tiff, write, path, on_error=partial(self._on_export_failed, path))
+
+    def _on_export_failed(self, path: str, outcome: JobOutcome) -> None:
+        error = outcome.error
+        text = (
+            write_error_text(path, error) if isinstance(error, OSError) else f"Cannot write {path}: {error}"
+        )
+        self.last_failure = show_failure(self.window, "Export failed", text, details=outcome.details or "")
 
     # ----- menus -----
 

@@ -17,6 +17,7 @@ from qtpy.QtWidgets import QDockWidget, QMainWindow, QTabWidget, QVBoxLayout, QW
 
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.controllers import MLAEditorBinding, StudioController, ViewerBinding
+from lfm_studio.ui.failure_notices import JobFailureNotices
 from lfm_studio.ui.file_menu import FileActions
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.parameter_panel import ParameterPanel
@@ -113,6 +114,7 @@ class MainWindow(QMainWindow):
             view.addAction(dock.toggleViewAction())
 
         self.job_status = JobStatusBar(state)
+        self.failure_notices = JobFailureNotices(state, self)  # a failed job gets a dialog, not only the bar
         self.job_status.cancel_requested.connect(controller.cancel)
         self.statusBar().addPermanentWidget(self.job_status, 1)
 
@@ -139,7 +141,7 @@ class MainWindow(QMainWindow):
     def _update_title(self, *_: Any) -> None:
         state = self.state
         where = state.file_path.name if state.file_path is not None else "not saved"
-        self.setWindowTitle(f"{state.design.name} ({where}){' *' if state.dirty else ''} — {APP_TITLE}")
+        self.setWindowTitle(f"{state.design.name} ({where})[*] — {APP_TITLE}")  # Qt shows [*] as " *"
         self.setWindowModified(state.dirty)
 
     def closeEvent(self, event: QCloseEvent) -> None:
@@ -156,7 +158,7 @@ class MainWindow(QMainWindow):
         ):
             signal.disconnect(slot)
         for part in (*self._bindings, self.parameter_panel, self.workflow_panel, self.requirements, self.profiles,
-                     self.convergence, self.file_actions, self.job_status):  # fmt: skip
+                     self.convergence, self.file_actions, self.job_status, self.failure_notices):  # fmt: skip
             part.disconnect_state()
         close_viewer = getattr(self.viewer, "close_viewer", None)
         if close_viewer is not None:

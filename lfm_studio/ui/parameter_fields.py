@@ -12,10 +12,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from qtpy.QtCore import Signal
-from qtpy.QtWidgets import QAbstractSpinBox, QDoubleSpinBox, QHBoxLayout, QLabel, QSpinBox, QWidget
+from qtpy.QtWidgets import QHBoxLayout, QLabel, QWidget
 
-INVALID_STYLE = "border: 2px solid #d32f2f; border-radius: 3px;"
-MIN_BOX_WIDTH = 72  # pixels
+from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_text import NumberRule
 
 
 @dataclass(frozen=True)
@@ -81,77 +81,70 @@ FIELDS: tuple[FieldSpec, ...] = (
 
 
 class QuantityInput(QWidget):
-    """One or two spin boxes for a :class:`FieldSpec`, with its unit; emits ``edited`` on commit.
+    """One or two :class:`~lfm_studio.widgets.numeric_field.NumericField` for a :class:`FieldSpec`.
 
-    Commit means Enter, leaving the box, or an arrow step (keyboard tracking is off, so
-    typing does not recompute on every keystroke).
+    ``edited(path)`` when a valid number is committed (Enter, leaving the box, an arrow
+    step); ``refused(path, reason)`` when the text typed is not a number in range (the
+    design in force does not change, the text stays to be corrected).
     """
 
     edited = Signal(str)  # the field path
+    refused = Signal(str, str)  # the field path, the reason
 
     def __init__(self, spec: FieldSpec, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.spec = spec
         layout = QHBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
-        self.boxes: list[QAbstractSpinBox] = []
+        self.boxes: list[NumericField] = []
         for index in range(spec.parts):
-            box = self._make_box(spec)
+            name = spec.label
             if spec.parts == 2:
-                box.setAccessibleName(
-                    f"{spec.label} {'yx'[index] if spec.integer else ('from', 'to')[index]}"
-                )
+                name = f"{spec.label} {'yx'[index] if spec.integer else ('from', 'to')[index]}"
+            rule = NumberRule(
+                name, spec.minimum, spec.maximum, spec.unit, integer=spec.integer,
+                special_text="none" if spec.optional else "",
+            )  # fmt: skip
+            box = NumericField(rule, step=spec.step, tip=spec.tip, parent=self)
+            box.committed.connect(self._on_committed)
+            box.refused.connect(self._on_refused)
             layout.addWidget(box, 1)
             self.boxes.append(box)
         self.setToolTip(spec.tip)
 
-    def _make_box(self, spec: FieldSpec) -> QAbstractSpinBox:
-        box: QAbstractSpinBox
-        if spec.integer:
-            box = QSpinBox(self)
-            box.setRange(int(spec.minimum), int(spec.maximum))
-            box.setSingleStep(int(spec.step))
-        else:
-            box = QDoubleSpinBox(self)
-            box.setDecimals(spec.decimals)
-            box.setRange(spec.minimum, spec.maximum)
-            box.setSingleStep(spec.step)
-        if spec.unit:
-            box.setSuffix(f" {spec.unit}")
-        if spec.optional:
-            box.setSpecialValueText("none")
-        box.setKeyboardTracking(False)
-        box.setMinimumWidth(MIN_BOX_WIDTH)  # the range's widest text need not fit: the panel stays narrow
-        box.setAccessibleName(spec.label)
-        box.valueChanged.connect(self._on_value_changed)
-        return box
-
-    def _on_value_changed(self, _value: float) -> None:
+    def _on_committed(self, _value: object) -> None:
         self.edited.emit(self.spec.path)
+
+    def _on_refused(self, reason: str) -> None:
+        self.refused.emit(self.spec.path, reason)
+
+    def error(self) -> str | None:
+        """Why a typed text was refused (the first box with one), None when every box holds a number."""
+        return next((box.error() for box in self.boxes if box.error() is not None), None)
 
     def value(self):
         """The value as the design stores it (a number, a pair, or None for an optional "none")."""
         values = [box.value() for box in self.boxes]
         if self.spec.optional and values[0] <= self.spec.minimum:
             return None
-        if self.spec.integer:
-            values = [int(v) for v in values]
         return tuple(values) if self.spec.parts == 2 else values[0]
 
     def set_value(self, value) -> None:
         """Show ``value`` without emitting ``edited`` (state -> view)."""
         values = (value,) if self.spec.parts == 1 else tuple(value)
         for box, v in zip(self.boxes, values, strict=True):
-            box.blockSignals(True)
             box.setValue(self.spec.minimum if v is None else v)
-            box.blockSignals(False)
+
+    def discard_edits(self) -> None:
+        """Drop refused texts (the document was replaced)."""
+        for box in self.boxes:
+            box.discard_edit()
 
     def set_invalid(self, message: str | None) -> None:
-        """Red border and the reason as tooltip (None: valid again)."""
+        """Red border and the reason as tooltip for a value the design refused (None: valid again)."""
         self.setProperty("invalid", message is not None)
         for box in self.boxes:
-            box.setStyleSheet("" if message is None else f"QAbstractSpinBox {{ {INVALID_STYLE} }}")
-            box.setToolTip(self.spec.tip if message is None else message)
+            box.set_invalid(message)
 
 
 class ErrorLabel(QLabel):

@@ -2,7 +2,8 @@
 
 state -> view: the fields show the design in force, the refused values with their
 reason (red border, tooltip and a line under the field) and the design warnings.
-view -> state: a committed value builds a new design with
+view -> state: text that is not a number in range is refused by the field itself and
+recorded as the field's error (nothing else changes); a committed value builds a new design with
 :func:`~lfm_studio.ui.edits.try_changes` (``Design.updated``), together with the other
 values still waiting; valid -> it is put in force, invalid -> the reason is recorded
 for that field and the last valid design stays in force.
@@ -91,6 +92,7 @@ class ParameterPanel(QScrollArea):
         form = self._group(spec.group, layout, body)
         field = QuantityInput(spec, body)
         field.edited.connect(self._on_edited)
+        field.refused.connect(self.state.set_field_error)
         error = ErrorLabel(body)
         form.addRow(spec.label, field)
         form.addRow(error)
@@ -137,7 +139,8 @@ class ParameterPanel(QScrollArea):
             field.set_invalid(message)
             self.error_labels[path].show_error(message)
             if was_invalid and message is None and design.kind in field.spec.kinds:
-                field.set_value(read_path(design, path))  # the refused value is dropped
+                field.discard_edits()  # the refused value is dropped
+                field.set_value(read_path(design, path))
 
     def _on_warnings(self, warnings: tuple[str, ...]) -> None:
         self.warning_label.setText("\n\n".join(f"⚠ {w}" for w in warnings))
@@ -150,7 +153,11 @@ class ParameterPanel(QScrollArea):
 
     def _on_edited(self, path: str) -> None:
         value = self.inputs[path].value()
-        waiting = {p: self.inputs[p].value() for p in self.state.errors if p in self.inputs and p != path}
+        waiting = {
+            p: self.inputs[p].value()
+            for p in self.state.errors
+            if p in self.inputs and p != path and self.inputs[p].error() is None  # not text that is no number
+        }
         self._commit({**waiting, path: value}, path, fallback={path: value} if waiting else None)
 
     def _on_accuracy(self, name: str) -> None:

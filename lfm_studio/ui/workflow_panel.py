@@ -3,68 +3,43 @@
 state -> view: the workflow settings, what is available, the quality of the last
 reconstruction (NCC and bead F1 first, then PSNR/SSIM beside the all-zero volume's, with
 their normalisation named). view -> state: new :class:`~lfm_studio.ui.results.WorkflowSettings`;
-the buttons ask the controller to run the image and reconstruction stages.
+the buttons ask the controller to run the image and reconstruction stages. Numbers are
+typed into :class:`~lfm_studio.widgets.numeric_field.NumericField`; a refused one is
+shown under the form, keeps the previous setting in force and stops the buttons.
 """
 
 from __future__ import annotations
 
 import html
-import math
 from dataclasses import replace
 
 from qtpy.QtCore import Signal
 from qtpy.QtWidgets import (
     QCheckBox,
     QComboBox,
-    QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
     QHBoxLayout,
     QLabel,
     QLineEdit,
     QPushButton,
-    QSpinBox,
     QVBoxLayout,
     QWidget,
 )
 
+from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
+from lfm_studio.widgets.numeric_text import NumberRule
 
 PHANTOMS = (("beads", "Beads"), ("cells", "Cells (brain-like ellipsoid)"), ("tiff", "TIFF volume…"))
 
 
-class PhotonBox(QDoubleSpinBox):
-    """A photon budget shown as ``1e+06``; each arrow step multiplies or divides by 10."""
-
-    def __init__(self, parent: QWidget | None = None) -> None:
-        super().__init__(parent)
-        self.setRange(1.0, 1e15)
-        self.setDecimals(0)
-        self.setKeyboardTracking(False)
-        self.setSuffix(" photons")
-
-    def textFromValue(self, value: float) -> str:
-        return f"{value:.3g}"
-
-    def valueFromText(self, text: str) -> float:
-        try:
-            return float(text.replace(self.suffix(), "").strip())
-        except ValueError:
-            return self.value()
-
-    def validate(self, text, pos):
-        from qtpy.QtGui import QValidator
-
-        body = text.replace(self.suffix(), "").strip()
-        try:
-            float(body)
-        except ValueError:
-            return (QValidator.State.Intermediate, text, pos)
-        return (QValidator.State.Acceptable, text, pos)
-
-    def stepBy(self, steps: int) -> None:
-        self.setValue(10.0 ** (round(math.log10(max(self.value(), 1.0))) + steps))
+PHOTONS = NumberRule("Photon budget", 1.0, 1e15, "photons", example=1e6)
+BEADS = NumberRule("Beads", 1, 100_000, integer=True, example=20)
+SEED = NumberRule("Seed", 0, 2**31 - 1, integer=True, example=0)
+ITERATIONS = NumberRule("RL iterations", 1, 10_000, integer=True, example=10)
 
 
 NO_QUALITY = "NCC: –    F1: –    PSNR: –    SSIM: –"
@@ -110,9 +85,7 @@ class WorkflowPanel(QWidget):
         for key, text in PHANTOMS:
             self.phantom.addItem(text, key)
         form.addRow("Phantom", self.phantom)
-        self.bead_count = QSpinBox(self)
-        self.bead_count.setRange(1, 100_000)
-        self.bead_count.setKeyboardTracking(False)
+        self.bead_count = NumericField(BEADS, 20, step=1, parent=self)
         form.addRow("Beads", self.bead_count)
         row = QHBoxLayout()
         self.tiff_path = QLineEdit(self)
@@ -122,19 +95,17 @@ class WorkflowPanel(QWidget):
         row.addWidget(self.browse)
         form.addRow("TIFF", row)
         self.noise_free = QCheckBox("noise-free", self)
-        self.photons = PhotonBox(self)
+        self.photons = NumericField(PHOTONS, 1e6, log_step=True, tip="Up/Down: x10 or /10", parent=self)
         photons = QHBoxLayout()
         photons.addWidget(self.photons, 1)
         photons.addWidget(self.noise_free)
         form.addRow("Photon budget", photons)
-        self.seed = QSpinBox(self)
-        self.seed.setRange(0, 2**31 - 1)
-        self.seed.setKeyboardTracking(False)
+        self.seed = NumericField(SEED, 0, step=1, parent=self)
         form.addRow("Seed", self.seed)
-        self.iterations = QSpinBox(self)
-        self.iterations.setRange(1, 10_000)
-        self.iterations.setKeyboardTracking(False)
+        self.iterations = NumericField(ITERATIONS, 10, step=1, parent=self)
         form.addRow("RL iterations", self.iterations)
+        self.input_error = ErrorLabel(self)  # why a typed number was refused
+        form.addRow(self.input_error)
         self.auto_update = QCheckBox("update image and reconstruction when the design changes", self)
         layout.addWidget(self.auto_update)
         buttons = QHBoxLayout()
@@ -155,10 +126,13 @@ class WorkflowPanel(QWidget):
 
         self._show_settings(state.workflow)
         self._on_reconstruction(state.reconstruction)
-        for signal in (self.phantom.currentIndexChanged, self.bead_count.valueChanged, self.photons.valueChanged,
-                       self.seed.valueChanged, self.iterations.valueChanged, self.noise_free.toggled,
+        for signal in (self.phantom.currentIndexChanged, self.bead_count.committed, self.photons.committed,
+                       self.seed.committed, self.iterations.committed, self.noise_free.toggled,
                        self.auto_update.toggled, self.tiff_path.editingFinished):  # fmt: skip
             signal.connect(self._on_edited)
+        for field in self.numeric_fields():
+            field.refused.connect(self._show_input_errors)
+            field.committed.connect(self._show_input_errors)
         self.browse.clicked.connect(self._on_browse)
         self.simulate_button.clicked.connect(self._on_simulate)
         self.reconstruct_button.clicked.connect(self._on_reconstruct)
@@ -168,6 +142,10 @@ class WorkflowPanel(QWidget):
     def disconnect_state(self) -> None:
         self.state.workflow_changed.disconnect(self._show_settings)
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
+
+    def numeric_fields(self) -> tuple[NumericField, ...]:
+        """The typed numbers: beads, photons, seed, iterations."""
+        return (self.bead_count, self.photons, self.seed, self.iterations)
 
     # ----- state -> view -----
 
@@ -191,6 +169,7 @@ class WorkflowPanel(QWidget):
             w.setEnabled(settings.phantom == "tiff")
         for w in widgets:
             w.blockSignals(False)
+        self._show_input_errors()
 
     def _on_reconstruction(self, result: ReconstructionResult | None) -> None:
         self.quality.setText(quality_text(result))
@@ -220,13 +199,22 @@ class WorkflowPanel(QWidget):
     def _on_edited(self, *_: object) -> None:
         self.state.set_workflow(self.settings())
 
+    def _show_input_errors(self, *_: object) -> None:
+        self.input_error.show_error("\n".join(f.error() for f in self.numeric_fields() if f.error()) or None)
+
+    def _commit_typing(self) -> bool:
+        """A value still being typed counts; False (nothing is run) when one is refused."""
+        ok = commit_all(self.numeric_fields())
+        self._on_edited()
+        return ok
+
     def _on_simulate(self) -> None:
-        self._on_edited()  # a value still being typed counts
-        self.simulate_requested.emit()
+        if self._commit_typing():
+            self.simulate_requested.emit()
 
     def _on_reconstruct(self) -> None:
-        self._on_edited()
-        self.reconstruct_requested.emit()
+        if self._commit_typing():
+            self.reconstruct_requested.emit()
 
     def _on_browse(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Phantom volume", "", "TIFF volumes (*.tif *.tiff)")

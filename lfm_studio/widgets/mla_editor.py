@@ -98,6 +98,10 @@ class MLAEditor(QWidget):
         e.diameterEdited.connect(self.set_selected_diameter)
         e.focalEdited.connect(self.set_selected_focal_length)
         self.symmetry_bar.changed.connect(self._on_symmetry)
+        self._refused_input = ""  # the last number a field refused, while the status line shows it
+        for field in self.numeric_fields():
+            field.refused.connect(self._on_refused)
+            field.committed.connect(self._on_number_committed)
         self._keys = EditorKeys(self)
         self._keys.triggered.connect(self._on_key)
         for w in (self, self.canvas, self.sensor_view, self.table):
@@ -125,6 +129,8 @@ class MLAEditor(QWidget):
 
     def set_pupil_radius(self, radius_um: float | None) -> None:
         """Radius of the pupil footprint at the MLA in micrometres (None: unknown)."""
+        if radius_um == self._views.pupil_radius_um:
+            return  # the application repeats it after every edit: no redraw of a big array
         self._views.set_pupil_radius(radius_um)
         self._refresh()
 
@@ -142,10 +148,12 @@ class MLAEditor(QWidget):
         The sensor view refits only when the sensor or sub-image size changes (a user's zoom survives edits)."""
         v = self._views
         size = None if size_um is None else (float(size_um[0]), float(size_um[1]))
+        magnification = 1.0 if magnification is None else float(magnification)
+        new = (size, sub_image_radius_um, magnification, pixel_pitch_um)
+        if new == (v.sensor_size_um, v.sub_image_radius_um, v.magnification, v.pixel_pitch_um):
+            return  # unchanged (repeated after every edit): no redraw
         refit = (size, sub_image_radius_um) != (v.sensor_size_um, v.sub_image_radius_um)
-        v.pixel_pitch_um = pixel_pitch_um
-        v.sensor_size_um, v.sub_image_radius_um = size, sub_image_radius_um
-        v.magnification = 1.0 if magnification is None else float(magnification)
+        v.sensor_size_um, v.sub_image_radius_um, v.magnification, v.pixel_pitch_um = new
         self._refresh()
         if refit:
             self.sensor_view.fit()
@@ -205,6 +213,11 @@ class MLAEditor(QWidget):
     def fit(self) -> None:
         """Show the whole pupil, sensor and every lenslet."""
         self._views.fit()
+
+    def numeric_fields(self) -> tuple:
+        """The typed numbers: preset, edit bar (Ø, f) and snap/symmetry fields."""
+        bar = self.symmetry_bar
+        return (*self.presets.fields(), self.edits.diameter, self.edits.focal, bar.pitch, bar.rotation)
 
     def add_lenslet(self, x_um: float, y_um: float) -> list[int]:
         """Add a lenslet (and its partners) at ``(x, y)`` um, snapped if snapping is on, with the last used
@@ -288,6 +301,16 @@ class MLAEditor(QWidget):
 
     def _on_band(self, indices: list[int], additive: bool) -> None:
         self._select(set(indices) | (set(self._session.selected) if additive else set()))
+
+    def _on_refused(self, reason: str) -> None:
+        self._session.refuse(reason)  # the field keeps the text and its red border; the status line says why
+        self._refused_input = reason
+        self._views.render_selection(self._session)
+
+    def _on_number_committed(self, _value: object) -> None:
+        if self._refused_input and self._session.last_error == self._refused_input:  # corrected
+            self._session.last_error = self._refused_input = ""
+            self._views.render_selection(self._session)
 
     def _on_table_selection(self, rows: list[int]) -> None:
         self._select(rows, from_table=True)

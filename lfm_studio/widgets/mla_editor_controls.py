@@ -2,23 +2,17 @@
 
 Each row only emits what the user asked for; the editor acts on it. Values are
 set back with signals blocked (``set_*`` methods), so state -> view never echoes.
+Numbers are typed into :class:`~lfm_studio.widgets.numeric_field.NumericField` (one
+policy for the whole studio); a refused number is reported by the field's ``refused``
+signal, which the editor shows in its status line.
 """
 
 from __future__ import annotations
 
 from qtpy.QtCore import Signal
-from qtpy.QtWidgets import (
-    QCheckBox,
-    QComboBox,
-    QDoubleSpinBox,
-    QHBoxLayout,
-    QLabel,
-    QPushButton,
-    QSpinBox,
-    QToolButton,
-    QWidget,
-)
+from qtpy.QtWidgets import QCheckBox, QComboBox, QHBoxLayout, QLabel, QPushButton, QToolButton, QWidget
 
+from lfm_studio.widgets.mla_editor_model import LENSLET_RULES
 from lfm_studio.widgets.mla_editor_presets import (
     COUNT_MEANING,
     DEFAULT_COUNTS,
@@ -26,17 +20,19 @@ from lfm_studio.widgets.mla_editor_presets import (
     PresetParams,
 )
 from lfm_studio.widgets.mla_editor_symmetry import MAX_ROTATION, Symmetry
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
+from lfm_studio.widgets.numeric_text import NumberRule
+
+MAX_COUNT = 500  # preset size: lenslets per side, rings or lenslets
 
 
-def spin(unit: str, *, minimum: float, maximum: float, value: float, decimals: int = 3) -> QDoubleSpinBox:
-    """A double spin box showing its unit, that reports only finished edits (Enter, arrows, focus out)."""
-    box = QDoubleSpinBox()
-    box.setDecimals(decimals)
-    box.setRange(minimum, maximum)
-    box.setValue(value)
-    box.setSuffix(f" {unit}")
-    box.setKeyboardTracking(False)
-    return box
+def number(name: str, unit: str, *, minimum: float, maximum: float, value: float, step: float = 0.0,
+           integer: bool = False, special_text: str = "") -> NumericField:  # fmt: skip
+    """A numeric field showing its unit, that reports only finished edits (Enter, arrows, focus out)."""
+    rule = NumberRule(name, minimum, maximum, unit, integer=integer, special_text=special_text, example=value)
+    field = NumericField(rule, value, step=step)
+    field.setMaximumWidth(120)
+    return field
 
 
 def _row(parent: QWidget, *widgets: QWidget | str) -> QHBoxLayout:
@@ -60,13 +56,17 @@ class PresetBar(QWidget):
             self.kind.addItem(label, key)
         self.kind.setCurrentIndex(list(PRESET_LABELS).index("xlfm"))
         defaults = PresetParams()
-        self.pitch = spin("um", minimum=0.001, maximum=1e6, value=defaults.pitch_um)
-        self.count = QSpinBox()
-        self.count.setRange(0, 500)
-        self.count.setValue(DEFAULT_COUNTS["xlfm"])
-        self.focal_a = spin("mm", minimum=0.001, maximum=1e5, value=defaults.focal_lengths_mm[0])
-        self.focal_b = spin("mm", minimum=0.001, maximum=1e5, value=defaults.focal_lengths_mm[1])
-        self.diameter = spin("um", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um)
+        self.pitch = number(
+            "preset pitch", "um", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
+        )
+        self.count = number("preset n", "", minimum=0, maximum=MAX_COUNT, value=DEFAULT_COUNTS["xlfm"], step=1,
+                            integer=True)  # fmt: skip
+        self.focal_a = number("preset f", "mm", minimum=0.001, maximum=1e5, value=defaults.focal_lengths_mm[0],
+                              step=0.5)  # fmt: skip
+        self.focal_b = number("preset second f", "mm", minimum=0.001, maximum=1e5,
+                              value=defaults.focal_lengths_mm[1], step=0.5)  # fmt: skip
+        self.diameter = number("preset Ø", "um", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
+                               step=10)  # fmt: skip
         self.apply = QPushButton("Apply preset")
         self.apply.setToolTip("Replace all lenslets by this preset (undo with Ctrl+Z)")
         self._counts = dict(DEFAULT_COUNTS)
@@ -75,7 +75,7 @@ class PresetBar(QWidget):
             self.focal_a, self.focal_b, "Ø", self.diameter, self.apply,
         )  # fmt: skip
         self.kind.currentIndexChanged.connect(self._on_kind)
-        self.count.valueChanged.connect(self._remember_count)
+        self.count.committed.connect(self._remember_count)
         self.apply.clicked.connect(self._on_apply)
         self._on_kind()
 
@@ -112,8 +112,13 @@ class PresetBar(QWidget):
     def _remember_count(self, value: int) -> None:
         self._counts[self.current_kind()] = value
 
+    def fields(self) -> tuple[NumericField, ...]:
+        """The typed numbers of the preset."""
+        return (self.pitch, self.count, self.focal_a, self.focal_b, self.diameter)
+
     def _on_apply(self) -> None:
-        self.applyRequested.emit(self.current_kind(), self.params())
+        if commit_all(self.fields()):  # a refused number is not replaced by the one before it
+            self.applyRequested.emit(self.current_kind(), self.params())
 
 
 class EditBar(QWidget):
@@ -124,8 +129,8 @@ class EditBar(QWidget):
     undoClicked = Signal()  # noqa: N815 - Qt signal names are camelCase
     redoClicked = Signal()  # noqa: N815 - Qt signal names are camelCase
     fitClicked = Signal()  # noqa: N815 - Qt signal names are camelCase
-    diameterEdited = Signal(float)  # noqa: N815 - Qt signal names are camelCase
-    focalEdited = Signal(float)  # noqa: N815 - Qt signal names are camelCase
+    diameterEdited = Signal(object)  # noqa: N815 - Qt signal names are camelCase; a float
+    focalEdited = Signal(object)  # noqa: N815 - Qt signal names are camelCase; a float
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
@@ -135,10 +140,11 @@ class EditBar(QWidget):
         self.add.setToolTip("Add a lenslet at the centre of the view (or double-click the canvas)")
         self.delete.setToolTip("Delete the selected lenslets (Delete)")
         self.fit.setToolTip("Show the whole pupil and every lenslet")
-        self.diameter = spin("um", minimum=0.001, maximum=1e6, value=1000.0)
-        self.focal = spin("mm", minimum=0.001, maximum=1e5, value=26.0)
+        self.diameter = NumericField(LENSLET_RULES["diameter_um"], 1000.0, step=10)  # the table's rules
+        self.focal = NumericField(LENSLET_RULES["focal_length_mm"], 26.0, step=0.5)
         for box, what in ((self.diameter, "aperture diameter"), (self.focal, "focal length")):
-            box.setToolTip(f"{what} of the selected lenslets, and of lenslets you add")
+            box.tip = f"{what} of the selected lenslets, and of lenslets you add"
+            box.setToolTip(box.tip)
         _row(
             self, self.add, self.delete, self.undo, self.redo, self.fit, "  Ø", self.diameter, "f", self.focal
         )
@@ -147,8 +153,8 @@ class EditBar(QWidget):
         self.undo.clicked.connect(self.undoClicked)
         self.redo.clicked.connect(self.redoClicked)
         self.fit.clicked.connect(self.fitClicked)
-        self.diameter.valueChanged.connect(self.diameterEdited)
-        self.focal.valueChanged.connect(self.focalEdited)
+        self.diameter.committed.connect(self.diameterEdited)
+        self.focal.committed.connect(self.focalEdited)
 
     def set_values(self, diameter_um: float, focal_length_mm: float) -> None:
         """Show a diameter and focal length without emitting edits."""
@@ -174,7 +180,7 @@ class SymmetryBar(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.snap = QCheckBox("Snap to grid")
-        self.pitch = spin("um", minimum=0.001, maximum=1e6, value=100.0)
+        self.pitch = number("snap pitch", "um", minimum=0.001, maximum=1e6, value=100.0, step=10)
         self.mirror_x = QCheckBox("Mirror x")
         self.mirror_x.setToolTip(
             "Keep mirror symmetry (x, y) -> (-x, y): edits apply to the mirrored partner"
@@ -183,11 +189,10 @@ class SymmetryBar(QWidget):
         self.mirror_y.setToolTip(
             "Keep mirror symmetry (x, y) -> (x, -y): edits apply to the mirrored partner"
         )
-        self.rotation = QSpinBox()
-        self.rotation.setRange(1, MAX_ROTATION)
-        self.rotation.setSpecialValueText("off")
-        self.rotation.setSuffix("-fold")
-        self.rotation.setToolTip("Keep n-fold rotational symmetry about the optical axis")
+        self.rotation = number("rotation", "fold", minimum=1, maximum=MAX_ROTATION, value=1, step=1, integer=True,
+                               special_text="off")  # fmt: skip
+        self.rotation.tip = "Keep n-fold rotational symmetry about the optical axis (1 or off: none)"
+        self.rotation.setToolTip(self.rotation.tip)
         _row(
             self,
             self.snap,
@@ -200,8 +205,8 @@ class SymmetryBar(QWidget):
         )
         for box in (self.snap, self.mirror_x, self.mirror_y):
             box.toggled.connect(self.changed)
-        self.pitch.valueChanged.connect(self.changed)
-        self.rotation.valueChanged.connect(self.changed)
+        self.pitch.committed.connect(self.changed)
+        self.rotation.committed.connect(self.changed)
 
     def symmetry(self) -> Symmetry:
         """The symmetry edits keep."""

@@ -16,11 +16,19 @@ from pydantic import ValidationError
 
 from lfm_studio.engine.design import LensletSpec
 from lfm_studio.widgets.mla_editor_symmetry import Point, PointIndex, Symmetry, apply, round_point
+from lfm_studio.widgets.numeric_text import NumberRule, parse_number
 
 Lenslets = tuple[LensletSpec, ...]
 Field = Literal["x_um", "y_um", "diameter_um", "focal_length_mm"]
 FIELDS: tuple[Field, ...] = ("x_um", "y_um", "diameter_um", "focal_length_mm")
 FIELD_UNITS = {"x_um": "um", "y_um": "um", "diameter_um": "um", "focal_length_mm": "mm"}
+MAX_EXTENT_UM = 1e7  # 10 m: far beyond any MLA; a typo, not a design
+LENSLET_RULES: dict[str, NumberRule] = {
+    "x_um": NumberRule("x_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "um", example=0.0),
+    "y_um": NumberRule("y_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "um", example=0.0),
+    "diameter_um": NumberRule("diameter_um", 0.001, 1e6, "um", example=1000.0),
+    "focal_length_mm": NumberRule("focal_length_mm", 0.001, 1e5, "mm", example=26.0),
+}
 NO_SYMMETRY = Symmetry()
 
 
@@ -175,20 +183,14 @@ def set_value(
 
 
 def parse_value(field: Field, text: str) -> float:
-    """A number typed into the table for ``field`` ("1.5", "1,5", "150 um"); ValueError with the reason."""
-    unit = FIELD_UNITS.get(field, "")
-    cleaned = str(text).strip().replace("µm", "um").replace("μm", "um")
-    if unit and cleaned.endswith(unit):
-        cleaned = cleaned[: -len(unit)].strip()
-    if "," in cleaned and "." not in cleaned:
-        cleaned = cleaned.replace(",", ".")
-    try:
-        return float(cleaned)
-    except ValueError:
-        raise ValueError(
-            f"{field} must be a number in {unit}; got {text!r}. Fix: type e.g. "
-            f"{'26' if unit == 'mm' else '1000'}."
-        ) from None
+    """A number typed into the table for ``field`` ("1.5", "1,5", "150 um"); ValueError with the reason.
+
+    The same policy as every numeric field (:func:`~lfm_studio.widgets.numeric_text.parse_number`)
+    with the ranges of :data:`LENSLET_RULES`.
+    """
+    if field not in FIELDS:
+        raise ValueError(f"field must be one of {', '.join(FIELDS)}; got {field!r}.")
+    return float(parse_number(text, LENSLET_RULES[field]))
 
 
 def value_of(lens: LensletSpec, field: Field) -> float:

@@ -9,6 +9,7 @@ screen, so positions reached by dragging are compared to within 1.5 screen pixel
 from __future__ import annotations
 
 import html
+import math
 
 import pytest
 from qtpy.QtCore import QEvent, QPoint, QPointF, Qt
@@ -141,9 +142,10 @@ def test_table_edit_through_the_cell_editor_commits_the_new_value(editor, qtbot)
 @pytest.mark.parametrize(
     ("column", "text", "reason"),
     [
-        (2, "-5", "aperture_diameter_um must be a finite number > 0 um; got -5 um"),
-        (3, "abc", "focal_length_mm must be a number in mm; got 'abc'"),
-        (0, "nan", "x_um must be a finite number in um"),
+        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 um"),
+        (3, "abc", "focal_length_mm must be a number; got 'abc'"),
+        (0, "nan", "x_um cannot be NaN (not a number)"),
+        (3, "1,000.5", "'1,000.5' has 2 decimal marks"),
     ],
 )
 def test_invalid_table_values_are_refused_with_the_reason(editor, column, text, reason):
@@ -403,10 +405,10 @@ def test_presets_produce_the_builders_lenslets(editor):
 
 def test_preset_row_applies_and_bad_preset_is_refused(editor):
     rec = Recorder(editor)
-    editor.presets.count.setValue(5)  # the xlfm preset needs complete shells
+    editor.presets.count.setText("5")  # the xlfm preset needs complete shells (typed, applied)
     editor.presets.apply.click()
     assert rec.committed == [] and "complete-shell counts" in editor.last_error()
-    editor.presets.count.setValue(12)
+    editor.presets.count.setText("12")
     editor.presets.apply.click()
     assert len(rec.committed) == 1 and len(editor.lenslets()) == 12
 
@@ -429,3 +431,24 @@ def test_unknown_sub_image_size_shows_centres_only(editor):
     assert "sub-images apart" not in editor.status_text()
     editor.set_sensor((500.0, 500.0), 0.0)  # lenslets 1 and 2 (x = +-400 um) are off a 0.5 mm sensor
     assert "sub-image centred off the 500 x 500 um sensor" in editor.issues()[1]
+
+
+def test_sub_image_overlaps_match_a_brute_force_search():
+    import random
+
+    from lfm_studio.widgets.mla_editor_checks import disc_overlaps
+
+    rng = random.Random(3)
+    centers = [
+        (rng.uniform(-5000, 5000), rng.uniform(-5000, 5000)) for _ in range(700)
+    ]  # > one block of rows
+    radius, tolerance = 400.0, 2.0
+    brute = [
+        (i, j, 2 * radius - math.dist(centers[i], centers[j]))
+        for i in range(len(centers))
+        for j in range(i + 1, len(centers))
+        if 2 * radius - math.dist(centers[i], centers[j]) > tolerance
+    ]
+    found = disc_overlaps(centers, radius, tolerance)
+    assert len(brute) > 100 and [p[:2] for p in found] == [p[:2] for p in brute]
+    assert [p[2] for p in found] == pytest.approx([p[2] for p in brute], rel=1e-12)

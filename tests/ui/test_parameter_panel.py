@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import pytest
+from qtpy.QtCore import Qt
+from qtpy.QtTest import QTest
 
 from lfm_studio.engine.design import load_preset
 from lfm_studio.ui.edits import apply_changes
@@ -28,9 +30,16 @@ def panel(qtbot, design):
 
 
 def _set(panel, path, *values):
-    """What a user does: type into the box(es) and press Enter (keyboard tracking is off)."""
+    """What a user does: type into the box(es) and press Enter."""
     for box, value in zip(panel.inputs[path].boxes, values, strict=False):
-        box.setValue(value)
+        _type(box, str(value))
+
+
+def _type(box, text):
+    box.setFocus()
+    box.selectAll()
+    QTest.keyClicks(box, text)
+    QTest.keyClick(box, Qt.Key.Key_Return)
 
 
 def test_fields_show_the_design_with_units(panel, design):
@@ -112,3 +121,20 @@ def test_a_conventional_design_disables_the_fourier_lens(qtbot):
     assert not panel.inputs["relay.focal_length_mm"].isEnabled()
     assert panel.inputs["mla_to_camera_distance_mm"].isEnabled()
     panel.disconnect_state()
+
+
+def test_text_that_is_no_number_is_refused_in_place_and_waits_to_be_corrected(panel, design):
+    state = panel.state
+    field, label = panel.inputs["objective.magnification"], panel.error_labels["objective.magnification"]
+    _set(panel, "objective.magnification", "1e308")  # never read as 1308
+    assert state.design == design and "Magnification 1e+308 is out of range" in label.text()
+    assert not label.isHidden() and field.boxes[0].text() == "1e308" and field.property("invalid") is True
+    _set(panel, "camera.read_noise_e", "0,5")  # another field applies meanwhile; the refused text stays
+    assert state.design.camera.read_noise_e == 0.5 and field.boxes[0].text() == "1e308"
+    assert state.design.objective.magnification == design.objective.magnification
+    _set(panel, "objective.magnification", "25")
+    assert state.design.objective.magnification == 25.0 and state.errors == {} and label.isHidden()
+    _set(panel, "depths.depth_step_um", "-2")  # out of range: not turned into 2
+    assert state.design.depths.depth_step_um == design.depths.depth_step_um
+    state.replace_design(design)  # a new document drops the refused text
+    assert panel.inputs["depths.depth_step_um"].boxes[0].text() == "10 µm" and not state.errors

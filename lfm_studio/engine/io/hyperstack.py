@@ -100,6 +100,9 @@ class RawTiff:
     calibration: Calibration
 
 
+_TRUNCATED_FIX = "Fix: copy or export the file again (an interrupted copy or download leaves it short)."
+
+
 def read_hyperstack(path: str | os.PathLike) -> RawTiff:
     """Read the first image series of any TIFF, with its ImageJ Info and calibration."""
     source = Path(path).expanduser()
@@ -107,7 +110,17 @@ def read_hyperstack(path: str | os.PathLike) -> RawTiff:
         raise FileNotFoundError(f"No such TIFF file: {source}")
     with tifffile.TiffFile(source) as tif:
         series = tif.series[0]
-        array = series.asarray()
+        try:
+            array = series.asarray()
+        except (ValueError, OSError) as error:  # tifffile: "failed to read N bytes, got M"
+            raise ValueError(f"{source} is truncated or damaged ({error}). {_TRUNCATED_FIX}") from error
+        announced = (tif.imagej_metadata or {}).get("images") if tif.is_imagej else None
+        planes = math.prod(n for n, axis in zip(series.shape, series.axes, strict=True) if axis not in "YXS")
+        if isinstance(announced, int) and planes < announced:  # tifffile fell back to the pages it could read
+            raise ValueError(
+                f"{source} is truncated: its ImageJ header announces {announced} images but only {planes} "
+                f"could be read ({source.stat().st_size} bytes on disk). {_TRUNCATED_FIX}"
+            )
         info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
         return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
 
