@@ -112,3 +112,14 @@ def test_a_conventional_design_disables_the_fourier_lens(qtbot):
     assert not panel.inputs["relay.focal_length_mm"].isEnabled()
     assert panel.inputs["mla_to_camera_distance_mm"].isEnabled()
     panel.disconnect_state()
+
+
+def test_volume_grid_settings_are_edited_per_kind(panel, design):
+    # Fourier design: volume voxels per pixel (odd); the conventional-only field does not apply.
+    state = panel.state
+    assert panel.inputs["accuracy.volume_oversampling"].value() == 1
+    _set(panel, "accuracy.volume_oversampling", 3)
+    assert state.design.accuracy.volume_oversampling == 3 and state.errors == {}
+    _set(panel, "accuracy.volume_oversampling", 2)  # even: refused with the reason, design stays
+    assert state.design.accuracy.volume_oversampling == 3
+    assert "volume_oversampling must be 1, 3, 5 or 7" in state.errors["accuracy.volume_oversampling"]
