@@ -31,7 +31,10 @@ transmits the mean of its lenslets' phases with weight 1/2 each (a corner 1/4),
 which is what the antialiased path gives for a pixel centred on that edge (each
 lenslet covers half of it). Hence ``|t| <= 1`` everywhere, for every layout, shape
 and antialiasing, and a 3 x 3 array of touching squares covers exactly the samples
-of one square of the array's total size.
+of one square of the array's total size. (A binary rim that no neighbour shares still
+counts whole, as for a lone aperture: with rims on samples a lenslet of ``m`` samples
+across then focuses ``((m + 1) / m)^4`` too bright, whether alone or in the array; the
+antialiased path has no such bias.)
 
 Window edges: a lenslet that crosses the edge of the grid is cropped
 (``periodic=False``, for an isolated array with a margin around it). With
