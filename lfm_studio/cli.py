@@ -16,6 +16,7 @@ from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_metrics import add_metrics_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
+from lfm_studio.cli_resolution import add_resolution_parser
 from lfm_studio.cli_simulate import add_simulate_parsers
 
 
@@ -42,6 +43,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_reconstruct_parsers(sub)
     add_metrics_parser(sub)
     add_bench_parser(sub)
+    add_resolution_parser(sub)
     return parser
 
 

@@ -1,10 +1,13 @@
-"""``lfm-studio info DESIGN|PRESET [--json] [--measure]``: a design's metrics and requirement checks.
+"""``lfm-studio info DESIGN|PRESET [--json] [--measure] [--criterion C]``: a design's metrics and checks.
 
 Prints the closed-form metrics (resolution, depth of field, field of view, views,
 magnification) and the larval-zebrafish requirement checks of thesis section 2.3.1
 as an aligned table, or as JSON with ``--json`` (units in key names). ``--measure``
 also simulates a small PSF stack (Fourier LFM, per-lenslet model, a few depths) and
-adds the values measured on it. Register with :func:`add_info_parser`.
+adds the values measured on it. ``--criterion`` picks the lateral resolution criterion of
+the closed forms: ``rayleigh`` (0.61 lambda / NA, the thesis' section 3.3.1; default),
+``abbe`` (lambda / (2 NA)) or ``sparrow`` (0.47 lambda / NA); the report names it.
+Register with :func:`add_info_parser`.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ import time
 
 from lfm_studio.engine.design import DesignError, resolve_design
 from lfm_studio.engine.design_metrics import compute_design_metrics, format_metrics_table, measurement_psf
+from lfm_studio.engine.design_metrics.closed_forms import CRITERION_LABELS
 from lfm_studio.engine.design_metrics.measure_psf import main_focus_depth
 
 
@@ -37,6 +41,14 @@ def add_info_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
         action="store_true",
         help="also simulate a small PSF stack and measure FWHM, two-point resolution and depth of field "
         "(Fourier LFM only; seconds on a CPU)",
+    )
+    info.add_argument(
+        "--criterion",
+        choices=sorted(CRITERION_LABELS),
+        default="rayleigh",
+        help="lateral resolution criterion of the closed forms: "
+        + "; ".join(f"{name}: {label}" for name, label in CRITERION_LABELS.items())
+        + " (default rayleigh, as in the thesis section 3.3.1)",
     )
     info.set_defaults(handler=run_info)
     return info
@@ -66,6 +78,6 @@ def run_info(args: argparse.Namespace) -> int:
                 f"in {time.perf_counter() - start:.1f} s",
                 file=sys.stderr,
             )
-    metrics = compute_design_metrics(design, psf=psf, focus_depth=focus)
+    metrics = compute_design_metrics(design, psf=psf, focus_depth=focus, criterion=args.criterion)
     print(metrics.to_json() if args.json else format_metrics_table(metrics))
     return 0

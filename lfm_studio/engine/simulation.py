@@ -14,6 +14,7 @@ import torch
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.operators import ShiftInvariantProjector
+from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
 from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
@@ -26,9 +27,10 @@ from lfm_studio.engine.systems.from_design import (
     conventional_system_of,
     fourier_accuracy_of,
     fourier_system_of,
+    virtual_pixel_count,
 )
 
-Projector = ShiftInvariantProjector | LensletLatticeProjector
+Projector = ShiftInvariantProjector | LensletLatticeProjector | BinnedProjector
 
 
 def depth_grid(depths_um: tuple[float, float, float], name: str = "depths") -> tuple[float, ...]:
@@ -54,22 +56,46 @@ def simulate_psf(
     depths: tuple[float, ...] | None = None,
     device: torch.device | str = "cpu",
     dtype: str | None = None,
+    crop: int | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
 ) -> PSFStack:
     """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
-    ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached."""
+    ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached.
+
+    Fourier with ``accuracy.volume_oversampling`` ``k > 1``: the PSFs are sampled on a virtual
+    sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded in the stack's
+    metadata as ``volume_oversampling``; :func:`imaging_setup` bins them onto the camera.
+
+    ``crop``: keep only about ``crop x crop`` camera pixels around the axis, for quick studies
+    (Fourier: the sensor cut to that size, views outside it are lost; conventional: the
+    lenslets that fit in it).
+    """
     depths = tuple(depths) if depths is not None else design_depths(design)
+    refine = design.accuracy.volume_oversampling
+    if crop is not None and not (isinstance(crop, int) and crop >= 1):
+        raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
     if design.kind == "fourier":
-        system, accuracy, compute = fourier_system_of(design), fourier_accuracy_of(design), fourier_psf_stack
+        system, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
+        if crop is not None:
+            shape = tuple(virtual_pixel_count(min(crop, n), refine) for n in design.camera.pixel_count)
+            system = replace(system, sensor_shape=shape)
+        compute = fourier_psf_stack
     else:
-        system = conventional_system_of(design)
+        lenslets, pitch_um = None, getattr(design.mla, "pitch_um", None)
+        if crop is not None and pitch_um is not None:  # (no pitch: conventional_system_of explains)
+            count = max(1, int(crop * design.camera.pixel_pitch / (pitch_um * 1e-6)))
+            lenslets = tuple(min(count, n) for n in design.mla.shape)
+        system = conventional_system_of(design, lenslets=lenslets)
         accuracy, compute = conventional_accuracy_of(design, system), conventional_psf_stack
     if dtype is not None:
         accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
-    return compute(
+    stack = compute(
         system, depths, accuracy=accuracy, device=device, progress=progress, cancel=cancel, design=design
     )
+    if design.kind == "fourier" and refine > 1:
+        stack = replace(stack, metadata={**stack.metadata, "volume_oversampling": refine})
+    return stack
 
 
 @dataclass(frozen=True)
@@ -84,8 +110,10 @@ class ImagingSetup:
 def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
     """Projector and volume grid for ``stack``.
 
-    Fourier: lateral voxel = sensor pixel / magnification; the volume spans
-    ``field_of_view`` metres (default: the design's, else a quarter of the sensor).
+    Fourier: lateral voxel = the stack's pixel / magnification (sensor pixel / M_T, or
+    ``1 / k`` of it for a stack with metadata ``volume_oversampling`` ``k``, whose PSFs are
+    then summed ``k x k`` onto each camera pixel: :class:`BinnedProjector`); the volume
+    spans ``field_of_view`` metres (default: the design's, else a quarter of the sensor).
     Conventional: the lattice of the stack's lenslets, ``voxels_per_lenslet`` per pitch.
     """
     depths = stack.depths
@@ -108,7 +136,10 @@ def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> Ima
     ny, nx = stack.data.shape[-2:]
     lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
     lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
-    projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
+    projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
+    refine = int(stack.metadata.get("volume_oversampling", 1))
+    if refine > 1:
+        projector = BinnedProjector(projector, refine)
     return ImagingSetup(projector, (len(depths), lateral, lateral), (dz, voxel, voxel))
 
 

@@ -77,6 +77,12 @@ FIELDS: tuple[FieldSpec, ...] = (
     FieldSpec("depths.depth_range_um", "Depth range (from, to)", "µm", "Depths", 1, -1e5, 1e5, 10.0, parts=2,
               tip="Source depths below the native focal plane (positive: away from the objective)."),
     FieldSpec("depths.depth_step_um", "Depth step", "µm", "Depths", 2, 0.0, 1e5, 1.0),
+    FieldSpec("accuracy.voxels_per_lenslet", "Voxels per lenslet", "", "Computation", 0, 0, 99, 2, integer=True,
+              kinds=("conventional",), tip="Lateral volume voxels per lenslet pitch (odd). Finer grids resolve "
+              "closer pairs (never below 2 voxels) at the square of the PSF cost."),
+    FieldSpec("accuracy.volume_oversampling", "Volume voxels per pixel", "", "Computation", 0, 0, 7, 2,
+              integer=True, kinds=("fourier",), tip="1, 3, 5 or 7 volume voxels per sensor pixel (the PSF is "
+              "sampled to match). Finer grids resolve closer pairs at k² the PSF and volume size."),
 )  # fmt: skip
 
 

@@ -176,7 +176,10 @@ class RequirementsView(_StateView):
         for row, check in enumerate(checks):
             scale, unit = UNIT_SCALE[check.unit], f" {check.unit}" if check.unit else ""
             symbol = {">=": "≥", "<=": "≤"}.get(check.comparison, check.comparison)
-            name = f"{_QUANTITY.get(check.quantity, check.quantity)} {symbol} {check.limit / scale:.4g}{unit}"
+            quantity = _QUANTITY.get(check.quantity, check.quantity)
+            if check.criterion:  # e.g. "Lateral res. (Rayleigh 0.61 lambda/NA)"
+                quantity = f"{quantity} ({check.criterion})"
+            name = f"{quantity} {symbol} {check.limit / scale:.4g}{unit}"
             value = "n/a" if check.value is None else f"{check.value / scale:.4g}{unit}"
             result = {True: "PASS", False: "FAIL", None: "?"}[check.passed]
             colour = {True: PASS, False: FAIL, None: UNKNOWN}[check.passed]

@@ -138,3 +138,14 @@ def test_text_that_is_no_number_is_refused_in_place_and_waits_to_be_corrected(pa
     assert state.design.depths.depth_step_um == design.depths.depth_step_um
     state.replace_design(design)  # a new document drops the refused text
     assert panel.inputs["depths.depth_step_um"].boxes[0].text() == "10 µm" and not state.errors
+
+
+def test_volume_grid_settings_are_edited_per_kind(panel, design):
+    # Fourier design: volume voxels per pixel (odd); the conventional-only field does not apply.
+    state = panel.state
+    assert panel.inputs["accuracy.volume_oversampling"].value() == 1
+    _set(panel, "accuracy.volume_oversampling", 3)
+    assert state.design.accuracy.volume_oversampling == 3 and state.errors == {}
+    _set(panel, "accuracy.volume_oversampling", 2)  # even: refused with the reason, design stays
+    assert state.design.accuracy.volume_oversampling == 3
+    assert "volume_oversampling must be 1, 3, 5 or 7" in state.errors["accuracy.volume_oversampling"]

@@ -46,6 +46,10 @@ def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
     results = {(r[0].split(" ")[0], r[1]): r[3] for r in rows}
     assert results[("FoV", "formula")] == "FAIL"  # 50 um field stop vs 800 um required
     assert rows[0][0] == "FoV ≥ 800 um" and rows[0][2] == "50 um"
+    # the lateral criterion is named (issue 22): Rayleigh for the formula, the two-point dip when measured
+    lateral = {r[1]: r[0] for r in rows if r[0].startswith("Lateral res.")}
+    assert lateral["formula"] == "Lateral res. (Rayleigh 0.61 lambda/NA) ≤ 3 um"
+    assert lateral["measured"] == "Lateral res. (two-point dip < 0.735) ≤ 3 um"
     assert {r[1] for r in rows} == {"formula", "measured"}
     assert "Does not meet" in requirements.summary.text()
     state.set_convergence((10.0, 12.0, 13.0), (0.5, 0.2, 0.1))

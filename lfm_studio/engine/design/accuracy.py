@@ -90,6 +90,16 @@ class AccuracySpec(SpecModel):
         only when sub-images do not overlap).
     depth_chunk : int
         Depths per FFT batch (>= 1; small on CPU to stay in cache, large on GPU).
+    voxels_per_lenslet : int
+        Conventional LFM: lateral volume voxels per lenslet pitch (odd, >= 1; default 5). The
+        voxel is ``pitch / (M voxels_per_lenslet)``; two emitters closer than 2 voxels can
+        never show a dip, and the PSF patterns cost grows as its square. Not part of the presets.
+    volume_oversampling : int
+        Fourier LFM: volume voxels per sensor pixel ``k`` (odd: 1, 3, 5 or 7; default 1). The
+        voxel is ``pixel / (M_T k)``; the PSF is sampled on a ``k``-times finer virtual sensor and
+        the forward model sums ``k x k`` of its pixels into one camera pixel (exact: the pixel
+        integral is additive). Odd, so that a virtual pixel is centred on the axis as the
+        camera pixel it belongs to. Cost: ``k^2`` PSF pixels and volume voxels. Not part of the presets.
     """
 
     preset: PresetName = "standard"
@@ -102,6 +112,8 @@ class AccuracySpec(SpecModel):
     objective_model: Literal["paraxial", "debye"]
     per_lenslet: bool
     depth_chunk: int
+    voxels_per_lenslet: int = 5
+    volume_oversampling: int = 1
 
     @model_validator(mode="before")
     @classmethod
@@ -127,6 +139,16 @@ class AccuracySpec(SpecModel):
             raise DesignError(f"debye_points must be >= 8; got {self.debye_points}. Fix: e.g. 64.")
         if self.depth_chunk < 1:
             raise DesignError(f"depth_chunk must be >= 1; got {self.depth_chunk}. Fix: e.g. 4.")
+        if self.voxels_per_lenslet < 1 or self.voxels_per_lenslet % 2 == 0:
+            raise DesignError(
+                f"voxels_per_lenslet must be an odd integer >= 1 (a voxel on each lenslet centre); "
+                f"got {self.voxels_per_lenslet}. Fix: e.g. 5 (default) or 7."
+            )
+        if self.volume_oversampling not in (1, 3, 5, 7):
+            raise DesignError(
+                f"volume_oversampling must be 1, 3, 5 or 7 (odd volume voxels per sensor pixel); "
+                f"got {self.volume_oversampling}. Fix: 1 (voxel = pixel / magnification) or 3."
+            )
         return self
 
     @classmethod

@@ -6,6 +6,13 @@
 :class:`ClosedFormMetrics`, so reports and requirement checks treat them alike; each
 field's docstring says what it means, and the two modules say how it is computed,
 from which source, under which assumptions.
+
+Lateral resolution criterion (:data:`LATERAL_CRITERIA`): the diffraction limit is
+``c lambda / NA`` with ``c`` = 0.61 (Rayleigh, the default: the thesis, section
+3.3.1, reads the zebrafish requirements of section 2.3.1 against it), 0.5 (Abbe,
+``lambda / (2 NA)``) or 0.47 (Sparrow). The criterion is named in the metrics
+(``lateral_criterion``), the JSON, ``lfm-studio info`` and the studio's requirement
+table; docs/resolution_conventions.md compares every closed form with the thesis.
 """
 
 from __future__ import annotations
@@ -13,6 +20,28 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lfm_studio.engine.design import Design
+
+LATERAL_CRITERIA: dict[str, float] = {"rayleigh": 0.61, "abbe": 0.5, "sparrow": 0.47}
+"""Factor ``c`` of the lateral diffraction limit ``c lambda / NA`` per criterion (Born & Wolf
+7.6.3: Rayleigh = first Airy zero 0.61; Abbe = lambda / (2 NA); Sparrow = 0.47, the dip just vanishes)."""
+
+CRITERION_LABELS: dict[str, str] = {
+    "rayleigh": "Rayleigh 0.61 lambda/NA",
+    "abbe": "Abbe lambda/(2 NA)",
+    "sparrow": "Sparrow 0.47 lambda/NA",
+}
+"""How each criterion is shown (tables, the studio)."""
+
+
+def criterion_factor(criterion: str) -> float:
+    """``c`` of ``c lambda / NA`` for ``criterion`` (ValueError naming the choices otherwise)."""
+    if criterion not in LATERAL_CRITERIA:
+        raise ValueError(
+            f"criterion must be one of {sorted(LATERAL_CRITERIA)}; got {criterion!r}. "
+            "Fix: 'rayleigh' (thesis 3.3.1), 'abbe' or 'sparrow'."
+        )
+    return LATERAL_CRITERIA[criterion]
+
 
 UM = {"unit": "um"}
 """Field metadata: a length shown and saved in micrometres (SI metres in the object)."""
@@ -57,6 +86,8 @@ class ClosedFormMetrics:
         Diameter of the imaged field at the sample, m (None: no limit known).
     field_of_view_limit : str
         Which limit sets ``field_of_view`` (e.g. "field stop", "lenslet spacing").
+    lateral_criterion : "rayleigh", "abbe" or "sparrow"
+        The criterion of ``lateral_resolution_diffraction`` (:data:`LATERAL_CRITERIA`).
     notes : tuple of str
         Assumptions and caveats that apply to this design.
     """
@@ -76,6 +107,7 @@ class ClosedFormMetrics:
     depth_range: tuple[float, float] = field(metadata=UM)
     field_of_view: float | None = field(metadata=UM)
     field_of_view_limit: str
+    lateral_criterion: str = "rayleigh"
     notes: tuple[str, ...] = ()
 
 
@@ -88,14 +120,16 @@ def tightest_limit(limits: dict[str, float | None]) -> tuple[float | None, str]:
     return known[name], name
 
 
-def closed_form_metrics(design: Design) -> ClosedFormMetrics:
-    """The closed-form metrics of ``design`` (Fourier or conventional LFM)."""
+def closed_form_metrics(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
+    """The closed-form metrics of ``design`` (Fourier or conventional LFM); lateral resolution
+    by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
+    criterion_factor(criterion)
     if design.kind == "fourier":
         from lfm_studio.engine.design_metrics.fourier_closed_forms import fourier_closed_forms
 
-        return fourier_closed_forms(design)
+        return fourier_closed_forms(design, criterion=criterion)
     if design.kind == "conventional":
         from lfm_studio.engine.design_metrics.conventional_closed_forms import conventional_closed_forms
 
-        return conventional_closed_forms(design)
+        return conventional_closed_forms(design, criterion=criterion)
     raise ValueError(f"design.kind must be 'fourier' or 'conventional'; got {design.kind!r}.")

@@ -17,7 +17,8 @@ for the light field microscope", Opt. Express 21, 25418 (2013) (Broxton 2013).
   ``R_obj = 0.47 lambda M / NA``. ``number_of_views`` counts them over the disc
   (``pi/4 N_u^2``) or over the square lenslet when the disc fills it (``N_u^2``).
   The effective NA of one view is ``NA / N_u``.
-- Lateral resolution: ``max(lambda / (2 NA), p / M)``: at the native focal plane the
+- Lateral resolution: ``max(c lambda / NA, p / M)`` (``c`` of the chosen criterion:
+  0.61 Rayleigh by default, 0.5 Abbe, 0.47 Sparrow): at the native focal plane the
   light field samples the sample once per lenslet (Levoy 2006: lateral resolution of
   focused images = lenslet pitch at the specimen). 3-D deconvolution recovers finer
   detail away from that plane (Broxton 2013), not reflected here.
@@ -37,7 +38,7 @@ import math
 
 from lfm_studio.engine import units
 from lfm_studio.engine.design import Design, RegularMLASpec
-from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, tightest_limit
+from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, criterion_factor, tightest_limit
 
 SPARROW = 0.47
 """Sparrow factor used by Levoy 2006: two points resolve at ``0.47 lambda / NA``."""
@@ -64,8 +65,10 @@ def mla_extent(design: Design) -> float:
     return min(max(xs) - min(xs), max(ys) - min(ys)) + 2.0 * half
 
 
-def conventional_closed_forms(design: Design) -> ClosedFormMetrics:
-    """Closed-form metrics of a conventional LFM design (see the module docstring)."""
+def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
+    """Closed-form metrics of a conventional LFM design (see the module docstring); the lateral
+    diffraction limit by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
+    factor = criterion_factor(criterion)
     if design.kind != "conventional":
         raise ValueError(
             f"conventional_closed_forms needs a design of kind 'conventional'; got {design.kind!r}."
@@ -86,7 +89,7 @@ def conventional_closed_forms(design: Design) -> ClosedFormMetrics:
         notes.append(
             f"fewer than one resolvable spot behind a lenslet (N_u = {n_u:.3g}): no angular sampling."
         )
-    diffraction, sampling = lam / (2.0 * na), p / m
+    diffraction, sampling = factor * lam / na, p / m
     axial = lam * n / na**2 + n * p / (m * na)
     dof = max(n_u, 1.0) * axial
     fov, fov_limit = tightest_limit(
@@ -112,5 +115,6 @@ def conventional_closed_forms(design: Design) -> ClosedFormMetrics:
         depth_range=(-dof / 2.0, dof / 2.0),
         field_of_view=fov,
         field_of_view_limit=fov_limit,
+        lateral_criterion=criterion,
         notes=tuple(notes),
     )

@@ -13,9 +13,11 @@ side of a square) centred at radius ``r_i`` from the axis on the MLA.
 - Effective NA of one view: the lenslet passes the fraction ``D / D_P`` of the pupil
   diameter, so ``NA_eff = NA D / D_P = D M / (2 f_F)`` (Guo 2019; Scrofani et al. 2018,
   Biomed. Opt. Express 9, 335, "FIMic"; Galdon et al. 2022, Appl. Opt., doi:10.1364/AO.453723).
-- Lateral resolution ``max(lambda / (2 NA_eff), 2 delta / M_T)``: the Abbe limit of
-  one view, or two sensor pixels (Nyquist) projected to the sample, whichever is
-  coarser (Guo 2019, Scrofani 2018). The largest lenslet among the views is used.
+- Lateral resolution ``max(c lambda / NA_eff, 2 delta / M_T)``: the diffraction limit
+  of one view by the chosen criterion (``c`` = 0.61 Rayleigh, the default as in the
+  thesis section 3.3.1; 0.5 Abbe, as Guo 2019 and Scrofani 2018 report it; 0.47
+  Sparrow), or two sensor pixels (Nyquist) projected to the sample, whichever is
+  coarser. The largest lenslet among the views is used.
 - Axial resolution, thesis eq. 3.24 with the immersion index (the engine's derivation,
   checked on the simulated PSF in ``tests/engine/systems/test_fourier_psf.py``): a
   depth step ``dz`` moves the spot of view ``i`` radially by ``d r_i M^2 dz / (n f_F^2)``
@@ -44,7 +46,7 @@ from __future__ import annotations
 import math
 
 from lfm_studio.engine.design import Design, LensletSpec
-from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, tightest_limit
+from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, criterion_factor, tightest_limit
 
 RAYLEIGH = 1.22
 """Rayleigh factor of a circular aperture: first Airy zero at ``1.22 lambda / (2 NA)``."""
@@ -107,8 +109,10 @@ def nearest_spacing(lenslets: tuple[LensletSpec, ...]) -> float | None:
     return None if math.isinf(best) else best
 
 
-def fourier_closed_forms(design: Design) -> ClosedFormMetrics:
-    """Closed-form metrics of a Fourier LFM design (see the module docstring for each formula)."""
+def fourier_closed_forms(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
+    """Closed-form metrics of a Fourier LFM design (see the module docstring for each formula);
+    the lateral diffraction limit by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
+    factor = criterion_factor(criterion)
     if design.kind != "fourier":
         raise ValueError(f"fourier_closed_forms needs a design of kind 'fourier'; got {design.kind!r}.")
     objective, camera = design.objective, design.camera
@@ -129,11 +133,11 @@ def fourier_closed_forms(design: Design) -> ClosedFormMetrics:
         fov, fov_limit = tightest_limit(fov_limits)
         return ClosedFormMetrics(
             m_t, camera.pixel_pitch / m_t, objective.numerical_aperture, None, 0, 0.0,
-            None, None, sampling, None, None, 0.0, (0.0, 0.0), fov, fov_limit, tuple(notes),
+            None, None, sampling, None, None, 0.0, (0.0, 0.0), fov, fov_limit, criterion, tuple(notes),
         )  # fmt: skip
     largest = max(lens.aperture_diameter for lens in seen)
     na_eff = objective.numerical_aperture * largest / pupil
-    diffraction = design.wavelength / (2.0 * na_eff)
+    diffraction = factor * design.wavelength / na_eff
     axial = [a for a in (axial_resolution_of(design, lens) for lens in seen) if a is not None]
     if not axial:
         notes.append("no view lies off the axis: no parallax, so no axial resolution.")
@@ -164,5 +168,6 @@ def fourier_closed_forms(design: Design) -> ClosedFormMetrics:
         depth_range=(min(lo for lo, _ in intervals), max(hi for _, hi in intervals)),
         field_of_view=fov,
         field_of_view_limit=fov_limit,
+        lateral_criterion=criterion,
         notes=tuple(notes),
     )

@@ -14,7 +14,11 @@ from typing import Any
 
 from lfm_studio.engine import units
 from lfm_studio.engine.design import Design
-from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, closed_form_metrics
+from lfm_studio.engine.design_metrics.closed_forms import (
+    CRITERION_LABELS,
+    ClosedFormMetrics,
+    closed_form_metrics,
+)
 from lfm_studio.engine.design_metrics.measured_metrics import MeasuredMetrics, measure_metrics
 from lfm_studio.engine.design_metrics.requirements import (
     ZEBRAFISH_LARVA,
@@ -26,7 +30,11 @@ from lfm_studio.engine.design_metrics.requirements import (
 from lfm_studio.engine.psf_stack import PSFStack
 
 SCHEMA = "lfm_studio.design_metrics"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+"""2: the lateral resolution criterion is recorded (``closed_form.lateral_criterion``, each
+check's ``criterion``). Version 1 records (always Abbe, ``lambda / (2 NA)``) still load."""
+MEASURED_TWO_POINT_CRITERION = "two-point dip < 0.735"
+"""How a measured (lateral or axial) two-point resolution is judged (:mod:`.two_point`)."""
 UNIT_SCALE = {"um": units.um, "nm": units.nm, "mm": units.mm, "": 1.0}
 
 
@@ -84,6 +92,7 @@ def _check_to_dict(c: RequirementCheck) -> dict[str, Any]:
         _key("margin", u): _out(c.margin, u),
         "relative_margin": relative,
         "unit": u,
+        "criterion": c.criterion,
     }
 
 
@@ -91,7 +100,7 @@ def _check_from_dict(d: dict[str, Any]) -> RequirementCheck:
     u = d.get("unit", "")
     return RequirementCheck(
         d["quantity"], d["comparison"], _in(d[_key("limit", u)], u), _in(d[_key("value", u)], u),
-        d["basis"], d["passed"], _in(d[_key("margin", u)], u), u,
+        d["basis"], d["passed"], _in(d[_key("margin", u)], u), u, d.get("criterion", ""),
     )  # fmt: skip
 
 
@@ -150,17 +159,20 @@ class DesignMetrics:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> DesignMetrics:
         """Read :meth:`to_dict` output back (``ValueError`` for another schema or version)."""
-        if data.get("schema") != SCHEMA or data.get("schema_version") != SCHEMA_VERSION:
+        if data.get("schema") != SCHEMA or data.get("schema_version") not in (1, SCHEMA_VERSION):
             raise ValueError(
-                f"not a design-metrics record of schema {SCHEMA!r} version {SCHEMA_VERSION}; got "
+                f"not a design-metrics record of schema {SCHEMA!r} version 1 or {SCHEMA_VERSION}; got "
                 f"{data.get('schema')!r} version {data.get('schema_version')!r}."
             )
         measured = data.get("measured")
+        closed = data["closed_form"]
+        if data["schema_version"] == 1:  # written before the criterion was recorded: always Abbe
+            closed = {"lateral_criterion": "abbe", **closed}
         return cls(
             design_name=data["design_name"],
             kind=data["kind"],
             wavelength=data["wavelength_nm"] * units.nm,
-            closed_form=record_from_dict(ClosedFormMetrics, data["closed_form"]),
+            closed_form=record_from_dict(ClosedFormMetrics, closed),
             measured=None if measured is None else record_from_dict(MeasuredMetrics, measured),
             requirements=tuple(_check_from_dict(d) for d in data["requirements"]),
             requirement_set=data.get("requirement_set", ""),
@@ -179,6 +191,7 @@ def compute_design_metrics(
     focus_depth: float | None = None,
     requirements: tuple[Requirement, ...] = ZEBRAFISH_LARVA,
     requirement_set: str = "larval zebrafish (thesis 2.3.1)",
+    criterion: str = "rayleigh",
 ) -> DesignMetrics:
     """Closed-form metrics of ``design``, PSF measurements when ``psf`` is given, requirement checks.
 
@@ -189,8 +202,10 @@ def compute_design_metrics(
     focus_depth : reference depth of the measurements, m (default: the stack's sharpest slice).
     requirements : what to check (default: larval zebrafish, thesis section 2.3.1).
     requirement_set : name of ``requirements`` for the report.
+    criterion : lateral resolution criterion of the closed forms: "rayleigh" (0.61 lambda / NA,
+        thesis 3.3.1; default), "abbe" (lambda / (2 NA)) or "sparrow" (0.47 lambda / NA).
     """
-    closed = closed_form_metrics(design)
+    closed = closed_form_metrics(design, criterion=criterion)
     checks = check_requirements(
         {
             "field_of_view": closed.field_of_view,
@@ -199,6 +214,7 @@ def compute_design_metrics(
             "axial_resolution": closed.axial_resolution,
         },
         requirements,
+        criteria={"lateral_resolution": CRITERION_LABELS[criterion]},
     )
     measured = None
     if psf is not None:
@@ -211,6 +227,10 @@ def compute_design_metrics(
             },
             requirements,
             basis="measured",
+            criteria={
+                "lateral_resolution": MEASURED_TWO_POINT_CRITERION,
+                "axial_resolution": MEASURED_TWO_POINT_CRITERION,
+            },
             lower_bounds=frozenset({"depth_of_field"}) if measured.depth_of_field_truncated else frozenset(),
         )
     return DesignMetrics(

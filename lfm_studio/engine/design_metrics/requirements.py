@@ -73,6 +73,9 @@ class RequirementCheck:
         Signed margin in SI (``value - limit`` for ">=", ``limit - value`` for "<=").
     unit : str
         As in :class:`Requirement`.
+    criterion : str
+        How ``value`` was judged, when that matters (e.g. "Rayleigh 0.61 lambda/NA" for a
+        closed-form lateral resolution, "two-point dip < 0.735" for a measured one); "" otherwise.
     """
 
     quantity: str
@@ -83,6 +86,12 @@ class RequirementCheck:
     passed: bool | None
     margin: float | None
     unit: str = "um"
+    criterion: str = ""
+
+    @property
+    def label(self) -> str:
+        """The quantity with its criterion, e.g. "lateral_resolution (Rayleigh 0.61 lambda/NA)"."""
+        return f"{self.quantity} ({self.criterion})" if self.criterion else self.quantity
 
     @property
     def relative_margin(self) -> float | None:
@@ -108,21 +117,31 @@ ZEBRAFISH_LARVA: tuple[Requirement, ...] = (
 
 
 def check(
-    requirement: Requirement, value: float | None, basis: str, *, lower_bound: bool = False
+    requirement: Requirement,
+    value: float | None,
+    basis: str,
+    *,
+    lower_bound: bool = False,
+    criterion: str = "",
 ) -> RequirementCheck:
     """Check one ``value`` (SI, or None when undefined) against ``requirement``.
 
     ``lower_bound=True``: the true value may be larger (e.g. a depth of field cut off by
     the end of a PSF stack), so a shortfall on an ">=" requirement is undecided (None).
+    ``criterion`` names how ``value`` was judged (kept in the check).
     """
     req = requirement
     if value is None:
-        return RequirementCheck(req.quantity, req.comparison, req.limit, None, basis, None, None, req.unit)
+        return RequirementCheck(
+            req.quantity, req.comparison, req.limit, None, basis, None, None, req.unit, criterion
+        )
     margin = req.margin(value)
     passed: bool | None = margin >= 0.0
     if lower_bound and not passed and req.comparison == ">=":
         passed = None
-    return RequirementCheck(req.quantity, req.comparison, req.limit, value, basis, passed, margin, req.unit)
+    return RequirementCheck(
+        req.quantity, req.comparison, req.limit, value, basis, passed, margin, req.unit, criterion
+    )
 
 
 def check_requirements(
@@ -131,17 +150,23 @@ def check_requirements(
     *,
     basis: str = "closed_form",
     lower_bounds: frozenset[str] = frozenset(),
+    criteria: dict[str, str] | None = None,
 ) -> tuple[RequirementCheck, ...]:
     """Check the metrics in ``values`` (quantity -> SI value) that ``requirements`` constrain.
 
     Requirements whose quantity is not a key of ``values`` are skipped (e.g. no
-    measured field of view); quantities in ``lower_bounds`` are lower bounds (see :func:`check`).
+    measured field of view); quantities in ``lower_bounds`` are lower bounds (see :func:`check`);
+    ``criteria`` maps a quantity to the criterion it was judged by.
     """
+    criteria = criteria or {}
     return tuple(
-        check(req, values[req.quantity], basis, lower_bound=req.quantity in lower_bounds)
+        check(
+            req, values[req.quantity], basis, lower_bound=req.quantity in lower_bounds,
+            criterion=criteria.get(req.quantity, ""),
+        )
         for req in requirements
         if req.quantity in values
-    )
+    )  # fmt: skip
 
 
 def overall(checks: tuple[RequirementCheck, ...]) -> bool | None:

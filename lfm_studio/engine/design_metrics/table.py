@@ -57,7 +57,7 @@ def format_metrics_table(metrics: DesignMetrics) -> str:
             scale = UNIT_SCALE[c.unit]
             value = "n/a" if c.value is None else f"{c.value / scale:.4g}{unit}"
             margin = "" if c.margin is None else f"{c.margin / scale:+.4g}{unit} ({c.relative_margin:+.0%})"
-            rows.append([f"{c.quantity} {c.comparison} {c.limit / scale:.4g}{unit}", c.basis, value, margin,
+            rows.append([f"{c.label} {c.comparison} {c.limit / scale:.4g}{unit}", c.basis, value, margin,
                          _OUTCOME[c.passed]])  # fmt: skip
         lines += ["", f"requirements: {metrics.requirement_set}", *align(rows)]
         lines.append(f"  requirements_met: {_OUTCOME[metrics.requirements_met]}")

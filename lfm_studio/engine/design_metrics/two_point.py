@@ -51,20 +51,59 @@ _SAMPLES = 401  # points along the line between the two images (0.025 px steps a
 _MARGIN = 0.5  # pixels beyond each image searched for its maximum (the sum's maxima move inward)
 
 
+_PROMINENCE = 1e-3
+"""Local maxima less prominent than this fraction of the profile's maximum are ignored unless
+they are the highest point of their half: the 4-point interpolant ripples by ~3e-4 of the peak."""
+
+
+def _local_maxima(f: torch.Tensor) -> torch.Tensor:
+    """Indices of the local maxima of the samples ``f`` (a plateau counts once, at its last
+    sample; an end sample counts when it is above its neighbour: a maximum cut by the range)."""
+    rising = torch.cat([torch.tensor([True]), f[1:] >= f[:-1]])
+    falling = torch.cat([f[:-1] > f[1:], torch.tensor([True])])
+    if f.numel() > 1:
+        rising[0] = bool(f[0] > f[1])
+    return torch.nonzero(rising & falling).flatten()
+
+
+def _prominence(f: torch.Tensor, i: int) -> float:
+    """Topographic prominence of the maximum ``f[i]``: its height above the higher of the lowest
+    points between it and the nearest higher sample on either side (or the range's end)."""
+    higher_left = torch.nonzero(f[:i] > f[i]).flatten()
+    higher_right = torch.nonzero(f[i + 1 :] > f[i]).flatten()
+    left = int(higher_left[-1]) + 1 if higher_left.numel() else 0
+    right = i + int(higher_right[0]) if higher_right.numel() else f.numel() - 1
+    return float(f[i] - max(f[left : i + 1].min(), f[i : right + 1].min()))
+
+
 def dip_ratio(profile: Callable[[torch.Tensor], torch.Tensor], a: float, b: float) -> float:
-    """Lowest value between the two maxima of ``profile`` over ``[a, b]``, over the smaller maximum.
+    """Lowest value between the two maxima of ``profile`` nearest ``a`` and ``b``, over the smaller one.
 
     ``profile`` maps positions (float64 tensor) to values; ``a < b`` are the two
-    emitters' image positions. Returns 1.0 for a single maximum (not resolved).
+    emitters' image positions. The maxima are the local maxima of ``profile`` (sampled
+    on ``[a - 0.5, b + 0.5]``) nearest each emitter, so a dim peak beside a bright
+    peak's shoulder is found (not the shoulder). Candidates are the highest local
+    maximum of each half and every local maximum at least ``_PROMINENCE`` of the
+    maximum prominent (interpolation ripple is not a peak). Returns 1.0 when the same
+    maximum is nearest both (a single maximum: not resolved).
     """
     if b - a <= 0.0:
         return 1.0
     t = torch.linspace(a - _MARGIN, b + _MARGIN, _SAMPLES, dtype=torch.float64)
     f = profile(t)
-    mid = 0.5 * (a + b)
-    left = t <= mid
-    i1 = int(torch.argmax(torch.where(left, f, torch.full_like(f, -math.inf))))
-    i2 = int(torch.argmax(torch.where(~left, f, torch.full_like(f, -math.inf))))
+    maxima = _local_maxima(f).tolist()
+    left = t <= 0.5 * (a + b)
+    halves = {
+        int(torch.argmax(torch.where(side, f, torch.full_like(f, -math.inf)))) for side in (left, ~left)
+    }
+    floor = _PROMINENCE * float(f.max())
+    candidates = [i for i in maxima if i in halves or _prominence(f, i) >= floor]
+    if not candidates:
+        return 1.0
+    where = t[candidates]
+    i1 = candidates[int(torch.argmin((where - a).abs()))]
+    i2 = candidates[int(torch.argmin((where - b).abs()))]
+    i1, i2 = min(i1, i2), max(i1, i2)
     peak = min(float(f[i1]), float(f[i2]))
     if i2 - i1 < 2 or peak <= 0.0:
         return 1.0

@@ -18,8 +18,29 @@ rounded to 1e-6 pixel). For a regular array whose pitch is a whole number of pix
 that is a single patch, exactly Algorithm 1's dictionary. The rounding moves a
 lenslet by at most 1e-6 pixel (phase error below ``pi * 1e-6`` rad at the Nyquist
 limit). Patches are then scattered into the grid: the cost is O(total lenslet
-pixels) plus allocating the output, never O(lenslets x grid). Parts of lenslets
-outside the grid are cropped.
+pixels) plus allocating the output, never O(lenslets x grid). A patch never
+extends further than the grid: on a one-row grid it is one row, however large the
+lenslet.
+
+Shared edges: touching lenslets partition the plane, so a sample's total aperture
+coverage is at most 1. A binary mask (``antialias=False``) counts a sample on a rim
+as inside, so a sample on the edge two squares share (or the contact point of two
+circles) is claimed by both, and a corner sample by four. Wherever the claimed
+coverages sum above 1 each claim is scaled by ``1 / sum``: an edge sample then
+transmits the mean of its lenslets' phases with weight 1/2 each (a corner 1/4),
+which is what the antialiased path gives for a pixel centred on that edge (each
+lenslet covers half of it). Hence ``|t| <= 1`` everywhere, for every layout, shape
+and antialiasing, and a 3 x 3 array of touching squares covers exactly the samples
+of one square of the array's total size. (A binary rim that no neighbour shares still
+counts whole, as for a lone aperture: with rims on samples a lenslet of ``m`` samples
+across then focuses ``((m + 1) / m)^4`` too bright, whether alone or in the array; the
+antialiased path has no such bias.)
+
+Window edges: a lenslet that crosses the edge of the grid is cropped
+(``periodic=False``, for an isolated array with a margin around it). With
+``periodic=True`` the grid is one period of an infinite array: the parts of a
+lenslet outside the window wrap around to the opposite edge (indices modulo the
+grid size), so a periodic array needs no extra wrap-around lenslet.
 
 Differentiability: with respect to the field and to the focal lengths (tensor
 ``Lenslet.focal_length`` entries or the ``focal_lengths`` override, e.g. an
@@ -74,6 +95,19 @@ def _patch_half_size(half_width: float, pitch: float) -> int:
     return math.ceil(half_width / pitch + 1.5)
 
 
+def _reach(centres: torch.Tensor, size: int, half: int, periodic: bool) -> int:
+    """Patch half-size (pixels) needed on an axis of ``size`` samples: never more than ``half``.
+
+    ``centres`` are the members' centre indices on that axis (0 .. size - 1 inside the
+    grid). Cropped: the farthest grid sample from any centre. Periodic: offsets modulo
+    ``size`` repeat, so ``size // 2`` (every residue once) is enough.
+    """
+    if periodic:
+        return min(half, size // 2)
+    farthest = int(torch.maximum(centres.abs(), (size - 1 - centres).abs()).max())
+    return max(0, min(half, farthest))
+
+
 def mla_transmission(
     mla: MicrolensArray,
     grid: Grid,
@@ -82,6 +116,7 @@ def mla_transmission(
     refractive_index: float = 1.0,
     focal_lengths: torch.Tensor | None = None,
     antialias: bool = False,
+    periodic: bool = False,
     dtype: torch.dtype = torch.complex64,
     device: Device = None,
 ) -> torch.Tensor:
@@ -100,7 +135,19 @@ def mla_transmission(
         Per-lenslet focal lengths in metres overriding those of the lenslets.
     antialias : bool
         Area-coverage aperture edges (see :mod:`pupils`).
+    periodic : bool
+        ``True``: the grid is one period of an infinite array; lenslet parts beyond an
+        edge wrap around to the opposite edge. ``False``: they are cropped.
     dtype, device : complex dtype and device of the result.
+
+    Samples claimed by several touching lenslets are shared (coverage capped at 1; see
+    the module docstring), so ``|t| <= 1``.
+
+    Raises
+    ------
+    ValueError
+        With ``periodic=True``, when a lenslet is wider than the grid (it would overlap
+        its own periodic copy).
 
     Warns
     -----
@@ -121,20 +168,42 @@ def mla_transmission(
     check_quadratic_phase_sampling(grid, medium_wavelength, f_values[worst], mla[worst].half_width)
 
     dy, dx = grid.spacing
+    if periodic:
+        _check_fits_period(mla, grid)
     groups: dict[tuple[str, int, int], list[int]] = defaultdict(list)
     for i, lens in enumerate(mla):
         groups[
             (lens.shape, _patch_half_size(lens.half_width, dy), _patch_half_size(lens.half_width, dx))
         ].append(i)
 
-    indices, values = [], []
+    indices, values, coverages = [], [], []
     for (shape, hy, hx), members in groups.items():
-        index, value = _place_group(mla, members, f, shape, (hy, hx), grid, k, antialias, dtype, device)
+        index, value, coverage = _place_group(
+            mla, members, f, shape, (hy, hx), grid, k, antialias, periodic, dtype, device
+        )
         indices.append(index)
         values.append(value)
+        coverages.append(coverage)
+    index, value, coverage = torch.cat(indices), torch.cat(values), torch.cat(coverages)
+    # Touching lenslets partition the plane: cap each sample's total coverage at 1.
+    total = torch.zeros(grid.ny * grid.nx, dtype=coverage.dtype, device=device)
+    total = total.index_put((index,), coverage, accumulate=True)
+    value = value * (1.0 / total[index].clamp_min(1.0)).to(value.real.dtype)
     flat = torch.zeros(grid.ny * grid.nx, dtype=dtype, device=device)
-    flat = flat.index_put((torch.cat(indices),), torch.cat(values), accumulate=True)
+    flat = flat.index_put((index,), value, accumulate=True)
     return flat.view(grid.shape)
+
+
+def _check_fits_period(mla: MicrolensArray, grid: Grid) -> None:
+    """A periodic window must be at least as wide as every lenslet (else it overlaps its copy)."""
+    height, width = grid.ny * grid.spacing[0], grid.nx * grid.spacing[1]
+    for i, lens in enumerate(mla):
+        if lens.aperture_diameter > min(width, height) * (1.0 + 1e-9):
+            raise ValueError(
+                f"periodic=True needs every lenslet to fit in the grid ({width / 1e-6:.6g} x "
+                f"{height / 1e-6:.6g} um); {lens.describe(i)} is wider. Fix: enlarge the grid or use "
+                "periodic=False."
+            )
 
 
 def _place_group(
@@ -146,11 +215,11 @@ def _place_group(
     grid: Grid,
     k: float,
     antialias: bool,
+    periodic: bool,
     dtype: torch.dtype,
     device: torch.device,
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Flat grid indices and complex values of all in-grid aperture pixels of one group."""
-    hy, hx = half
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Flat grid indices, complex values and coverages of all in-grid aperture pixels of one group."""
     dy, dx = grid.spacing
     f64 = dict(dtype=torch.float64, device=device)
     centers = torch.tensor([mla[i].center for i in members], **f64)  # (G, 2) as (x, y)
@@ -160,6 +229,8 @@ def _place_group(
     sub_x = centers[:, 0] - ix0.to(torch.float64) * dx  # long * float would round to float32
     sub_y = centers[:, 1] - iy0.to(torch.float64) * dy
     fg = f[torch.tensor(members, device=device)]
+    hy = _reach(iy0 + grid.ny // 2, grid.ny, half[0], periodic)
+    hx = _reach(ix0 + grid.nx // 2, grid.nx, half[1], periodic)
 
     # One patch per distinct (f, aperture, sub-pixel offset) unless gradients need one per lenslet.
     if fg.requires_grad:
@@ -196,12 +267,21 @@ def _place_group(
     rows = (iy0 + grid.ny // 2)[:, None, None] + torch.arange(-hy, hy + 1, device=device)[None, :, None]
     cols = (ix0 + grid.nx // 2)[:, None, None] + torch.arange(-hx, hx + 1, device=device)[None, None, :]
     rows, cols = torch.broadcast_tensors(rows, cols)
-    keep = (coverage > 0) & (rows >= 0) & (rows < grid.ny) & (cols >= 0) & (cols < grid.nx)
-    return (rows * grid.nx + cols)[keep], patch[keep]
+    keep = coverage > 0
+    if periodic:
+        rows, cols = rows % grid.ny, cols % grid.nx
+    else:
+        keep = keep & (rows >= 0) & (rows < grid.ny) & (cols >= 0) & (cols < grid.nx)
+    return (rows * grid.nx + cols)[keep], patch[keep], coverage.detach()[keep]
 
 
 def apply_mla(
-    field: Field, mla: MicrolensArray, *, focal_lengths: torch.Tensor | None = None, antialias: bool = False
+    field: Field,
+    mla: MicrolensArray,
+    *,
+    focal_lengths: torch.Tensor | None = None,
+    antialias: bool = False,
+    periodic: bool = False,
 ) -> Field:
     """Pass ``field`` (data ``(..., ny, nx)``) through ``mla`` placed on the field's grid.
 
@@ -215,6 +295,7 @@ def apply_mla(
         refractive_index=field.refractive_index,
         focal_lengths=focal_lengths,
         antialias=antialias,
+        periodic=periodic,
         dtype=field.dtype,
         device=field.device,
     )

@@ -23,6 +23,10 @@ objective_model     pupil field model                           NIP field model 
 per_lenslet         "auto" (per lenslet unless sub-images       n/a: lenslets are always summed coherently
                     overlap) or the full sensor field           on one sensor grid
 depth_chunk         depths per FFT batch (per-lenslet path)     depths per pattern batch
+voxels_per_lenslet  n/a                                         lateral voxels per lenslet pitch (odd)
+volume_oversampling volume voxels per sensor pixel ``k``: the   n/a
+                    PSF on a k-times finer virtual sensor
+                    (:func:`fourier_system_of` ``refine``)
 ==================  ==========================================  ==========================================
 """
 
@@ -55,17 +59,36 @@ def microlens_array_of(design: Design) -> MicrolensArray:
     return MicrolensArray(lenslets)
 
 
-def fourier_system_of(design: Design) -> FourierLFMSystem:
-    """The Fourier LFM described by ``design`` (``kind == "fourier"``)."""
+def virtual_pixel_count(pixels: int, refine: int) -> int:
+    """Virtual pixels along an axis of ``pixels`` camera pixels split ``refine`` (odd) times:
+    ``refine * pixels``, plus ``refine - 1`` on an even axis so that the axis pixel is the
+    centre of its block (blocks ``[k i, k i + k)``; the extra ones are dropped when binning)."""
+    return refine * pixels + (refine - 1) * (1 - pixels % 2)
+
+
+def fourier_system_of(design: Design, *, refine: int = 1) -> FourierLFMSystem:
+    """The Fourier LFM described by ``design`` (``kind == "fourier"``).
+
+    ``refine`` ``k`` (odd) splits each camera pixel into ``k x k`` virtual pixels (pitch /
+    k): the PSF sampling of a volume ``k`` times finer than pixel / M_T
+    (``accuracy.volume_oversampling``). The virtual sensor has ``k n`` pixels per axis of
+    ``n`` (``k n + k - 1`` when ``n`` is even, so that the axis pixel sits at the centre of
+    its block); summing the blocks ``[k i, k i + k)`` gives the camera's PSF
+    (:class:`~lfm_studio.engine.operators.binned.BinnedProjector`).
+    """
     if design.kind != "fourier":
         raise ValueError(f"design kind must be 'fourier' for a Fourier LFM; got {design.kind!r}.")
+    if not (isinstance(refine, int) and refine >= 1 and refine % 2 == 1):
+        raise ValueError(
+            f"refine must be an odd integer >= 1 (virtual pixels per camera pixel); got {refine!r}."
+        )
     return FourierLFMSystem(
         objective=objective_of(design),
         fourier_focal_length=design.relay.focal_length,
         mla=microlens_array_of(design),
         mla_to_camera=design.mla_to_camera_distance,
-        pixel_pitch=design.camera.pixel_pitch,
-        sensor_shape=tuple(design.camera.pixel_count),
+        pixel_pitch=design.camera.pixel_pitch / refine,
+        sensor_shape=tuple(virtual_pixel_count(n, refine) for n in design.camera.pixel_count),
         wavelength=design.wavelength,
     )
 
@@ -115,7 +138,7 @@ def conventional_system_of(
     *,
     lenslets: tuple[int, int] | None = None,
     pixels_per_lenslet: int | None = None,
-    voxels_per_lenslet: int = 5,
+    voxels_per_lenslet: int | None = None,
 ) -> ConventionalLFMSystem:
     """The conventional LFM described by ``design`` (``kind == "conventional"``).
 
@@ -124,7 +147,8 @@ def conventional_system_of(
     lenslets : lenslets imaged, ``(ny, nx)``; default: those the sensor covers (at most the array).
     pixels_per_lenslet : rectified pixels per lenslet (odd); default: pitch / pixel pitch
         rounded to the nearest odd integer.
-    voxels_per_lenslet : lateral super-sampling of the volume (odd), default 5.
+    voxels_per_lenslet : lateral super-sampling of the volume (odd); default:
+        ``design.accuracy.voxels_per_lenslet`` (5 unless the design sets it).
     """
     if design.kind != "conventional":
         raise ValueError(f"design kind must be 'conventional' for a conventional LFM; got {design.kind!r}.")
@@ -137,6 +161,8 @@ def conventional_system_of(
         )
     pitch_m = pitch * 1e-6
     camera = design.camera
+    if voxels_per_lenslet is None:
+        voxels_per_lenslet = design.accuracy.voxels_per_lenslet
     if pixels_per_lenslet is None:
         ratio = pitch_m / camera.pixel_pitch
         pixels_per_lenslet = max(1, 2 * round((ratio - 1) / 2) + 1)

@@ -29,8 +29,14 @@ def test_table_lists_the_metrics_by_key_name_and_the_requirements(capsys):
         assert key in out
     assert "XLFM after Cong et al. 2017" in out
     assert "depth_of_field >= 200 um" in out and "PASS" in out and "FAIL" in out
+    # Rayleigh by default: 0.61 lambda / NA_eff = 0.61 x 0.525 um x 16 = 5.124 um
     lines = [line for line in out.splitlines() if line.startswith("  lateral_resolution_um")]
-    assert lines and lines[0].split()[-1] == "4.2"
+    assert lines and float(lines[0].split()[-1]) == pytest.approx(0.61 * 0.525 * 16, rel=1e-3)
+    assert "lateral_resolution (Rayleigh 0.61 lambda/NA) <= 3 um" in out
+    code, out, _ = run(["xlfm_cong2017", "--criterion", "abbe"], capsys)
+    lines = [line for line in out.splitlines() if line.startswith("  lateral_resolution_um")]
+    assert code == 0 and float(lines[0].split()[-1]) == pytest.approx(0.525 * 16 / 2, rel=1e-3)
+    assert "lateral_resolution (Abbe lambda/(2 NA)) <= 3 um" in out
 
 
 def test_json_output_parses_and_has_units_in_keys(capsys):

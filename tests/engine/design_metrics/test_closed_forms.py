@@ -27,9 +27,11 @@ def test_guo2019_flfm_matches_hand_values():
     pupil = 2 * 0.95 * 75 * mm / 40  # 3.5625 mm
     assert m.views_across == pytest.approx(pupil / (600 * um), rel=EXACT)  # N = 5.94
     assert m.effective_numerical_aperture == pytest.approx(0.95 * 600 * um / pupil, rel=EXACT)  # 0.16
-    assert m.lateral_resolution_diffraction == pytest.approx(0.68 * um / (2 * 0.16), rel=EXACT)  # 2.125 um
+    # Rayleigh 0.61 lambda / NA_eff (thesis 3.3.1; the default criterion)
+    assert m.lateral_criterion == "rayleigh"
+    assert m.lateral_resolution_diffraction == pytest.approx(0.61 * 0.68 * um / 0.16, rel=EXACT)  # 2.5925 um
     assert m.lateral_resolution_sampling == pytest.approx(2 * 6.5 * um / 8.96, rel=EXACT)  # 1.45 um
-    assert m.lateral_resolution == pytest.approx(2.125 * um, rel=EXACT)
+    assert m.lateral_resolution == pytest.approx(2.5925 * um, rel=EXACT)
 
     # Eq. 3.24 (n = 1): best view is a corner lenslet (r = 600 sqrt 2 um); mean over the 8 off-axis views.
     def dz(r):
@@ -65,7 +67,7 @@ def test_xlfm_cong2017_matches_hand_values():
     assert m.magnification == pytest.approx(m_t, rel=EXACT)  # 3.406
     assert m.number_of_views == 27  # all inside the 16 mm pupil image
     assert m.effective_numerical_aperture == pytest.approx(1.0 * 1.0 / 16.0, rel=EXACT)
-    assert m.lateral_resolution == pytest.approx(0.525 * um / (2 * 0.0625), rel=EXACT)  # 4.2 um > 3.82 um
+    assert m.lateral_resolution == pytest.approx(0.61 * 0.525 * um / 0.0625, rel=EXACT)  # 5.124 um > 3.82 um
     r_max = math.hypot(2200, 5080.682369) * um  # outermost lenslet centre
     best = 1.22 * 525e-9 * 1.333 * (160 * mm) ** 2 / (1 * mm * r_max * 20**2)
     assert m.axial_resolution == pytest.approx(best, rel=EXACT)  # 9.87 um
@@ -127,7 +129,7 @@ def test_a_single_on_axis_lenslet_has_no_parallax_so_no_axial_resolution():
     assert m.number_of_views == 1
     assert m.axial_resolution is None and m.axial_resolution_mean is None
     assert any("parallax" in note for note in m.notes)
-    assert m.lateral_resolution == pytest.approx(2.125 * um, rel=EXACT)
+    assert m.lateral_resolution == pytest.approx(0.61 * 0.68 * um / 0.16, rel=EXACT)
 
 
 def test_conventional_with_an_explicit_lenslet_list_uses_its_aperture_and_extent():
@@ -145,3 +147,26 @@ def test_measuring_a_conventional_design_is_refused_until_its_psf_model_exists()
 
     with pytest.raises(NotImplementedError, match="closed-form"):
         measurement_psf(load_preset("lfm_10x_na03"))
+
+
+@pytest.mark.parametrize(
+    ("criterion", "factor"), [("rayleigh", 1.22 / 2), ("abbe", 1 / 2), ("sparrow", 0.47)]
+)
+def test_lateral_criterion_sets_the_diffraction_limit(criterion, factor):
+    # Fourier (Guo: NA_eff = 0.95 x 600 um / 3.5625 mm) and conventional (10x/0.3 at 525 nm) designs.
+    guo = closed_form_metrics(load_preset("flfm_guo2019"), criterion=criterion)
+    na_eff = 0.95 * 600 * um / (2 * 0.95 * 75 * mm / 40)
+    assert guo.lateral_criterion == criterion
+    assert guo.lateral_resolution_diffraction == pytest.approx(factor * 0.68 * um / na_eff, rel=EXACT)
+    assert guo.lateral_resolution == pytest.approx(
+        max(factor * 0.68 * um / na_eff, 2 * 6.5 * um / (40 * 16.8 / 75)), rel=EXACT
+    )
+    lfm = closed_form_metrics(load_preset("lfm_10x_na03"), criterion=criterion)
+    design = load_preset("lfm_10x_na03")
+    na, lam = design.objective.numerical_aperture, design.wavelength
+    assert lfm.lateral_resolution_diffraction == pytest.approx(factor * lam / na, rel=EXACT)
+
+
+def test_unknown_lateral_criterion_is_named():
+    with pytest.raises(ValueError, match=r"criterion must be one of .*'rayleigh'.*got 'airy'"):
+        closed_form_metrics(load_preset("flfm_guo2019"), criterion="airy")

@@ -41,8 +41,10 @@ def test_every_preset_reports_closed_forms_and_four_requirement_checks(name):
 
 def test_guo_flfm_passes_lateral_resolution_and_fails_the_field_of_view():
     checks = {c.quantity: c for c in compute_design_metrics(load_preset("flfm_guo2019")).requirements}
-    assert checks["lateral_resolution"].passed is True  # 2.125 um <= 3 um
-    assert checks["lateral_resolution"].margin == pytest.approx(0.875e-6)
+    # Rayleigh 0.61 lambda / NA_eff = 0.61 x 0.68 um / 0.16 = 2.5925 um <= 3 um
+    assert checks["lateral_resolution"].passed is True
+    assert checks["lateral_resolution"].margin == pytest.approx(3e-6 - 0.61 * 0.68e-6 / 0.16)
+    assert checks["lateral_resolution"].criterion == "Rayleigh 0.61 lambda/NA"
     assert checks["field_of_view"].passed is False  # 66.5 um << 800 um
     assert checks["axial_resolution"].passed is False  # 5.73 um > 5 um
     assert checks["depth_of_field"].passed is False  # 31 um < 200 um
@@ -56,10 +58,13 @@ def test_xlfm_passes_the_depth_of_field_with_its_two_focal_groups():
 
 def test_json_has_units_in_key_names_and_values_in_those_units():
     d = json.loads(compute_design_metrics(load_preset("flfm_guo2019")).to_json())
-    assert d["schema"] == "lfm_studio.design_metrics" and d["schema_version"] == 1
+    assert d["schema"] == "lfm_studio.design_metrics" and d["schema_version"] == 2
     assert d["wavelength_nm"] == pytest.approx(680.0)
     cf = d["closed_form"]
-    assert cf["lateral_resolution_um"] == pytest.approx(2.125)
+    assert cf["lateral_resolution_um"] == pytest.approx(0.61 * 0.68 / 0.16)
+    assert cf["lateral_criterion"] == "rayleigh"
+    lateral = next(c for c in d["requirements"] if c["quantity"] == "lateral_resolution")
+    assert lateral["criterion"] == "Rayleigh 0.61 lambda/NA"
     assert cf["field_of_view_um"] == pytest.approx(66.5)
     assert cf["depth_range_um"] == pytest.approx([-15.5483, 15.5483], rel=1e-5)
     assert cf["magnification"] == pytest.approx(8.96) and cf["number_of_views"] == 9
@@ -119,3 +124,36 @@ def test_table_names_each_row_by_its_json_key():
         if key != "notes":
             assert key in table
     assert "field_of_view >= 800 um" in table and "FAIL" in table
+
+
+def test_criterion_can_flip_a_requirement_and_is_named_in_json_and_table():
+    # XLFM: NA_eff = 1/16 at 525 nm: Abbe 4.2 um, Rayleigh 5.124 um, Sparrow 3.948 um; a 4.5 um
+    # requirement passes by Abbe and Sparrow but fails by Rayleigh (the 1.22x of issue 22).
+    from lfm_studio.engine.design_metrics import Requirement
+
+    requirement = (Requirement("lateral_resolution", "<=", 4.5e-6, "test"),)
+    outcomes = {}
+    for criterion, factor in (("rayleigh", 0.61), ("abbe", 0.5), ("sparrow", 0.47)):
+        m = compute_design_metrics(
+            load_preset("xlfm_cong2017"), requirements=requirement, criterion=criterion
+        )
+        (check,) = m.requirements
+        assert check.value == pytest.approx(factor * 525e-9 * 16, rel=1e-9)
+        outcomes[criterion] = check.passed
+        back = DesignMetrics.from_json(m.to_json())
+        assert (
+            back.closed_form.lateral_criterion == criterion
+            and back.requirements[0].criterion == check.criterion
+        )
+        assert f"lateral_resolution ({check.criterion}) <= 4.5 um" in format_metrics_table(m)
+    assert outcomes == {"rayleigh": False, "abbe": True, "sparrow": True}
+
+
+def test_version_1_records_load_as_abbe():
+    d = json.loads(compute_design_metrics(load_preset("flfm_guo2019"), criterion="abbe").to_json())
+    d["schema_version"] = 1
+    del d["closed_form"]["lateral_criterion"]
+    for check in d["requirements"]:
+        del check["criterion"]
+    back = DesignMetrics.from_dict(d)
+    assert back.closed_form.lateral_criterion == "abbe" and back.requirements[0].criterion == ""

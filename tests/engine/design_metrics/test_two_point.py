@@ -97,3 +97,67 @@ def test_axial_pair_is_resolved_by_the_view_with_the_largest_parallax():
     psf = spots(depths, centres=((0.3, -0.2), (0.1, -30.0), (0.2, 30.0)), shifts=(0.0, 0.25, 1.0))
     expected = gaussian_pair_separation(4.0, RAYLEIGH_DIP) / 1.0 * um
     assert two_point_axial(psf, depth=0.0) == pytest.approx(expected, rel=5e-3)
+
+
+# -- dip_ratio: the two maxima nearest the emitters (issue 22, item 8) --------------------
+def _dense_reference(f, a: float, b: float) -> float:
+    """Dip ratio by dense numpy sampling: the local maxima (scipy find_peaks) nearest a and b."""
+    from scipy.signal import find_peaks
+
+    t = np.linspace(a - 3.0, b + 3.0, 200_001)
+    y = f(t)
+    peaks, _ = find_peaks(y)
+    p1, p2 = int(peaks[np.argmin(abs(t[peaks] - a))]), int(peaks[np.argmin(abs(t[peaks] - b))])
+    if p1 == p2:
+        return 1.0
+    return float(y[p1 : p2 + 1].min() / min(y[p1], y[p2]))
+
+
+def _pair(h2: float, w2: float, s: float):
+    """A unit Gaussian (variance 9) at 0 plus one of height ``h2``, variance ``w2`` at ``s``."""
+    return lambda t: np.exp(-(t**2) / 18) + h2 * np.exp(-((t - s) ** 2) / (2 * w2))
+
+
+def test_dip_between_a_bright_shoulder_and_a_dim_narrow_peak():
+    from lfm_studio.engine.design_metrics.two_point import dip_ratio
+
+    # The issue's profile: peaks ~1.0 and ~0.44, dip ~0.66 of the smaller (taking the maximum of
+    # each half gave 1.0, "no dip").
+    def f(t):
+        return np.exp(-(t**2) / 18) + 0.3 * np.exp(-((t - 6) ** 2) / 0.5)
+
+    expected = _dense_reference(f, 0.0, 6.0)
+    assert 0.5 < expected < 0.8  # a real dip
+    ratio = dip_ratio(lambda t: torch.as_tensor(f(t.numpy())), 0.0, 6.0)
+    assert ratio == pytest.approx(expected, rel=2e-3)
+
+
+@pytest.mark.parametrize(
+    ("h2", "w2", "s"), [(0.3, 0.5, 6.0), (0.6, 2.0, 7.0), (2.0, 1.0, 8.0), (0.5, 9.0, 9.0)]
+)
+def test_dip_ratio_with_unequal_heights_and_widths(h2, w2, s):
+    from lfm_studio.engine.design_metrics.two_point import dip_ratio
+
+    f = _pair(h2, w2, s)
+    expected = _dense_reference(f, 0.0, s)
+    assert dip_ratio(lambda t: torch.as_tensor(f(t.numpy())), 0.0, s) == pytest.approx(expected, rel=2e-3)
+
+
+def test_dip_ratio_of_equal_gaussians_and_a_single_maximum():
+    from lfm_studio.engine.design_metrics.two_point import dip_ratio
+
+    for s in (2.5, 3.0, 4.0):
+        f = lambda t, s=s: np.exp(-(t**2) / 2) + np.exp(-((t - s) ** 2) / 2)  # noqa: E731
+        # Symmetric: the dip is at the midpoint, 2 exp(-s^2 / 8); the maxima from dense sampling.
+        t = np.linspace(-1.0, s + 1.0, 200_001)
+        expected = 2 * math.exp(-(s**2) / 8) / f(t).max()
+        assert dip_ratio(lambda x, f=f: torch.as_tensor(f(x.numpy())), 0.0, s) == pytest.approx(
+            expected, rel=1e-4
+        )
+    # Below Sparrow (s < 2 sigma = 2) the sum has one maximum: not resolved.
+    f = lambda t: np.exp(-(t**2) / 2) + np.exp(-((t - 1.5) ** 2) / 2)  # noqa: E731
+    assert dip_ratio(lambda x: torch.as_tensor(f(x.numpy())), 0.0, 1.5) == 1.0
+    # A dim peak swallowed by the bright one's shoulder (no local maximum of its own): not resolved.
+    f = _pair(0.05, 1.0, 3.0)
+    assert _dense_reference(f, 0.0, 3.0) == 1.0
+    assert dip_ratio(lambda x: torch.as_tensor(f(x.numpy())), 0.0, 3.0) == 1.0

@@ -1,0 +1,68 @@
+"""A projector onto a camera whose pixels are ``k x k`` blocks of a finer projector's image.
+
+Used for a Fourier-LFM volume finer than sensor pixel / magnification
+(``accuracy.volume_oversampling`` ``k``): the PSF is sampled on a virtual sensor with
+pixels ``k`` times smaller, the inner projector maps the fine volume onto that virtual
+sensor, and each camera pixel receives the sum of its ``k x k`` virtual pixels (the
+power on a pixel is the integral over its area, which is additive, so this is exact).
+The adjoint spreads each camera pixel back onto its block: the exact transpose.
+
+Blocks are ``[k i, k i + k)`` of the fine image; fine rows/columns beyond ``k Py`` / ``k
+Px`` are dropped (:func:`~lfm_studio.engine.systems.from_design.fourier_system_of` adds
+``k - 1`` of them on an even axis so that each block is centred like its camera pixel).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+
+class BinnedProjector:
+    """``A = B A_fine``: ``A_fine`` (any projector with ``forward``/``adjoint``) then ``k x k`` sums.
+
+    Parameters
+    ----------
+    inner : projector with ``forward``, ``adjoint`` and ``image_shape`` (at least ``factor``
+        pixels per axis); the camera has ``image_shape // factor`` pixels.
+    factor : int
+        Virtual pixels per camera pixel along each axis (>= 1).
+    """
+
+    def __init__(self, inner: Any, factor: int) -> None:
+        if not (isinstance(factor, int) and factor >= 1):
+            raise ValueError(f"factor must be an integer >= 1 (virtual pixels per pixel); got {factor!r}.")
+        py, px = inner.image_shape
+        if py < factor or px < factor:
+            raise ValueError(f"the inner image {(py, px)} is smaller than one block of {factor} x {factor}.")
+        self.inner, self.factor = inner, factor
+        self.dtype = getattr(inner, "dtype", None)
+        self.device = getattr(inner, "device", None)
+
+    @property
+    def volume_shape(self) -> tuple[int, int, int]:
+        """``(Z, Vy, Vx)`` of the (fine) volumes :meth:`forward` accepts."""
+        return tuple(self.inner.volume_shape)
+
+    @property
+    def image_shape(self) -> tuple[int, int]:
+        """Lateral shape of the camera image."""
+        py, px = self.inner.image_shape
+        return (py // self.factor, px // self.factor)
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        """``A x``: volume -> camera image (sums of ``k x k`` virtual pixels)."""
+        fine = self.inner.forward(volume)
+        k, (py, px) = self.factor, self.image_shape
+        return fine[: k * py, : k * px].reshape(py, k, px, k).sum(dim=(1, 3))
+
+    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
+        """``A^T y``: each camera pixel copied onto its ``k x k`` block, then the inner adjoint."""
+        if tuple(image.shape) != self.image_shape:
+            raise ValueError(f"image must have shape {self.image_shape} (Py, Px); got {tuple(image.shape)}.")
+        k, (fy, fx) = self.factor, self.inner.image_shape
+        spread = image.repeat_interleave(k, dim=0).repeat_interleave(k, dim=1)
+        fine = torch.zeros((fy, fx), dtype=spread.dtype, device=spread.device)
+        fine[: spread.shape[0], : spread.shape[1]] = spread
+        return self.inner.adjoint(fine)
