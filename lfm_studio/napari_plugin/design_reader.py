@@ -75,12 +75,16 @@ class DesignPSFJob(QObject):
         self.task.start()
 
     def _on_progress(self, done: int, total: int, message: str) -> None:
-        if self._bar is None:
+        bar = self._bar
+        if bar is None:
             return
-        if self._bar.total != total:
-            self._bar.total = total
-        self._bar.update(done - self._bar.n)
-        self._bar.set_description(f"lfm-studio: {self.name}: {message}")
+        if bar.total != total:
+            bar.total = total
+        # Updating napari's progress can process Qt events, and with them a queued ``ended``
+        # that closes the bar (seen on a loaded machine): describe it only if it is still open.
+        bar.update(done - bar.n)
+        if self._bar is bar:
+            bar.set_description(f"lfm-studio: {self.name}: {message}")
 
     def _on_ended(self, outcome: Outcome) -> None:
         if self._bar is not None:

@@ -181,3 +181,34 @@ def test_design_file_opens_as_a_psf_layer_computed_in_the_background(make_napari
     # another order): float32 rounding of the same model, not bit for bit.
     expected = simulate_psf(design).data.numpy()
     np.testing.assert_allclose(layer.data, expected, rtol=0, atol=1e-5 * float(np.abs(expected).max()))
+
+
+class _ReentrantBar:
+    """A progress bar whose update processes the job's queued ``ended`` (as napari's can)."""
+
+    def __init__(self, on_update):
+        self.total, self.n, self.closed, self.descriptions, self._on_update = 0, 0, False, [], on_update
+
+    def update(self, step):
+        self.n += step
+        self._on_update()
+
+    def set_description(self, text):
+        self.descriptions.append(text)
+
+    def close(self):
+        self.closed = True
+
+
+def test_progress_that_ends_the_job_while_updating_the_bar_is_not_an_error(qtbot, monkeypatch):
+    # Seen on a loaded machine: the bar's update ran the queued end of the job, which closed the
+    # bar; the progress handler then described a bar that no longer existed (AttributeError).
+    job = design_reader.DesignPSFJob(sample_design(), "reentrant", viewer=qtbot)
+    bar = _ReentrantBar(lambda: job._on_ended(design_reader.Outcome("cancelled")))
+    monkeypatch.setattr(design_reader, "napari_progress", lambda **_: bar)
+    monkeypatch.setattr(job.task, "start", lambda: None)
+    job.start()
+    job._on_progress(1, 4, "lenslet 1/4")
+    assert bar.closed and bar.n == 1 and bar.descriptions == [] and job not in design_reader.running_jobs()
+    job._on_progress(2, 4, "lenslet 2/4")  # a late one after the end: ignored
+    assert bar.n == 1
