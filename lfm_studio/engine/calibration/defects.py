@@ -1,0 +1,122 @@
+"""Dark subtraction and defective pixels (hot, dead): detection and median replacement.
+
+- A *hot* pixel reads far above the brightest of its 8 neighbours: by more than
+  ``n_sigma`` robust standard deviations of the pixel noise (1.4826 x the median absolute
+  deviation of ``frame - median3x3(frame)``). Light never peaks on one pixel of a lenslet
+  disk, so disk edges are not taken for hot pixels. Hot pixels sit in the sensor: the dark
+  frame shows them best; in the radiometry frame, where shot noise grows with the light,
+  only pixels also ``relative`` (0.25) above their brightest neighbour count.
+- A *dead* pixel of a radiometry frame reads below ``DEAD_FRACTION`` of the darkest of its
+  8 neighbours while that neighbour is bright (over half the frame's 99.9th percentile): a
+  pixel inside a lit lenslet disk that does not respond. The unlit gaps between disks
+  always have a dark neighbour.
+- Defects are replaced by the median of their non-defective 3 x 3 neighbours.
+"""
+
+from __future__ import annotations
+
+import torch
+
+DEAD_FRACTION = 0.05
+_ROWS_PER_CHUNK = 256  # bounds the (rows, X, 9) neighbourhood tensor to a few tens of MB
+
+
+def subtract_dark(frame: torch.Tensor, dark: torch.Tensor | float) -> torch.Tensor:
+    """``frame - dark`` (float64); ``dark`` is a frame of the same shape or a level, ADU."""
+    if isinstance(dark, torch.Tensor) and dark.shape != frame.shape:
+        raise ValueError(
+            f"dark frame shape {tuple(dark.shape)} differs from the frame's {tuple(frame.shape)}. "
+            "Fix: record the dark frame with the same camera region (ROI) and binning."
+        )
+    return frame.to(torch.float64) - (dark.to(torch.float64) if isinstance(dark, torch.Tensor) else dark)
+
+
+def _neighbourhoods(image: torch.Tensor, rows: slice) -> torch.Tensor:
+    """(rows, X, 9) 3 x 3 neighbourhoods (edge pixels replicated) of the given rows."""
+    ny = image.shape[0]
+    start, stop = rows.start, rows.stop
+    lo, hi = max(start - 1, 0), min(stop + 1, ny)
+    block = image[lo:hi][None, None]
+    block = torch.nn.functional.pad(block, (1, 1, int(start == 0), int(stop == ny)), mode="replicate")[0, 0]
+    return block.unfold(0, 3, 1).unfold(1, 3, 1).reshape(stop - start, image.shape[1], 9)
+
+
+def median3x3(image: torch.Tensor, ignore: torch.Tensor | None = None) -> torch.Tensor:
+    """3 x 3 median of ``image`` (Y, X); pixels where ``ignore`` is True do not vote."""
+    data = image.to(torch.float32)
+    if ignore is not None:
+        data = torch.where(ignore, torch.full_like(data, float("nan")), data)
+    out = torch.empty_like(data)
+    for start in range(0, data.shape[0], _ROWS_PER_CHUNK):
+        rows = slice(start, min(start + _ROWS_PER_CHUNK, data.shape[0]))
+        out[rows] = _neighbourhoods(data, rows).nanmedian(dim=-1).values
+    return out
+
+
+def neighbour_extremes(image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Smallest and largest of each pixel's 8 neighbours (edges replicated), each (Y, X) float32."""
+    data = image.to(torch.float32)
+    low, high = torch.empty_like(data), torch.empty_like(data)
+    ring = [0, 1, 2, 3, 5, 6, 7, 8]  # the 3 x 3 block without its centre
+    for start in range(0, data.shape[0], _ROWS_PER_CHUNK):
+        rows = slice(start, min(start + _ROWS_PER_CHUNK, data.shape[0]))
+        block = _neighbourhoods(data, rows)[..., ring]
+        low[rows], high[rows] = block.amin(dim=-1), block.amax(dim=-1)
+    return low, high
+
+
+def _noise_sigma(frame: torch.Tensor) -> float:
+    """Robust pixel-noise sigma: 1.4826 MAD of ``frame - median3x3(frame)`` on the central 256 rows."""
+    middle = frame.shape[0] // 2
+    sample = frame[max(0, middle - 128) : middle + 128]
+    residual = (sample.to(torch.float32) - median3x3(sample)).reshape(-1)
+    return 1.4826 * float((residual - residual.median()).abs().median())
+
+
+def hot_pixels(frame: torch.Tensor, *, n_sigma: float = 8.0, relative: float = 0.0) -> torch.Tensor:
+    """(Y, X) bool: pixels above the brightest of their 8 neighbours by more than ``n_sigma`` noise sigmas.
+
+    ``relative`` > 0 also asks the excess to be over ``relative`` times that neighbour:
+    use it on lit, dark-subtracted frames, where shot noise grows with the signal; on a
+    dark frame the noise is uniform and ``relative=0`` finds weak hot pixels too.
+    """
+    data = frame.to(torch.float32)
+    _, high = neighbour_extremes(data)
+    excess = data - high
+    return (excess > n_sigma * max(_noise_sigma(data), 1e-6)) & (excess > relative * high.clamp_min(0.0))
+
+
+def dead_pixels(frame: torch.Tensor) -> torch.Tensor:
+    """(Y, X) bool: pixels below ``DEAD_FRACTION`` of their darkest neighbour, that neighbour lit."""
+    data = frame.to(torch.float32)
+    low, _ = neighbour_extremes(data)
+    sample = data.reshape(-1)[:: max(1, data.numel() // 1_000_000)]
+    bright = float(torch.quantile(sample, 0.999))
+    return (low > 0.5 * bright) & (data < DEAD_FRACTION * low)
+
+
+def replace_defects(frame: torch.Tensor, defects: torch.Tensor) -> torch.Tensor:
+    """``frame`` with each defect replaced by the median of its non-defective 3 x 3 neighbours.
+
+    A defect whose 8 neighbours are all defects (or outside the frame) keeps its value.
+    """
+    if defects.shape != frame.shape:
+        raise ValueError(
+            f"defect mask shape {tuple(defects.shape)} differs from the frame's {tuple(frame.shape)}."
+        )
+    out = frame.clone()
+    where = torch.nonzero(defects)
+    if where.shape[0] == 0:
+        return out
+    nx = frame.shape[1]
+    nan = torch.tensor(float("nan"), dtype=frame.dtype)
+    padded = torch.nn.functional.pad(
+        torch.where(defects, nan, frame)[None, None], (1, 1, 1, 1), value=float("nan")
+    )
+    flat = padded.reshape(-1)
+    offsets = torch.tensor([dy * (nx + 2) + dx for dy in (-1, 0, 1) for dx in (-1, 0, 1)])
+    index = (where[:, 0] + 1) * (nx + 2) + (where[:, 1] + 1)
+    fill = flat[index[:, None] + offsets].nanmedian(dim=1).values
+    keep = torch.isnan(fill)
+    out[where[:, 0], where[:, 1]] = torch.where(keep, frame[where[:, 0], where[:, 1]], fill)
+    return out

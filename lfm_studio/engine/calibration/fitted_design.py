@@ -1,0 +1,76 @@
+"""A design fitted to a calibration: the nominal optics with the measured MLA geometry.
+
+- Conventional LFM: the MLA pitch becomes the measured pitch (the mean of the two axes,
+  in micrometres on the sensor) and ``offset_um`` the measured lattice offset from the
+  optical axis, taken at the sensor's centre pixel ``(Y // 2, X // 2)``; the camera gets
+  the calibrated frame's pixel count. The rotation (and any per-axis difference) is
+  removed by rectification and recorded in ``assumed``.
+- Fourier LFM: each lenslet centre becomes its measured sub-image centre (the chief ray
+  of an on-axis point crosses the sensor at the lenslet centre).
+"""
+
+from __future__ import annotations
+
+import math
+
+from lfm_studio.engine.calibration.record import Calibration
+from lfm_studio.engine.design import Design, LensletSpec, MLASpec
+
+
+def _axis(calibration: Calibration) -> tuple[float, float]:
+    ny, nx = calibration.frame_shape
+    return float(ny // 2), float(nx // 2)
+
+
+def fitted_design(design: Design, calibration: Calibration) -> Design:
+    """``design`` with the MLA geometry measured by ``calibration`` (a new, validated Design)."""
+    if design.kind != calibration.kind:
+        raise ValueError(
+            f"the design is a {design.kind} LFM but the calibration was made for a {calibration.kind} one. "
+            "Fix: use the design the calibration was made with."
+        )
+    pixel_um = design.camera.pixel_pitch_um
+    axis_y, axis_x = _axis(calibration)
+    camera = design.camera.model_copy(update={"pixel_count": tuple(calibration.frame_shape)})
+    camera = type(design.camera).model_validate(camera.model_dump())
+    if calibration.grid is not None:
+        lattice = calibration.grid.lattice
+        pitch_px = math.sqrt(lattice.pitch[0] * lattice.pitch[1])
+        oy, ox = lattice.origin
+        shape = design.mla.shape
+        half = [0.5 if n % 2 == 0 else 0.0 for n in shape]  # an even array is centred between sites
+        offset_y = (
+            oy + half[0] * lattice.row_vector[0] + half[1] * lattice.col_vector[0] - axis_y
+        ) * pixel_um
+        offset_x = (
+            ox + half[0] * lattice.row_vector[1] + half[1] * lattice.col_vector[1] - axis_x
+        ) * pixel_um
+        mla = design.mla.model_copy(
+            update={"pitch_um": pitch_px * pixel_um, "offset_um": (offset_x, offset_y)}
+        )
+        mla = type(design.mla).model_validate(mla.model_dump())
+        note = (
+            f"calibrated: lattice pitch {lattice.pitch[0]:.4f} x {lattice.pitch[1]:.4f} px, rotation "
+            f"{math.degrees(lattice.rotation):.4f} deg (removed by rectification), origin "
+            f"({oy:.3f}, {ox:.3f}) px."
+        )
+    else:
+        fit = calibration.sub_images
+        assert fit is not None
+        lenslets = tuple(
+            LensletSpec(
+                center_um=((float(x) - axis_x) * pixel_um, (float(y) - axis_y) * pixel_um),
+                aperture_diameter_um=lens.aperture_diameter_um,
+                focal_length_mm=lens.focal_length_mm,
+                shape=lens.shape,
+            )
+            for lens, (y, x) in zip(design.mla.lenslets, fit.measured.tolist(), strict=True)
+        )
+        mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+        note = (
+            f"calibrated: {len(lenslets)} lenslet centres from their measured sub-images (similarity to the "
+            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)."
+        )
+    return design.updated(
+        name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)
+    )
