@@ -7,7 +7,7 @@ parameters (origin and two vectors) are the least-squares fit of
 lenslets (where a small pitch error has not yet accumulated), then on all, each time
 re-measuring from the updated prediction and leaving flagged lenslets out:
 
-- ``EDGE``: the measuring window leaves the frame;
+- ``EDGE``: the lenslet's disk (plus 1 px) leaves the frame;
 - ``DIM``: the lenslet's light is below ``DIM_FRACTION`` of the median of its neighbours
   (dust, a dead region);
 - ``RESIDUAL``: its centroid is more than ``max(RESIDUAL_MADS robust sigmas, RESIDUAL_FLOOR)``
@@ -87,6 +87,13 @@ def _dim(indices: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
     return mass < DIM_FRACTION * reference
 
 
+def _cut(centres: torch.Tensor, shape: torch.Size, reach: float) -> torch.Tensor:
+    """(L,) bool: a disk of radius ``reach`` px around each centre leaves the frame."""
+    ny, nx = shape
+    y, x = centres[:, 0], centres[:, 1]
+    return (y - reach < -0.5) | (y + reach > ny - 0.5) | (x - reach < -0.5) | (x + reach > nx - 0.5)
+
+
 def refine_lattice(
     image: torch.Tensor, start: LensletLattice, *, disk_diameter: float, background: float = 0.0
 ) -> LatticeFit:
@@ -101,6 +108,7 @@ def refine_lattice(
     """
     lattice = start
     radius = 0.5 * min(min(start.pitch), max(disk_diameter + 2.0, 3.0))
+    reach = 0.5 * disk_diameter + 1.0
     indices = start.indices_inside(tuple(image.shape), margin=0.5)
     if indices.shape[0] < 4:
         raise ValueError(
@@ -115,7 +123,8 @@ def refine_lattice(
     central = (centre_index.abs() <= CENTRAL_LENSLETS).all(dim=1)
     for subset in (central, torch.ones_like(central)):
         spots = measure_centroids(image, lattice.centres(indices), radius=radius, background=background)
-        flags = torch.where(spots.clipped, EDGE, 0) | torch.where(_dim(indices, spots.mass), DIM, 0)
+        flags = torch.where(_cut(spots.centres, image.shape, reach), EDGE, 0)
+        flags = flags | torch.where(_dim(indices, spots.mass), DIM, 0)
         keep = subset & (flags == 0)
         for _ in range(3):
             lattice = fit_lattice(indices[keep], spots.centres[keep])

@@ -11,11 +11,13 @@ Gaussian read noise, a dark offset (ADU) and hot pixels. Same seed, same frames.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 
 from lfm_studio.engine.calibration.lattice import LensletLattice
+from lfm_studio.engine.design import Design, load_preset
 
 
 @dataclass(frozen=True)
@@ -154,3 +156,26 @@ def sub_image_pattern(shape: tuple[int, int], centres: torch.Tensor, diameter: f
         r = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2)
         out = torch.maximum(out, (0.5 * diameter - r + 0.5).clamp(0.0, 1.0))
     return out
+
+
+def conventional_design_for(
+    pitch_px: float, frame_shape: tuple[int, int], *, disk_fraction: float = 0.9
+) -> Design:
+    """The ``lfm_10x_na03`` preset with an MLA of ``pitch_px`` sensor pixels and a ``frame_shape`` camera.
+
+    The lenslet focal length (and the MLA-to-camera distance) is set so that the
+    back-aperture disk is ``disk_fraction`` of the pitch, as in a real, slightly
+    under-filled f-number match.
+    """
+    base = load_preset("lfm_10x_na03")
+    pitch_um = pitch_px * base.camera.pixel_pitch_um
+    sin_image = base.objective.numerical_aperture / base.objective.magnification
+    focal_mm = disk_fraction * pitch_um / (2.0 * math.tan(math.asin(sin_image))) * 1e-3
+    count = max(1, int(max(frame_shape) / pitch_px) + 2)
+    mla = base.mla.model_copy(
+        update={"pitch_um": pitch_um, "focal_length_mm": focal_mm, "shape": (count, count)}
+    )
+    camera = base.camera.model_copy(update={"pixel_count": tuple(frame_shape)})
+    return base.updated(
+        mla=mla.model_dump(), camera=camera.model_dump(), mla_to_camera_distance_mm=focal_mm, name="synthetic"
+    )
