@@ -7,17 +7,21 @@
   frame shows them best; in the radiometry frame, where shot noise grows with the light,
   only pixels also ``relative`` (0.25) above their brightest neighbour count.
 - A *dead* pixel of a radiometry frame reads below ``DEAD_FRACTION`` of the darkest of its
-  8 neighbours while that neighbour is bright (over half the frame's 99.9th percentile): a
-  pixel inside a lit lenslet disk that does not respond. The unlit gaps between disks
+  8 neighbours while that neighbour is bright: a
+  pixel inside a lit lenslet disk that does not respond ("bright": over half the frame's
+  ``LIT_QUANTILE`` quantile, a typical lit pixel; hot pixels do not move it). The unlit gaps between disks
   always have a dark neighbour.
 - Defects are replaced by the median of their non-defective 3 x 3 neighbours.
 """
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 DEAD_FRACTION = 0.05
+LIT_QUANTILE = 0.9
 _ROWS_PER_CHUNK = 256  # bounds the (rows, X, 9) neighbourhood tensor to a few tens of MB
 
 
@@ -31,13 +35,20 @@ def subtract_dark(frame: torch.Tensor, dark: torch.Tensor | float) -> torch.Tens
     return frame.to(torch.float64) - (dark.to(torch.float64) if isinstance(dark, torch.Tensor) else dark)
 
 
-def _neighbourhoods(image: torch.Tensor, rows: slice) -> torch.Tensor:
-    """(rows, X, 9) 3 x 3 neighbourhoods (edge pixels replicated) of the given rows."""
+def _neighbourhoods(image: torch.Tensor, rows: slice, outside: float | None = None) -> torch.Tensor:
+    """(rows, X, 9) 3 x 3 neighbourhoods of the given rows.
+
+    Beyond the frame, edge pixels are replicated (``outside=None``) or ``outside`` is read.
+    """
     ny = image.shape[0]
     start, stop = rows.start, rows.stop
     lo, hi = max(start - 1, 0), min(stop + 1, ny)
     block = image[lo:hi][None, None]
-    block = torch.nn.functional.pad(block, (1, 1, int(start == 0), int(stop == ny)), mode="replicate")[0, 0]
+    pad = (1, 1, int(start == 0), int(stop == ny))
+    if outside is None:
+        block = torch.nn.functional.pad(block, pad, mode="replicate")[0, 0]
+    else:
+        block = torch.nn.functional.pad(block, pad, value=outside)[0, 0]
     return block.unfold(0, 3, 1).unfold(1, 3, 1).reshape(stop - start, image.shape[1], 9)
 
 
@@ -54,14 +65,14 @@ def median3x3(image: torch.Tensor, ignore: torch.Tensor | None = None) -> torch.
 
 
 def neighbour_extremes(image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Smallest and largest of each pixel's 8 neighbours (edges replicated), each (Y, X) float32."""
+    """Smallest and largest of each pixel's 8 neighbours inside the frame, each (Y, X) float32."""
     data = image.to(torch.float32)
     low, high = torch.empty_like(data), torch.empty_like(data)
     ring = [0, 1, 2, 3, 5, 6, 7, 8]  # the 3 x 3 block without its centre
     for start in range(0, data.shape[0], _ROWS_PER_CHUNK):
         rows = slice(start, min(start + _ROWS_PER_CHUNK, data.shape[0]))
-        block = _neighbourhoods(data, rows)[..., ring]
-        low[rows], high[rows] = block.amin(dim=-1), block.amax(dim=-1)
+        low[rows] = _neighbourhoods(data, rows, math.inf)[..., ring].amin(dim=-1)
+        high[rows] = _neighbourhoods(data, rows, -math.inf)[..., ring].amax(dim=-1)
     return low, high
 
 
@@ -91,7 +102,7 @@ def dead_pixels(frame: torch.Tensor) -> torch.Tensor:
     data = frame.to(torch.float32)
     low, _ = neighbour_extremes(data)
     sample = data.reshape(-1)[:: max(1, data.numel() // 1_000_000)]
-    bright = float(torch.quantile(sample, 0.999))
+    bright = float(torch.quantile(sample, LIT_QUANTILE))
     return (low > 0.5 * bright) & (data < DEAD_FRACTION * low)
 
 
