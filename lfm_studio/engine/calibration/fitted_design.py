@@ -6,7 +6,8 @@
   the calibrated frame's pixel count. The rotation (and any per-axis difference) is
   removed by rectification and recorded in ``assumed``.
 - Fourier LFM: each lenslet centre becomes its measured sub-image centre (the chief ray
-  of an on-axis point crosses the sensor at the lenslet centre).
+  of an on-axis point crosses the sensor at the lenslet centre). Touching apertures that the
+  measurement puts a little closer are reduced just enough not to overlap (noted in ``assumed``).
 """
 
 from __future__ import annotations
@@ -15,11 +16,27 @@ import math
 
 from lfm_studio.engine.calibration.record import Calibration
 from lfm_studio.engine.design import Design, LensletSpec, MLASpec
+from lfm_studio.engine.design.lenslet import overlap_depth_um
 
 
 def _axis(calibration: Calibration) -> tuple[float, float]:
     ny, nx = calibration.frame_shape
     return float(ny // 2), float(nx // 2)
+
+
+def _moved(
+    lenslets: tuple[LensletSpec, ...], centres: list[tuple[float, float]], shrink: float
+) -> tuple[LensletSpec, ...]:
+    """``lenslets`` at new ``centres`` (x, y) um, apertures ``shrink`` um smaller."""
+    return tuple(
+        LensletSpec(
+            center_um=centre,
+            aperture_diameter_um=lens.aperture_diameter_um - shrink,
+            focal_length_mm=lens.focal_length_mm,
+            shape=lens.shape,
+        )
+        for lens, centre in zip(lenslets, centres, strict=True)
+    )
 
 
 def fitted_design(design: Design, calibration: Calibration) -> Design:
@@ -57,19 +74,18 @@ def fitted_design(design: Design, calibration: Calibration) -> Design:
     else:
         fit = calibration.sub_images
         assert fit is not None
-        lenslets = tuple(
-            LensletSpec(
-                center_um=((float(x) - axis_x) * pixel_um, (float(y) - axis_y) * pixel_um),
-                aperture_diameter_um=lens.aperture_diameter_um,
-                focal_length_mm=lens.focal_length_mm,
-                shape=lens.shape,
-            )
-            for lens, (y, x) in zip(design.mla.lenslets, fit.measured.tolist(), strict=True)
+        centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in fit.measured.tolist()]
+        lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
+        shrink = max(
+            (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
         )
+        if shrink > 0:  # touching apertures measured a little closer: keep them touching
+            lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
         mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
         note = (
             f"calibrated: {len(lenslets)} lenslet centres from their measured sub-images (similarity to the "
-            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)."
+            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)"
+            + (f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else ".")
         )
     return design.updated(
         name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)

@@ -87,7 +87,7 @@ def _dim(indices: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
     return mass < DIM_FRACTION * reference
 
 
-def _cut(centres: torch.Tensor, shape: torch.Size, reach: float) -> torch.Tensor:
+def disk_leaves_frame(centres: torch.Tensor, shape: torch.Size, reach: float) -> torch.Tensor:
     """(L,) bool: a disk of radius ``reach`` px around each centre leaves the frame."""
     ny, nx = shape
     y, x = centres[:, 0], centres[:, 1]
@@ -123,7 +123,7 @@ def refine_lattice(
     central = (centre_index.abs() <= CENTRAL_LENSLETS).all(dim=1)
     for subset in (central, torch.ones_like(central)):
         spots = measure_centroids(image, lattice.centres(indices), radius=radius, background=background)
-        flags = torch.where(_cut(spots.centres, image.shape, reach), EDGE, 0)
+        flags = torch.where(disk_leaves_frame(spots.centres, image.shape, reach), EDGE, 0)
         flags = flags | torch.where(_dim(indices, spots.mass), DIM, 0)
         keep = subset & (flags == 0)
         for _ in range(3):

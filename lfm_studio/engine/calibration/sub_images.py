@@ -4,11 +4,13 @@ A uniform slide fills each sub-image with a disk (the field stop's image). Aroun
 nominal centre the disk is thresholded at half its brightness (a soft ramp from 3/8 to
 5/8 of the window's 95th percentile, so vignetting across the disk does not pull the
 centre) and its centroid is iterated inside a window of radius ``min(D/2 + 2 px, s/2)``
+(a sub-image whose disk, plus 1 px, leaves the frame is flagged ``EDGE``)
 (``D`` the nominal diameter, ``s`` the closest nominal spacing). The measured centres are
 then registered to the nominal ones by a least-squares similarity transform (scale,
 rotation, shift); the distance of each measured centre from the registered nominal one
-is its residual, and outliers (residual over ``max(6 robust sigmas, 1 px)``, or a
-sub-image with under half the median light) are flagged.
+is its residual. Outliers are flagged: a sub-image with under half the median light, and,
+one at a time, the sub-image whose leave-one-out residual (from the transform fitted to
+the others) exceeds ``max(6 robust sigmas of the others, 1 px)``.
 """
 
 from __future__ import annotations
@@ -19,10 +21,12 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine.calibration.centroids import measure_centroids
-from lfm_studio.engine.calibration.grid_fit import DIM, EDGE, RESIDUAL
+from lfm_studio.engine.calibration.grid_fit import DIM, EDGE, RESIDUAL, disk_leaves_frame
 from lfm_studio.engine.calibration.nominal import NominalSubImages, min_spacing
 
 ITERATIONS = 12
+RESIDUAL_SIGMAS = 6.0
+RESIDUAL_FLOOR = 1.0  # px
 
 
 @dataclass(frozen=True)
@@ -67,7 +71,7 @@ def _apply(params: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
 def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background: float = 0.0) -> SubImageFit:
     """Measure and register the sub-image centres of a dark-subtracted radiometry ``image`` (Y, X)."""
     radius = min(0.5 * nominal.diameter + 2.0, 0.5 * min_spacing(nominal.centres))
-    measured, light, clipped = [], [], []
+    measured, light = [], []
     lit = (image.to(torch.float64) - background).clamp_min(0.0)
     for centre in nominal.centres:
         cy, cx = (round(float(v)) for v in centre)
@@ -78,29 +82,33 @@ def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background
         spot = measure_centroids(ramp, centre[None], radius=radius, iterations=ITERATIONS)
         measured.append(spot.centres[0])
         light.append(float(spot.mass[0]) * peak)
-        clipped.append(bool(spot.clipped[0]))
     measured_t = torch.stack(measured)
     light_t = torch.tensor(light, dtype=torch.float64)
-    flags = torch.where(torch.tensor(clipped), EDGE, 0) | torch.where(
-        light_t < 0.5 * light_t.median(), DIM, 0
-    )
+    edge = disk_leaves_frame(measured_t, image.shape, 0.5 * nominal.diameter + 1.0)
+    flags = torch.where(edge, EDGE, 0) | torch.where(light_t < 0.5 * light_t.median(), DIM, 0)
     keep = flags == 0
-    for _ in range(3):
-        if int(keep.sum()) < 2:
-            raise ValueError(
-                f"only {int(keep.sum())} of {len(keep)} sub-images were found whole on the radiometry frame; "
-                "at least 2 are needed to register them. Fix: check that the frame shows the sub-images "
-                "and that the design's lenslet centres and pixel size match the instrument."
-            )
-        params = _similarity(nominal.centres[keep], measured_t[keep])
-        residual = torch.linalg.vector_norm(measured_t - _apply(params, nominal.centres), dim=1)
-        sigma = 1.4826 * float(residual[keep].median())
-        outlier = residual > max(6.0 * sigma, 1.0)
-        new_keep = (flags == 0) & ~outlier
-        if bool((new_keep == keep).all()):
+    if int(keep.sum()) < 2:
+        raise ValueError(
+            f"only {int(keep.sum())} of {len(keep)} sub-images were found whole on the radiometry frame; "
+            "at least 2 are needed to register them. Fix: check that the frame shows the sub-images "
+            "and that the design's lenslet centres and pixel size match the instrument."
+        )
+    while int(keep.sum()) > 3:  # leave-one-out: drop the worst sub-image while it is an outlier
+        worst, worst_residual, sigma = -1, 0.0, 0.0
+        for i in torch.nonzero(keep)[:, 0].tolist():
+            others = keep.clone()
+            others[i] = False
+            params = _similarity(nominal.centres[others], measured_t[others])
+            residual = torch.linalg.vector_norm(measured_t - _apply(params, nominal.centres), dim=1)
+            if float(residual[i]) > worst_residual:
+                worst, worst_residual = i, float(residual[i])
+                sigma = 1.4826 * float(residual[others].median())
+        if worst_residual <= max(RESIDUAL_SIGMAS * sigma, RESIDUAL_FLOOR):
             break
-        keep = new_keep
-    flags = flags | torch.where(outlier, RESIDUAL, 0)
+        keep[worst] = False
+    params = _similarity(nominal.centres[keep], measured_t[keep])
+    residual = torch.linalg.vector_norm(measured_t - _apply(params, nominal.centres), dim=1)
+    flags = flags | torch.where((flags == 0) & ~keep, RESIDUAL, 0)
     a, b, ty, tx = params.tolist()
     return SubImageFit(
         nominal=nominal.centres.clone(),
