@@ -35,20 +35,14 @@ def subtract_dark(frame: torch.Tensor, dark: torch.Tensor | float) -> torch.Tens
     return frame.to(torch.float64) - (dark.to(torch.float64) if isinstance(dark, torch.Tensor) else dark)
 
 
-def _neighbourhoods(image: torch.Tensor, rows: slice, outside: float | None = None) -> torch.Tensor:
-    """(rows, X, 9) 3 x 3 neighbourhoods of the given rows.
-
-    Beyond the frame, edge pixels are replicated (``outside=None``) or ``outside`` is read.
-    """
+def _neighbourhoods(image: torch.Tensor, rows: slice) -> torch.Tensor:
+    """(rows, X, 9) 3 x 3 neighbourhoods of the given rows (edge pixels replicated beyond the frame)."""
     ny = image.shape[0]
     start, stop = rows.start, rows.stop
     lo, hi = max(start - 1, 0), min(stop + 1, ny)
     block = image[lo:hi][None, None]
     pad = (1, 1, int(start == 0), int(stop == ny))
-    if outside is None:
-        block = torch.nn.functional.pad(block, pad, mode="replicate")[0, 0]
-    else:
-        block = torch.nn.functional.pad(block, pad, value=outside)[0, 0]
+    block = torch.nn.functional.pad(block, pad, mode="replicate")[0, 0]
     return block.unfold(0, 3, 1).unfold(1, 3, 1).reshape(stop - start, image.shape[1], 9)
 
 
@@ -64,16 +58,19 @@ def median3x3(image: torch.Tensor, ignore: torch.Tensor | None = None) -> torch.
     return out
 
 
-def neighbour_extremes(image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Smallest and largest of each pixel's 8 neighbours inside the frame, each (Y, X) float32."""
+def neighbour_extreme(image: torch.Tensor, largest: bool) -> torch.Tensor:
+    """Largest (or smallest) of each pixel's 8 neighbours inside the frame, (Y, X) float32."""
     data = image.to(torch.float32)
-    low, high = torch.empty_like(data), torch.empty_like(data)
-    ring = [0, 1, 2, 3, 5, 6, 7, 8]  # the 3 x 3 block without its centre
-    for start in range(0, data.shape[0], _ROWS_PER_CHUNK):
-        rows = slice(start, min(start + _ROWS_PER_CHUNK, data.shape[0]))
-        low[rows] = _neighbourhoods(data, rows, math.inf)[..., ring].amin(dim=-1)
-        high[rows] = _neighbourhoods(data, rows, -math.inf)[..., ring].amax(dim=-1)
-    return low, high
+    ny, nx = data.shape
+    fill = -math.inf if largest else math.inf
+    padded = torch.nn.functional.pad(data[None, None], (1, 1, 1, 1), value=fill)[0, 0]
+    pick = torch.maximum if largest else torch.minimum
+    out = torch.full_like(data, fill)
+    for dy in range(3):
+        for dx in range(3):
+            if dy != 1 or dx != 1:
+                out = pick(out, padded[dy : dy + ny, dx : dx + nx])
+    return out
 
 
 def _noise_sigma(frame: torch.Tensor) -> float:
@@ -92,7 +89,7 @@ def hot_pixels(frame: torch.Tensor, *, n_sigma: float = 8.0, relative: float = 0
     dark frame the noise is uniform and ``relative=0`` finds weak hot pixels too.
     """
     data = frame.to(torch.float32)
-    _, high = neighbour_extremes(data)
+    high = neighbour_extreme(data, largest=True)
     excess = data - high
     return (excess > n_sigma * max(_noise_sigma(data), 1e-6)) & (excess > relative * high.clamp_min(0.0))
 
@@ -100,7 +97,7 @@ def hot_pixels(frame: torch.Tensor, *, n_sigma: float = 8.0, relative: float = 0
 def dead_pixels(frame: torch.Tensor) -> torch.Tensor:
     """(Y, X) bool: pixels below ``DEAD_FRACTION`` of their darkest neighbour, that neighbour lit."""
     data = frame.to(torch.float32)
-    low, _ = neighbour_extremes(data)
+    low = neighbour_extreme(data, largest=False)
     sample = data.reshape(-1)[:: max(1, data.numel() // 1_000_000)]
     bright = float(torch.quantile(sample, LIT_QUANTILE))
     return (low > 0.5 * bright) & (data < DEAD_FRACTION * low)
