@@ -92,6 +92,33 @@ def lenslet_block(
     return i0, i1 - i0 + 1, j0, j1 - j0 + 1
 
 
+def resample_affine(
+    image: torch.Tensor, offset: torch.Tensor, matrix: torch.Tensor, shape: tuple[int, int]
+) -> torch.Tensor:
+    """Light of ``image`` (Y, X) inside each output pixel's footprint (the two-pass scheme above).
+
+    Output pixel ``(I, J)`` covers ``[I - 1/2, I + 1/2] x [J - 1/2, J + 1/2]``, which maps to input
+    pixel coordinates ``p = offset + matrix @ (I, J)`` (``offset`` (2,), ``matrix`` (2, 2), float64,
+    ``(y, x)``). The map must keep the axes' orientation and turn them by under 45 degrees.
+    Returns ``shape`` = ``(rows, columns)`` of the image's dtype.
+    """
+    inv = torch.linalg.inv(matrix.to(torch.float64))
+    n11, n12, n21, n22 = (float(v) for v in inv.reshape(-1))
+    q = n11 - n12 * n21 / n22 if n22 else 0.0
+    if n22 <= 0 or q <= 0 or abs(n21 / n22) >= 1 or abs(n12 / n22) >= 1:
+        raise ValueError(
+            f"affine map {matrix.tolist()} not supported: the output axes must follow the input axes "
+            "(turned by under 45 degrees, not mirrored). Fix: the lattice's column vector must point "
+            "along +x and its row vector along +y."
+        )
+    by, bx = (float(v) for v in offset)
+    y = torch.arange(image.shape[0], dtype=torch.float64)
+    strips = resample_rows(image, bx - n21 * (y - by) / n22, 1.0 / n22, shape[1])
+    columns = torch.arange(shape[1], dtype=torch.float64)
+    starts = by - (n12 / n22) * columns / q
+    return resample_rows(strips.T.contiguous(), starts, 1.0 / q, shape[0]).T.contiguous()
+
+
 def rectify(
     image: torch.Tensor,
     lattice: LensletLattice,
@@ -116,20 +143,28 @@ def rectify(
         raise ValueError(f"pixels_per_lenslet must be an odd integer >= 1; got {pixels_per_lenslet!r}.")
     i0, ni, j0, nj = block
     a = lattice.matrix(torch.float64)
-    m = a / n
     first = torch.tensor([i0 - 0.5 + 0.5 / n, j0 - 0.5 + 0.5 / n], dtype=torch.float64)
-    b = torch.tensor(lattice.origin, dtype=torch.float64) + a @ first
-    inv = torch.linalg.inv(m)
-    n11, n12, n21, n22 = (float(v) for v in inv.reshape(-1))
-    q = n11 - n12 * n21 / n22
-    if n22 <= 0 or q <= 0:
+    offset = torch.tensor(lattice.origin, dtype=torch.float64) + a @ first
+    return resample_affine(image, offset, a / n, (ni * n, nj * n))
+
+
+def unrectify(
+    rectified: torch.Tensor, lattice: LensletLattice, block: tuple[int, int, int, int], shape: tuple[int, int]
+) -> torch.Tensor:
+    """The inverse warp: a raw frame of ``shape`` showing a rectified image (``n`` px per lenslet).
+
+    Each raw pixel receives the light of the rectified image inside its footprint, so a
+    scene rendered on the model's lattice can be seen through a measured (or made-up)
+    raw geometry; lenslet block ``(i0, ni, j0, nj)`` of ``lattice`` is where the rectified
+    image's lenslets land. Used to synthesise misaligned raw frames from the forward model.
+    """
+    i0, ni, j0, nj = block
+    n = rectified.shape[0] // ni
+    if rectified.shape != (ni * n, nj * n) or n % 2 == 0:
         raise ValueError(
-            f"lattice orientation not supported (row {lattice.row_vector}, col {lattice.col_vector}); "
-            "Fix: the column vector must point along +x and the row vector along +y (rotation < 45 deg)."
+            f"rectified image shape {tuple(rectified.shape)} is not ({ni} x n, {nj} x n) with n odd for block {block}."
         )
-    ny = image.shape[0]
-    y = torch.arange(ny, dtype=torch.float64)
-    strips = resample_rows(image, float(b[1]) - n21 * (y - float(b[0])) / n22, 1.0 / n22, nj * n)
-    columns = torch.arange(nj * n, dtype=torch.float64)
-    starts = float(b[0]) - (n12 / n22) * columns / q
-    return resample_rows(strips.T.contiguous(), starts, 1.0 / q, ni * n).T.contiguous()
+    a_inv = torch.linalg.inv(lattice.matrix(torch.float64))
+    origin = torch.tensor(lattice.origin, dtype=torch.float64)
+    corner = torch.tensor([n * (0.5 - i0) - 0.5, n * (0.5 - j0) - 0.5], dtype=torch.float64)
+    return resample_affine(rectified, corner - n * a_inv @ origin, n * a_inv, shape)
