@@ -12,8 +12,8 @@ import torch
 
 from lfm_studio import cli
 from lfm_studio.engine.calibration import LensletLattice, load_calibration
-from lfm_studio.engine.calibration.synthetic import conventional_design_for, synthetic_frames
-from lfm_studio.engine.design import save_design
+from lfm_studio.engine.calibration.synthetic import conventional_design_for, fourier_frames, synthetic_frames
+from lfm_studio.engine.design import load_preset, save_design
 
 SHAPE = (256, 288)
 
@@ -94,3 +94,23 @@ def test_missing_file_is_named(files, tmp_path, capsys):
     missing = {**files, "radiometry": str(tmp_path / "nope.tif")}
     assert _calibrate(missing, tmp_path / "c.json") == 2
     assert "--radiometry" in capsys.readouterr().err
+
+
+def test_calibrate_a_fourier_lfm(tmp_path, capsys):
+    design = load_preset("flfm_guo2019")
+    shape = (288, 288)
+    design = design.updated(camera={**design.camera.model_dump(), "pixel_count": shape})
+    radiometry, dark, truth = fourier_frames(design, shape, rotation_deg=0.8, shift=(1.5, -1.0), seed=6)
+    save_design(design, tmp_path / "flfm.json")
+    out = tmp_path / "calib.json"
+    argv = [
+        "calibrate",
+        "--radiometry",
+        _tiff(tmp_path / "r.tif", radiometry),
+        "--dark",
+        _tiff(tmp_path / "d.tif", dark),
+    ]
+    assert cli.main([*argv, "--design", str(tmp_path / "flfm.json"), "--out", str(out)]) == 0
+    assert "9 sub-images (0 flagged)" in capsys.readouterr().out
+    fit = load_calibration(out).sub_images
+    assert float((fit.measured - truth).norm(dim=1).pow(2).mean().sqrt()) <= 0.1

@@ -37,7 +37,12 @@ def saturation_level(camera: CameraSpec) -> float:
 
 
 def check_frames(radiometry: torch.Tensor, dark: torch.Tensor | None, camera: CameraSpec) -> None:
-    """Raise ``ValueError`` for mismatched shapes, a saturated radiometry frame or a swapped dark frame."""
+    """Raise ``ValueError`` for mismatched shapes, a saturated radiometry frame or a swapped dark frame.
+
+    Saturated: over :data:`MAX_SATURATED_FRACTION` of the pixels at the camera's saturation
+    level, or piled up at the frame's maximum value (a clipped histogram, whatever the
+    design's camera says).
+    """
     if dark is not None and dark.shape != radiometry.shape:
         raise ValueError(
             f"dark frame shape {tuple(dark.shape)} differs from the radiometry frame's "
@@ -45,6 +50,9 @@ def check_frames(radiometry: torch.Tensor, dark: torch.Tensor | None, camera: Ca
         )
     level = saturation_level(camera)
     fraction = float((radiometry >= level).double().mean())
+    if fraction <= MAX_SATURATED_FRACTION and _piled_up_at_top(radiometry):
+        level = float(radiometry.max())  # clipped at a level the design's camera does not know
+        fraction = float((radiometry == level).double().mean())
     if fraction > MAX_SATURATED_FRACTION:
         raise ValueError(
             f"radiometry frame is saturated: {100 * fraction:.2g} % of its pixels reach the camera's "
@@ -57,6 +65,17 @@ def check_frames(radiometry: torch.Tensor, dark: torch.Tensor | None, camera: Ca
             f"(mean {float(radiometry.mean()):.6g} ADU). Fix: check that --dark and --radiometry are not "
             "swapped and that the dark frame was recorded with the light path blocked."
         )
+
+
+def _piled_up_at_top(frame: torch.Tensor) -> bool:
+    """True when over :data:`MAX_SATURATED_FRACTION` of the pixels share the maximum value and
+    that value holds over 3x the pixels of the next lower one (a clipped histogram)."""
+    top = frame.max()
+    at_top = int((frame == top).sum())
+    if at_top <= MAX_SATURATED_FRACTION * frame.numel() or at_top == frame.numel():
+        return False
+    below = frame[frame < top].max()
+    return at_top > 3 * int((frame == below).sum())
 
 
 def check_pitch(measured: tuple[float, float], nominal: float) -> None:

@@ -39,8 +39,14 @@ def _moved(
     )
 
 
-def fitted_design(design: Design, calibration: Calibration) -> Design:
-    """``design`` with the MLA geometry measured by ``calibration`` (a new, validated Design)."""
+def nominal_design(calibration: Calibration) -> Design:
+    """The nominal design the calibration was made with (stored in it)."""
+    return Design.model_validate(calibration.design)
+
+
+def fitted_design(design: Design | None, calibration: Calibration) -> Design:
+    """``design`` (default: the calibration's nominal one) with the MLA geometry measured by ``calibration``."""
+    design = nominal_design(calibration) if design is None else design
     if design.kind != calibration.kind:
         raise ValueError(
             f"the design is a {design.kind} LFM but the calibration was made for a {calibration.kind} one. "

@@ -87,6 +87,7 @@ def test_unreadable_files_name_the_problem(tmp_path, calibrated):
 def test_rectified_frame_matches_the_fitted_design(calibrated):
     design, frames, calibration = calibrated
     fitted = fitted_design(design, calibration)
+    assert fitted_design(None, calibration) == fitted  # the nominal design is stored in the calibration
     lattice = calibration.grid.lattice
     assert fitted.mla.pitch_um == pytest.approx(
         math.sqrt(lattice.pitch[0] * lattice.pitch[1]) * 6.5, rel=1e-12

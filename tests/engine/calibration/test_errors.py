@@ -47,6 +47,12 @@ def test_saturated_frame(frames, design):
         calibrate(saturated, design)
 
 
+def test_frame_clipped_below_the_design_saturation(frames, design):
+    clipped = frames.radiometry.clamp(max=1500.0)  # e.g. a 12-bit camera behind a 16-bit design
+    with pytest.raises(ValueError, match=r"radiometry frame is saturated: \d+ % of its pixels.*1500 ADU"):
+        calibrate(clipped, design)
+
+
 def test_dark_brighter_than_radiometry(frames, design):
     with pytest.raises(ValueError, match=r"dark frame \(mean .* ADU\) is not darker.*swapped"):
         calibrate(frames.dark, design, dark=frames.radiometry)

@@ -11,7 +11,12 @@ from lfm_studio.engine.calibration import calibrate, fitted_design
 from lfm_studio.engine.calibration.grid_fit import RESIDUAL
 from lfm_studio.engine.calibration.nominal import nominal_sub_images
 from lfm_studio.engine.calibration.sub_images import fit_sub_images
-from lfm_studio.engine.calibration.synthetic import expose, radial_vignetting, sub_image_pattern
+from lfm_studio.engine.calibration.synthetic import (
+    expose,
+    fourier_frames,
+    radial_vignetting,
+    sub_image_pattern,
+)
 from lfm_studio.engine.design import load_preset
 
 SHAPE = (288, 288)
@@ -21,18 +26,6 @@ def _small_flfm():
     design = load_preset("flfm_guo2019")
     camera = design.camera.model_copy(update={"pixel_count": SHAPE})
     return design.updated(camera=camera.model_dump())
-
-
-def _truth(nominal: torch.Tensor, *, angle_deg: float, scale: float, shift: tuple[float, float], seed: int):
-    centre = torch.tensor([SHAPE[0] // 2, SHAPE[1] // 2], dtype=torch.float64)
-    a = math.radians(angle_deg)
-    rotation = torch.tensor([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]], dtype=torch.float64)
-    jitter = 0.3 * torch.randn(
-        nominal.shape, generator=torch.Generator().manual_seed(seed), dtype=torch.float64
-    )
-    return (
-        centre + scale * (nominal - centre) @ rotation.T + torch.tensor(shift, dtype=torch.float64) + jitter
-    )
 
 
 def _frames(truth: torch.Tensor, diameter: float, seed: int):
@@ -51,8 +44,9 @@ def _frames(truth: torch.Tensor, diameter: float, seed: int):
 def test_sub_image_centres_and_registration():
     design = _small_flfm()
     nominal = nominal_sub_images(design, SHAPE)
-    truth = _truth(nominal.centres, angle_deg=1.2, scale=1.005, shift=(1.0, -2.0), seed=4)
-    radiometry, dark, _ = _frames(truth, 0.97 * nominal.diameter, seed=4)
+    radiometry, dark, truth = fourier_frames(
+        design, SHAPE, rotation_deg=1.2, scale=1.005, shift=(1.0, -2.0), seed=4
+    )
     calibration = calibrate(radiometry, design, dark=dark)
     fit = calibration.sub_images
     rms = float((fit.measured - truth).norm(dim=1).pow(2).mean().sqrt())
@@ -78,7 +72,10 @@ def test_sub_image_centres_and_registration():
 def test_a_displaced_sub_image_is_flagged():
     design = _small_flfm()
     nominal = nominal_sub_images(design, SHAPE)
-    truth = _truth(nominal.centres, angle_deg=0.0, scale=1.0, shift=(0.0, 0.0), seed=5)
+    jitter = torch.randn(
+        nominal.centres.shape, generator=torch.Generator().manual_seed(5), dtype=torch.float64
+    )
+    truth = nominal.centres + 0.3 * jitter
     truth[4] += torch.tensor([4.0, -3.0], dtype=torch.float64)  # one lenslet glued 5 px off
     radiometry, _, _ = _frames(truth, 0.9 * nominal.diameter, seed=5)
     fit = fit_sub_images(radiometry - 100.0, nominal)
