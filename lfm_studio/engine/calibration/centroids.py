@@ -23,12 +23,10 @@ class Centroids:
     ----------
     centres : (L, 2) float64 (y, x) px.
     mass : (L,) float64, background-subtracted intensity inside the window (ADU * px).
-    clipped : (L,) bool, the window reached past the frame edge.
     """
 
     centres: torch.Tensor
     mass: torch.Tensor
-    clipped: torch.Tensor
 
 
 def measure_centroids(
@@ -75,11 +73,4 @@ def measure_centroids(
         safe = mass.clamp_min(1e-30)
         shift = torch.stack(((w * dy).sum(dim=(1, 2)) / safe, (w * dx).sum(dim=(1, 2)) / safe), dim=1)
         centres = centres + torch.where(mass[:, None] > 0, shift.to(torch.float64), torch.zeros_like(centres))
-    reach = radius + 0.5
-    clipped = (
-        (centres[:, 0] - reach < -0.5)
-        | (centres[:, 0] + reach > ny - 0.5)
-        | (centres[:, 1] - reach < -0.5)
-        | (centres[:, 1] + reach > nx - 0.5)
-    )
-    return Centroids(centres=centres, mass=mass, clipped=clipped)
+    return Centroids(centres=centres, mass=mass)

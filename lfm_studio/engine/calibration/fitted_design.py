@@ -79,7 +79,8 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
         )
     else:
         fit = calibration.sub_images
-        assert fit is not None
+        if fit is None:  # excluded by Calibration.__post_init__
+            raise ValueError("a Fourier calibration needs its sub-image fit.")
         centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in fit.measured.tolist()]
         lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
         shrink = max(

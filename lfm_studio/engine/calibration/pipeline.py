@@ -132,5 +132,6 @@ def rectify_frame(
     block = (
         calibration.block if lenslets is None else lenslet_block(lattice, calibration.frame_shape, lenslets)
     )
-    assert block is not None and calibration.pixels_per_lenslet is not None
+    if block is None or calibration.pixels_per_lenslet is None:
+        raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
     return rectify(image, lattice, calibration.pixels_per_lenslet, block)

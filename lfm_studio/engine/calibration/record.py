@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any
 
@@ -62,7 +63,7 @@ class Calibration:
             return {
                 "kind": self.kind,
                 "pitch_yx_px": list(lattice.pitch),
-                "rotation_deg": float(torch.tensor(lattice.rotation).rad2deg()),
+                "rotation_deg": math.degrees(lattice.rotation),
                 "origin_yx_px": list(lattice.origin),
                 "lenslets": int(self.grid.indices.shape[0]),
                 "flagged": int((self.grid.flags != 0).sum()),
@@ -70,14 +71,15 @@ class Calibration:
                 "defect_pixels": int(self.defects.shape[0]),
             }
         fit = self.sub_images
-        assert fit is not None
+        if fit is None:  # excluded by __post_init__
+            raise ValueError("a Fourier calibration needs its sub-image fit.")
         used = fit.flags == 0
         return {
             "kind": self.kind,
             "sub_images": int(fit.measured.shape[0]),
             "flagged": int((~used).sum()),
             "scale": fit.scale,
-            "rotation_deg": float(torch.tensor(fit.rotation).rad2deg()),
+            "rotation_deg": math.degrees(fit.rotation),
             "shift_yx_px": list(fit.shift),
             "rms_residual_px": float(fit.residual[used].pow(2).mean().sqrt()),
             "defect_pixels": int(self.defects.shape[0]),
