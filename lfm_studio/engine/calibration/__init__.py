@@ -29,6 +29,7 @@ from lfm_studio.engine.calibration.fitted_design import fitted_design, nominal_d
 from lfm_studio.engine.calibration.grid_fit import LatticeFit
 from lfm_studio.engine.calibration.grid_fourier import NoGridError
 from lfm_studio.engine.calibration.lattice import LensletLattice
+from lfm_studio.engine.calibration.overlay import GridOverlay, grid_overlay
 from lfm_studio.engine.calibration.pipeline import calibrate, correct_frame, rectify_frame
 from lfm_studio.engine.calibration.record import CALIBRATION_VERSION, Calibration
 from lfm_studio.engine.calibration.sub_images import SubImageFit
@@ -37,6 +38,7 @@ __all__ = [
     "CALIBRATION_VERSION",
     "Calibration",
     "CalibrationFileError",
+    "GridOverlay",
     "LatticeFit",
     "LensletLattice",
     "NoGridError",
@@ -46,6 +48,7 @@ __all__ = [
     "calibration_to_dict",
     "correct_frame",
     "fitted_design",
+    "grid_overlay",
     "load_calibration",
     "nominal_design",
     "rectify_frame",

@@ -52,6 +52,11 @@ class SubImageFit:
     rotation: float
     shift: tuple[float, float]
 
+    def registered(self) -> torch.Tensor:
+        """(L, 2) the nominal centres moved by the fitted similarity transform, px."""
+        a, b = self.scale * math.cos(self.rotation), self.scale * math.sin(self.rotation)
+        return _apply(torch.tensor([a, b, *self.shift], dtype=torch.float64), self.nominal)
+
 
 def _similarity(nominal: torch.Tensor, measured: torch.Tensor) -> torch.Tensor:
     """Least-squares ``(a, b, ty, tx)`` with ``y' = a y + b x + ty``, ``x' = -b y + a x + tx``."""

@@ -13,7 +13,7 @@ import math
 import pytest
 import torch
 
-from lfm_studio.engine.calibration import LensletLattice, calibrate
+from lfm_studio.engine.calibration import LensletLattice, calibrate, grid_overlay
 from lfm_studio.engine.calibration.grid_fit import DIM, EDGE, RESIDUAL, refine_lattice
 from lfm_studio.engine.calibration.grid_fourier import fourier_lattice
 from lfm_studio.engine.calibration.synthetic import conventional_design_for, synthetic_frames
@@ -95,3 +95,13 @@ def test_outliers_are_flagged_and_left_out():
     assert sorted(inner) == [(-3, 1), (2, 3)]  # only the two specks
     assert fit.lattice.pitch == pytest.approx(truth.pitch, abs=0.01)
     assert all(f == 0 or f & (EDGE | DIM | RESIDUAL) for f in flags.values())
+
+
+def test_overlay_shows_fitted_sites_and_flag_names(case):
+    truth, _, calibration = case
+    overlay = grid_overlay(calibration)
+    grid = calibration.grid
+    assert torch.allclose(overlay.fitted, grid.lattice.centres(grid.indices))
+    assert float(_centre_error(overlay.fitted, truth).max()) < 0.1
+    assert all(set(names) <= {"edge", "dim", "residual"} for names in overlay.flags)
+    assert [bool(names) for names in overlay.flags] == (grid.flags != 0).tolist()

@@ -7,7 +7,7 @@ import math
 import pytest
 import torch
 
-from lfm_studio.engine.calibration import calibrate, fitted_design
+from lfm_studio.engine.calibration import calibrate, fitted_design, grid_overlay
 from lfm_studio.engine.calibration.grid_fit import RESIDUAL
 from lfm_studio.engine.calibration.nominal import nominal_sub_images
 from lfm_studio.engine.calibration.sub_images import fit_sub_images
@@ -82,3 +82,18 @@ def test_a_displaced_sub_image_is_flagged():
     assert int(fit.flags[4]) & RESIDUAL
     assert int((fit.flags != 0).sum()) == 1
     assert float((fit.measured[4] - truth[4]).norm()) <= 0.2  # still measured where it is
+
+
+def test_overlay_draws_registered_and_measured_centres():
+    design = _small_flfm()
+    radiometry, dark, truth = fourier_frames(design, SHAPE, rotation_deg=-0.7, scale=0.998, seed=8)
+    calibration = calibrate(radiometry, design, dark=dark)
+    overlay = grid_overlay(calibration)
+    fit = calibration.sub_images
+    assert torch.allclose(overlay.measured, fit.measured)
+    assert float((overlay.measured - truth).norm(dim=1).max()) < 0.1
+    # The registered design centres lie within the residuals of the measured ones.
+    distances = (overlay.fitted - overlay.measured).norm(dim=1)
+    assert torch.allclose(distances, fit.residual, atol=1e-9)
+    assert float(distances.max()) < 1.5  # jitter 0.3 px rms per axis
+    assert overlay.flags == ((),) * 9
