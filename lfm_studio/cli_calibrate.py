@@ -2,7 +2,8 @@
 
 Measures the lenslet grid (conventional LFM) or the sub-image centres (Fourier LFM), the
 dark level, defective pixels and the flat field from a radiometry frame, and writes a
-versioned JSON calibration that reconstruction accepts beside a raw frame. A TIFF stack
+versioned JSON calibration that reconstruction accepts beside a raw frame (with ``--dark``,
+the dark frame is stored next to it as ``<out stem>.dark.npz``). A TIFF stack
 of several exposures is averaged into one frame. Register with :func:`add_calibrate_parser`.
 """
 
@@ -51,13 +52,16 @@ def _read_frame(option: str, path: str, pixel_size: float) -> torch.Tensor:
 def run_calibrate(args: argparse.Namespace) -> int:
     """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
     from lfm_studio.engine.calibration import calibrate, save_calibration
+    from lfm_studio.engine.calibration.calibration_io import dark_frame_path
     from lfm_studio.engine.design import resolve_design
 
     out = Path(args.out)
-    if out.exists() and not args.overwrite:
-        raise FileExistsError(
-            f"--out {out} already exists. Fix: pass --overwrite to replace it, or choose another name."
-        )
+    targets = (out, dark_frame_path(out)) if args.dark is not None else (out,)
+    for target in targets:
+        if target.exists() and not args.overwrite:
+            raise FileExistsError(
+                f"--out: {target} already exists. Fix: pass --overwrite to replace it, or choose another name."
+            )
     design = resolve_design(args.design)
     pixel = design.camera.pixel_pitch
     radiometry = _read_frame("--radiometry", args.radiometry, pixel)

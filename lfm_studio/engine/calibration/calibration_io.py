@@ -1,19 +1,26 @@
 """Calibration files: versioned JSON with the arrays embedded as lists.
 
-One self-contained UTF-8 file (``calib.json``): the format tag and version, a summary a
-person reads first, the fitted lattice or sub-image registration, the per-lenslet table
-(indices, measured centres, residuals, light, outlier flags), the flat-field envelope,
-the defective pixels, and the nominal design. Written atomically; an existing file is
-replaced only with ``overwrite=True``. Positions are stored to 1e-6 px.
+A UTF-8 JSON file (``calib.json``): the format tag and version, a summary a person reads
+first, the fitted lattice or sub-image registration, the per-lenslet table (indices,
+measured centres, residuals, light, outlier flags), the flat-field envelope, the defective
+pixels, and the nominal design. Positions are stored to 1e-6 px. When a dark frame was
+given, it is stored beside the JSON as ``calib.dark.npz`` (float32, compressed), named in
+the JSON with its SHA-256 so that a missing or different file is caught on loading. Both
+files are written atomically (the dark frame first); nothing is replaced unless
+``overwrite=True``.
 """
 
 from __future__ import annotations
 
+import errno
+import hashlib
+import io
 import json
 import os
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from lfm_studio import __version__
@@ -84,8 +91,13 @@ def _tensor(values: Any, dtype: torch.dtype, width: int | None = None) -> torch.
     return tensor
 
 
-def calibration_from_dict(doc: dict[str, Any], *, origin: str = "calibration") -> Calibration:
-    """Inverse of :func:`calibration_to_dict`; raises :class:`CalibrationFileError` naming ``origin``."""
+def calibration_from_dict(
+    doc: dict[str, Any], *, origin: str = "calibration", dark_frame: torch.Tensor | None = None
+) -> Calibration:
+    """Inverse of :func:`calibration_to_dict` (the dark frame, stored apart, is passed in).
+
+    Raises :class:`CalibrationFileError` naming ``origin``.
+    """
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise CalibrationFileError(
             f"{origin} is not an lfm_studio calibration (its 'format' is not {FORMAT!r}). "
@@ -135,6 +147,7 @@ def calibration_from_dict(doc: dict[str, Any], *, origin: str = "calibration") -
             block=None if block is None else tuple(int(v) for v in block),  # type: ignore[arg-type]
             grid=grid,
             sub_images=sub,
+            dark_frame=dark_frame,
             version=version,
         )
     except (KeyError, TypeError, ValueError) as exc:
@@ -143,12 +156,60 @@ def calibration_from_dict(doc: dict[str, Any], *, origin: str = "calibration") -
         ) from exc
 
 
+def dark_frame_path(path: str | os.PathLike[str]) -> Path:
+    """Where the dark frame of the calibration file ``path`` lives: ``calib.json`` -> ``calib.dark.npz``."""
+    target = Path(path).expanduser()
+    return target.with_name(f"{target.stem}.dark.npz")
+
+
+def _npz_bytes(frame: torch.Tensor) -> bytes:
+    buffer = io.BytesIO()
+    np.savez_compressed(buffer, dark=frame.detach().cpu().to(torch.float32).numpy())
+    return buffer.getvalue()
+
+
 def save_calibration(
     calibration: Calibration, path: str | os.PathLike[str], *, overwrite: bool = False
 ) -> Path:
-    """Write ``calibration`` to ``path`` (JSON) atomically; ``FileExistsError`` unless ``overwrite``."""
-    text = json.dumps(calibration_to_dict(calibration), indent=1) + "\n"  # serialise before touching the disk
-    return atomic_write(path, lambda fh: fh.write(text.encode("utf-8")), overwrite=overwrite)
+    """Write ``calibration`` to ``path`` (JSON, plus the dark frame beside it) atomically.
+
+    Raises ``FileExistsError`` before writing anything when ``path`` (or its dark-frame
+    file) exists and ``overwrite`` is False.
+    """
+    target = Path(path).expanduser()
+    doc = calibration_to_dict(calibration)
+    payload = None if calibration.dark_frame is None else _npz_bytes(calibration.dark_frame)
+    sidecar = dark_frame_path(target)
+    for existing in (target, sidecar) if payload is not None else (target,):
+        if existing.exists() and not overwrite:
+            raise FileExistsError(
+                errno.EEXIST,
+                f"{existing} already exists. Fix: pass overwrite=True (--overwrite) or choose another name",
+                str(existing),
+            )
+    if payload is not None:
+        doc["dark_frame"] = {"file": sidecar.name, "sha256": hashlib.sha256(payload).hexdigest()}
+        atomic_write(sidecar, lambda fh: fh.write(payload), overwrite=overwrite)
+    text = json.dumps(doc, indent=1) + "\n"
+    return atomic_write(target, lambda fh: fh.write(text.encode("utf-8")), overwrite=overwrite)
+
+
+def _load_dark(entry: Any, folder: Path, origin: str) -> torch.Tensor:
+    sidecar = folder / str(entry["file"])
+    try:
+        payload = sidecar.read_bytes()
+    except OSError as exc:
+        raise CalibrationFileError(
+            f"{origin} needs its dark frame {sidecar}, which cannot be read ({exc.strerror}). "
+            "Fix: keep the .dark.npz file next to the calibration .json, or calibrate again."
+        ) from exc
+    if hashlib.sha256(payload).hexdigest() != entry["sha256"]:
+        raise CalibrationFileError(
+            f"dark frame {sidecar} is not the one {origin} was written with (SHA-256 differs). "
+            "Fix: restore the matching .dark.npz, or calibrate again."
+        )
+    with np.load(io.BytesIO(payload)) as data:
+        return torch.from_numpy(data["dark"].copy())
 
 
 def load_calibration(path: str | os.PathLike[str]) -> Calibration:
@@ -161,4 +222,7 @@ def load_calibration(path: str | os.PathLike[str]) -> Calibration:
             f"{target} is not a JSON calibration file ({exc}). Fix: give the .json "
             "written by `lfm-studio calibrate`."
         ) from exc
-    return calibration_from_dict(doc, origin=str(target))
+    dark = None
+    if isinstance(doc, dict) and isinstance(doc.get("dark_frame"), dict):
+        dark = _load_dark(doc["dark_frame"], target.parent, str(target))
+    return calibration_from_dict(doc, origin=str(target), dark_frame=dark)

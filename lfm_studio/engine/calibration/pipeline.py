@@ -1,7 +1,8 @@
 """Calibrate an instrument from a radiometry (and dark) frame; correct and rectify its raw frames.
 
-``calibrate`` runs: input checks -> dark level -> defective pixels (hot in the dark and
-radiometry frames, dead in the radiometry frame) replaced by their 3 x 3 median ->
+``calibrate`` runs: input checks -> dark subtraction (the dark frame pixel by pixel, else the
+camera baseline) -> defective pixels (hot in the dark and radiometry frames, dead in the
+radiometry frame) replaced by their 3 x 3 median ->
 conventional LFM: Fourier lattice, centroid refinement, flat-field envelope, a second
 refinement on the flat-fielded frame (vignetting no longer pulls the centroids) ->
 Fourier LFM: sub-image centres registered to the design. ``rectify_frame`` applies a
@@ -50,7 +51,7 @@ def calibrate(
     check_frames(frame, dark_frame, design.camera)
     checkpoint(cancel, progress, 0, _STEPS, "defective pixels")
     dark_level = float(dark_frame.median()) if dark_frame is not None else design.camera.baseline_adu
-    lit = frame - dark_level
+    lit = frame - (dark_frame if dark_frame is not None else dark_level)
     bad = defect_pixels.hot_pixels(lit, relative=HOT_RELATIVE) | defect_pixels.dead_pixels(lit)
     if dark_frame is not None:
         bad |= defect_pixels.hot_pixels(dark_frame)
@@ -60,6 +61,7 @@ def calibrate(
         "frame_shape": shape,
         "design": design.model_dump(mode="json"),
         "dark_level": dark_level,
+        "dark_frame": None if dark_frame is None else dark_frame.to(torch.float32),
         "defects": torch.nonzero(bad),
     }
     if design.kind == "fourier":
@@ -99,7 +101,7 @@ def calibrate(
 
 
 def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
-    """``raw`` (Y, X) minus the dark level, defects replaced, divided by the flat-field envelope (float64)."""
+    """``raw`` (Y, X) minus the dark frame (or level), defects replaced, divided by the flat-field envelope (float64)."""
     frame = as_frame("raw frame", raw)
     if tuple(frame.shape) != tuple(calibration.frame_shape):
         raise ValueError(
@@ -110,7 +112,12 @@ def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
     mask = torch.zeros(frame.shape, dtype=torch.bool)
     if calibration.defects.numel():
         mask[calibration.defects[:, 0], calibration.defects[:, 1]] = True
-    image = defect_pixels.replace_defects(frame - calibration.dark_level, mask)
+    dark = (
+        calibration.dark_frame.to(torch.float64)
+        if calibration.dark_frame is not None
+        else calibration.dark_level
+    )
+    image = defect_pixels.replace_defects(frame - dark, mask)
     return image if calibration.envelope is None else flat_field(image, calibration.envelope)
 
 

@@ -23,14 +23,15 @@ class Calibration:
     kind : "conventional" or "fourier" (the design's kind).
     frame_shape : (Y, X) of the frames it was measured on, px.
     design : the nominal design, as its JSON dict.
-    dark_level : dark offset subtracted from raw frames, ADU (the dark frame's median, or
-        the design camera's baseline when no dark frame was given).
+    dark_level : dark offset, ADU: the dark frame's median, or the design camera's baseline
+        (then subtracted from raw frames) when no dark frame was given.
     defects : (K, 2) int64 (y, x) of hot and dead pixels (replaced by their 3 x 3 median).
     envelope : flat-field polynomial coefficients (see :mod:`.flat_field`), or None.
     pixels_per_lenslet : rectified pixels per lenslet (conventional; None for Fourier).
     block : (i0, ni, j0, nj) lenslet rows and columns rectified by default (conventional).
     grid : the lattice fit (conventional) or None.
     sub_images : the sub-image fit (Fourier) or None.
+    dark_frame : (Y, X) float32 dark frame subtracted pixel by pixel from raw frames, ADU, or None.
     version : :data:`CALIBRATION_VERSION`.
     """
 
@@ -44,6 +45,7 @@ class Calibration:
     block: tuple[int, int, int, int] | None
     grid: LatticeFit | None
     sub_images: SubImageFit | None
+    dark_frame: torch.Tensor | None = None
     version: int = CALIBRATION_VERSION
 
     def __post_init__(self) -> None:
@@ -52,6 +54,11 @@ class Calibration:
         if (self.kind == "conventional") != (self.grid is not None):
             raise ValueError(
                 "a conventional calibration has a lattice fit (grid) and a Fourier one has none."
+            )
+        if self.dark_frame is not None and tuple(self.dark_frame.shape) != tuple(self.frame_shape):
+            raise ValueError(
+                f"Calibration.dark_frame shape {tuple(self.dark_frame.shape)} differs from frame_shape "
+                f"{tuple(self.frame_shape)}."
             )
         if (self.kind == "fourier") != (self.sub_images is not None):
             raise ValueError("a Fourier calibration has a sub-image fit and a conventional one has none.")

@@ -43,6 +43,7 @@ def test_round_trip_keeps_every_measurement(tmp_path, calibrated):
     assert torch.equal(loaded.grid.flags, calibration.grid.flags)
     assert torch.allclose(loaded.grid.measured, calibration.grid.measured, atol=1e-6)
     assert torch.equal(loaded.defects, calibration.defects)
+    assert torch.equal(loaded.dark_frame, frames.dark.float())  # stored beside the JSON
     assert torch.allclose(loaded.envelope, calibration.envelope, rtol=1e-12)
     assert loaded.design == calibration.design
     # The loaded calibration rectifies a frame like the original one.
@@ -61,9 +62,18 @@ def test_no_overwrite_without_asking(tmp_path, calibrated):
     with pytest.raises(FileExistsError, match="already exists"):
         save_calibration(calibration, path)
     assert path.read_text() == "keep me"
+    path.unlink()
+    dark = tmp_path / "calib.dark.npz"
+    dark.write_text("keep me too")  # the dark-frame file is protected as well
+    with pytest.raises(FileExistsError, match=r"calib\.dark\.npz already exists"):
+        save_calibration(calibration, path)
+    assert not path.exists() and dark.read_text() == "keep me too"
     save_calibration(calibration, path, overwrite=True)
     assert load_calibration(path).kind == "conventional"
-    assert [p.name for p in tmp_path.iterdir()] == ["calib.json"]  # no temporary files left
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "calib.dark.npz",
+        "calib.json",
+    ]  # no temporary files
 
 
 def test_unreadable_files_name_the_problem(tmp_path, calibrated):
@@ -78,6 +88,12 @@ def test_unreadable_files_name_the_problem(tmp_path, calibrated):
     other.write_text(json.dumps({"schema_version": 1}))
     with pytest.raises(CalibrationFileError, match="not an lfm_studio calibration"):
         load_calibration(other)
+    (tmp_path / "calib.dark.npz").write_bytes(b"not the dark frame")
+    with pytest.raises(CalibrationFileError, match=r"calib.dark.npz is not the one .*SHA-256"):
+        load_calibration(path)
+    (tmp_path / "calib.dark.npz").unlink()
+    with pytest.raises(CalibrationFileError, match=r"needs its dark frame .*calib.dark.npz.*Fix"):
+        load_calibration(path)
     broken = tmp_path / "broken.json"
     broken.write_text(json.dumps({k: v for k, v in doc.items() if k != "lattice"} | {"lenslets": None}))
     with pytest.raises(CalibrationFileError):
