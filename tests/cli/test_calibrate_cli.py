@@ -59,6 +59,8 @@ def test_calibrate_writes_a_calibration_close_to_the_truth(files, tmp_path, caps
     printed = capsys.readouterr().out
     assert "lenslet pitch 15.3" in printed and f"wrote {out}" in printed
     calibration = load_calibration(out)
+    assert (tmp_path / "calib.dark.npz").is_file()  # the dark frame, beside the calibration
+    assert calibration.dark_frame.shape == SHAPE
     lattice = calibration.grid.lattice
     assert lattice.pitch == pytest.approx(files["truth"].pitch, abs=0.01)
     assert math.degrees(lattice.rotation) == pytest.approx(1.4, abs=0.02)

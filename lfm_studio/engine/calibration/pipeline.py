@@ -131,7 +131,11 @@ def rectify_frame(
     the calibration's lenslet block, or ``lenslets=(ny, nx)`` centred on the lenslet nearest
     the frame centre. Fourier LFM: corrected only; the measured sub-image centres enter
     through :func:`~lfm_studio.engine.calibration.fitted_design.fitted_design` instead.
+    A time series ``(T, Y, X)`` is rectified frame by frame into ``(T, ...)``.
     """
+    frames = torch.as_tensor(raw)
+    if frames.ndim == 3:
+        return torch.stack([rectify_frame(frame, calibration, lenslets=lenslets) for frame in frames])
     image = correct_frame(raw, calibration)
     if calibration.grid is None:
         return image

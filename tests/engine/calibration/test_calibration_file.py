@@ -118,4 +118,8 @@ def test_rectified_frame_matches_the_fitted_design(calibrated):
     system = conventional_system_of(fitted)
     image = rectify_frame(frames.radiometry, calibration, lenslets=(9, 11))
     assert image.shape == (9 * system.pixels_per_lenslet, 11 * system.pixels_per_lenslet)
+    series = rectify_frame(
+        torch.stack((frames.radiometry, 2 * frames.radiometry)), calibration, lenslets=(9, 11)
+    )
+    assert series.shape == (2, *image.shape) and torch.equal(series[0], image)
     assert re.search(r"rotation (0\.89\d\d|0\.90\d\d) deg", fitted.assumed[-1])
