@@ -14,7 +14,7 @@ MAX_PITCH_DEVIATION = 0.10
 
 
 def as_frame(name: str, frame: object) -> torch.Tensor:
-    """``frame`` (tensor or array, (Y, X)) as a finite float64 tensor, or a named ``ValueError``."""
+    """``frame`` (tensor or array, (Y, X)) as a finite float64 CPU tensor, or a named ``ValueError``."""
     data = torch.as_tensor(frame)
     if data.is_complex() or data.dtype == torch.bool:
         raise ValueError(f"{name} must be a real camera frame; got dtype {data.dtype}.")
@@ -23,7 +23,7 @@ def as_frame(name: str, frame: object) -> torch.Tensor:
             f"{name} must be one 2D camera frame (Y, X); got shape {tuple(data.shape)}. "
             "Fix: average a stack into one frame first (e.g. in Fiji: Image > Stacks > Z Project > Average)."
         )
-    data = data.to(torch.float64)
+    data = data.to(device="cpu", dtype=torch.float64)  # calibration runs on the CPU
     require_finite_tensor(name, data)
     return data
 

@@ -117,10 +117,7 @@ def refine_lattice(
             "Fix: use a larger frame or check the design's pitch and pixel size."
         )
     flags = torch.zeros(indices.shape[0], dtype=torch.int64)
-    centre_index = indices - torch.tensor(
-        [round(float(v)) for v in lattice.lattice_coordinates(torch.tensor(start.origin))]
-    )
-    central = (centre_index.abs() <= CENTRAL_LENSLETS).all(dim=1)
+    central = (indices.abs() <= CENTRAL_LENSLETS).all(dim=1)  # around lenslet (0, 0), the origin
     for subset in (central, torch.ones_like(central)):
         spots = measure_centroids(image, lattice.centres(indices), radius=radius, background=background)
         flags = torch.where(disk_leaves_frame(spots.centres, image.shape, reach), EDGE, 0)
