@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.systems.from_design import conventional_system_of
 
 
 @dataclass(frozen=True)
@@ -23,7 +24,8 @@ class NominalGrid:
     ----------
     pitch : lenslet pitch on the sensor, px (``pitch_um / pixel_pitch_um``).
     disk_diameter : diameter of the back-aperture disk behind each lenslet, px (at most the pitch).
-    pixels_per_lenslet : odd rectified pixels per lenslet (the pitch rounded to the nearest odd integer).
+    pixels_per_lenslet : odd rectified pixels per lenslet, as the design's projector uses (the pitch
+        rounded to the nearest odd integer).
     """
 
     pitch: float
@@ -45,8 +47,8 @@ class NominalSubImages:
     diameter: float
 
 
-def nominal_grid(design: Design, frame_shape: tuple[int, int] | None = None) -> NominalGrid:
-    """The lenslet grid a conventional ``design`` predicts (``frame_shape`` is unused, for symmetry)."""
+def nominal_grid(design: Design) -> NominalGrid:
+    """The lenslet grid a conventional ``design`` predicts on its camera."""
     if design.kind != "conventional":
         raise ValueError(f"nominal_grid needs a conventional design; got kind {design.kind!r}.")
     pitch_um = getattr(design.mla, "pitch_um", None)
@@ -58,7 +60,7 @@ def nominal_grid(design: Design, frame_shape: tuple[int, int] | None = None) -> 
     pitch = pitch_um / design.camera.pixel_pitch_um
     radius = design.sub_image_radius or 0.5 * pitch_um * 1e-6
     disk = min(2.0 * radius / design.camera.pixel_pitch, pitch)
-    odd = max(1, 2 * round((pitch - 1) / 2) + 1)
+    odd = conventional_system_of(design, lenslets=(1, 1)).pixels_per_lenslet  # the projector's own choice
     return NominalGrid(pitch=pitch, disk_diameter=disk, pixels_per_lenslet=odd)
 
 
