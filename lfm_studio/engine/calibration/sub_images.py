@@ -78,14 +78,16 @@ def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background
     radius = min(0.5 * nominal.diameter + 2.0, 0.5 * min_spacing(nominal.centres))
     measured, light = [], []
     lit = (image.to(torch.float64) - background).clamp_min(0.0)
+    reach = math.ceil(radius) + 8  # the window may wander a few pixels while it converges
     for centre in nominal.centres:
         cy, cx = (round(float(v)) for v in centre)
-        r = math.ceil(radius) + 2
-        window = lit[max(cy - r, 0) : cy + r + 1, max(cx - r, 0) : cx + r + 1]
-        peak = float(torch.quantile(window.reshape(-1)[:: max(1, window.numel() // 200_000)], 0.95))
-        ramp = ((lit - 0.5 * peak) / (0.25 * peak) + 0.5).clamp(0.0, 1.0) if peak > 0 else lit * 0
-        spot = measure_centroids(ramp, centre[None], radius=radius, iterations=ITERATIONS)
-        measured.append(spot.centres[0])
+        y0, x0 = max(cy - reach, 0), max(cx - reach, 0)
+        crop = lit[y0 : cy + reach + 1, x0 : cx + reach + 1]
+        peak = float(torch.quantile(crop.reshape(-1)[:: max(1, crop.numel() // 200_000)], 0.95))
+        ramp = ((crop - 0.5 * peak) / (0.25 * peak) + 0.5).clamp(0.0, 1.0) if peak > 0 else crop * 0
+        corner = torch.tensor([y0, x0], dtype=torch.float64)
+        spot = measure_centroids(ramp, centre[None] - corner, radius=radius, iterations=ITERATIONS)
+        measured.append(spot.centres[0] + corner)
         light.append(float(spot.mass[0]) * peak)
     measured_t = torch.stack(measured)
     light_t = torch.tensor(light, dtype=torch.float64)
