@@ -16,7 +16,7 @@ import torch
 from lfm_studio.engine.calibration import defects as defect_pixels
 from lfm_studio.engine.calibration.checks import as_frame, check_frames, check_pitch
 from lfm_studio.engine.calibration.flat_field import fit_envelope, flat_field
-from lfm_studio.engine.calibration.grid_fit import refine_lattice
+from lfm_studio.engine.calibration.grid_fit import DIM, LatticeFit, refine_lattice
 from lfm_studio.engine.calibration.grid_fourier import fourier_lattice
 from lfm_studio.engine.calibration.nominal import nominal_grid, nominal_sub_images
 from lfm_studio.engine.calibration.record import Calibration
@@ -93,11 +93,20 @@ def calibrate(
         kind="conventional",
         envelope=envelope,
         pixels_per_lenslet=nominal.pixels_per_lenslet,
-        block=lenslet_block(grid.lattice, shape),
+        block=lenslet_block(grid.lattice, shape, lit=_lit(grid)),
         grid=grid,
         sub_images=None,
         **common,
     )
+
+
+def _lit(grid: LatticeFit) -> set[tuple[int, int]]:
+    """Indices of the lenslets that are not dim (the field of view; dust specks count as lit)."""
+    return {
+        tuple(ij)
+        for ij, flag in zip(grid.indices.tolist(), grid.flags.tolist(), strict=True)
+        if not flag & DIM
+    }
 
 
 def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:

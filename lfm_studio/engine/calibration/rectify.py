@@ -50,14 +50,19 @@ def resample_rows(rows: torch.Tensor, start: torch.Tensor, step: float, count: i
 
 
 def lenslet_block(
-    lattice: LensletLattice, shape: tuple[int, int], lenslets: tuple[int, int] | None = None
+    lattice: LensletLattice,
+    shape: tuple[int, int],
+    lenslets: tuple[int, int] | None = None,
+    *,
+    lit: set[tuple[int, int]] | None = None,
 ) -> tuple[int, int, int, int]:
     """Rows and columns of lenslets ``(i0, ni, j0, nj)`` to rectify.
 
     ``lenslets=(ny, nx)`` asks for a block centred on lenslet ``(0, 0)`` (rows
     ``-(ny // 2) .. ny - 1 - ny // 2``); without it, the largest block around ``(0, 0)``
-    whose cells all lie inside the frame. Raises ``ValueError`` when the asked block leaves
-    the frame.
+    whose cells all lie inside the frame and, when ``lit`` (a set of lit lenslet indices) is
+    given, each of whose outer rows and columns is at least half lit (a circular field stop
+    leaves the frame's corners dark). Raises ``ValueError`` when the asked block leaves the frame.
     """
     inside = {tuple(ij) for ij in lattice.indices_inside(shape, margin=0.5).tolist()}
 
@@ -84,7 +89,14 @@ def lenslet_block(
         grown = False
         for di0, di1, dj0, dj1 in ((-1, 0, 0, 0), (0, 1, 0, 0), (0, 0, -1, 0), (0, 0, 0, 1)):
             candidate = (i0 + di0, i1 + di1, j0 + dj0, j1 + dj1)
-            if fits(
+            if di0 or di1:  # the new row
+                row = candidate[0] if di0 else candidate[1]
+                edge = [(row, j) for j in range(candidate[2], candidate[3] + 1)]
+            else:
+                column = candidate[2] if dj0 else candidate[3]
+                edge = [(i, column) for i in range(candidate[0], candidate[1] + 1)]
+            bright = lit is None or 2 * sum(cell in lit for cell in edge) >= len(edge)
+            if bright and fits(
                 candidate[0], candidate[1] - candidate[0] + 1, candidate[2], candidate[3] - candidate[2] + 1
             ):
                 i0, i1, j0, j1 = candidate

@@ -104,7 +104,8 @@ def test_calibrated_misaligned_frame_reconstructs_like_the_aligned_one(_one_thre
     assert fitted.pitch == pytest.approx(lattice.pitch, abs=0.01)
     assert math.degrees(fitted.rotation) == pytest.approx(1.5, abs=0.02)
 
-    rectified = rectify_frame(raw, calibration, lenslets=(LENSLETS, LENSLETS))
+    assert calibration.block == block  # the default block: the lit lenslets, not the dark rim around them
+    rectified = rectify_frame(raw, calibration)
     assert rectified.shape == image.shape
     calibrated_score = _correlation(reconstruct_frame(projector, rectified.float().clamp_min(0.0)), truth)
 

@@ -107,3 +107,17 @@ def test_unrectify_conserves_light_and_round_trips_smooth_images():
     back = rectify(raw, lattice, n, block)[n:-n, n:-n]  # the block's rim mixes with the dark outside
     inner = smooth[n:-n, n:-n]
     assert float((back - inner).norm() / inner.norm()) < 0.01
+
+
+def test_default_block_stays_in_the_lit_field():
+    """A circular field of view: the block grows only while its new outer row / column is half lit."""
+    lattice = LensletLattice.from_geometry((15.0, 15.0), 0.0, (150.0, 150.0))
+    lit = {(i, j) for i in range(-10, 11) for j in range(-10, 11) if i * i + j * j <= 25}
+    i0, ni, j0, nj = lenslet_block(lattice, (300, 300), lit=lit)
+    full = lenslet_block(lattice, (300, 300))
+    assert ni * nj < full[1] * full[3]
+    for row in (i0, i0 + ni - 1):
+        assert 2 * sum((row, j) in lit for j in range(j0, j0 + nj)) >= nj
+    for column in (j0, j0 + nj - 1):
+        assert 2 * sum((i, column) in lit for i in range(i0, i0 + ni)) >= ni
+    assert i0 <= -3 and i0 + ni - 1 >= 3 and j0 <= -3 and j0 + nj - 1 >= 3  # the 7 x 7 core is lit
