@@ -7,10 +7,9 @@
   frame shows them best; in the radiometry frame, where shot noise grows with the light,
   only pixels also ``relative`` (0.25) above their brightest neighbour count.
 - A *dead* pixel of a radiometry frame reads below ``DEAD_FRACTION`` of the darkest of its
-  8 neighbours while that neighbour is bright: a
-  pixel inside a lit lenslet disk that does not respond ("bright": over half the frame's
-  ``LIT_QUANTILE`` quantile, a typical lit pixel; hot pixels do not move it). The unlit gaps between disks
-  always have a dark neighbour.
+  8 neighbours while that neighbour is bright (over half the frame's ``LIT_QUANTILE``
+  quantile, a typical lit pixel that hot pixels do not move): a pixel inside a lit lenslet
+  disk that does not respond. The unlit gaps between disks always have a dark neighbour.
 - Defects are replaced by the median of their non-defective 3 x 3 neighbours.
 """
 

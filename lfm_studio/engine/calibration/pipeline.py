@@ -51,7 +51,7 @@ def calibrate(
     check_frames(frame, dark_frame, design.camera)
     checkpoint(cancel, progress, 0, _STEPS, "defective pixels")
     dark_level = float(dark_frame.median()) if dark_frame is not None else design.camera.baseline_adu
-    lit = frame - (dark_frame if dark_frame is not None else dark_level)
+    lit = defect_pixels.subtract_dark(frame, dark_frame if dark_frame is not None else dark_level)
     bad = defect_pixels.hot_pixels(lit, relative=HOT_RELATIVE) | defect_pixels.dead_pixels(lit)
     if dark_frame is not None:
         bad |= defect_pixels.hot_pixels(dark_frame)
@@ -126,7 +126,7 @@ def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
         if calibration.dark_frame is not None
         else calibration.dark_level
     )
-    image = defect_pixels.replace_defects(frame - dark, mask)
+    image = defect_pixels.replace_defects(defect_pixels.subtract_dark(frame, dark), mask)
     return image if calibration.envelope is None else flat_field(image, calibration.envelope)
 
 
