@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 from lfm_studio import __version__
 from lfm_studio.cli_bench import add_bench_parser
+from lfm_studio.cli_calibrate import add_calibrate_parser
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_metrics import add_metrics_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
@@ -44,6 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_metrics_parser(sub)
     add_bench_parser(sub)
     add_resolution_parser(sub)
+    add_calibrate_parser(sub)
     return parser
 
 

@@ -1,0 +1,87 @@
+"""``lfm-studio calibrate --radiometry R.tif [--dark D.tif] --design DESIGN --out calib.json``.
+
+Measures the lenslet grid (conventional LFM) or the sub-image centres (Fourier LFM), the
+dark level, defective pixels and the flat field from a radiometry frame, and writes a
+versioned JSON calibration that reconstruction accepts beside a raw frame (with ``--dark``,
+the dark frame is stored next to it as ``<out stem>.dark.npz``). A TIFF stack
+of several exposures is averaged into one frame. Register with :func:`add_calibrate_parser`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import torch
+
+from lfm_studio.cli_progress import progress_bar
+
+
+def add_calibrate_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
+    """Add the ``calibrate`` sub-command to ``subparsers``; returns it."""
+    parser = subparsers.add_parser(
+        "calibrate",
+        help="measure the lenslet grid, dark level, hot pixels and flat field from a radiometry frame",
+        description=(
+            "Calibrate a light-field microscope from a radiometry frame (a uniform fluorescent slide "
+            "imaged through the MLA) and an optional dark frame; writes a JSON calibration."
+        ),
+    )
+    parser.add_argument("--radiometry", required=True, help="radiometry frame (TIFF; a stack is averaged)")
+    parser.add_argument("--dark", default=None, help="dark frame, same exposure, light blocked (TIFF)")
+    parser.add_argument(
+        "--design", required=True, help="preset name or .json design file (the nominal optics)"
+    )
+    parser.add_argument("--out", required=True, help="calibration file to write (.json)")
+    parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
+    parser.set_defaults(handler=run_calibrate)
+    return parser
+
+
+def _read_frame(option: str, path: str, pixel_size: float) -> torch.Tensor:
+    """One frame from a TIFF (a (T, Y, X) stack is averaged), float64; errors name the option."""
+    from lfm_studio.engine.io import read_image
+
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{option} {path}: no such file. Fix: give the path to a TIFF frame.")
+    data = read_image(path, pixel_size=pixel_size, dtype=torch.float64).data
+    return data.mean(dim=0) if data.ndim == 3 else data
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
+    from lfm_studio.engine.calibration import calibrate, save_calibration
+    from lfm_studio.engine.calibration.calibration_io import dark_frame_path
+    from lfm_studio.engine.design import resolve_design
+
+    out = Path(args.out)
+    targets = (out, dark_frame_path(out)) if args.dark is not None else (out,)
+    for target in targets:
+        if target.exists() and not args.overwrite:
+            raise FileExistsError(
+                f"--out: {target} already exists. Fix: pass --overwrite to replace it, or choose another name."
+            )
+    design = resolve_design(args.design)
+    pixel = design.camera.pixel_pitch
+    radiometry = _read_frame("--radiometry", args.radiometry, pixel)
+    dark = None if args.dark is None else _read_frame("--dark", args.dark, pixel)
+    with progress_bar(f"calibration ({design.kind})") as progress:
+        calibration = calibrate(radiometry, design, dark=dark, progress=progress)
+    save_calibration(calibration, out, overwrite=args.overwrite)
+    summary = calibration.summary()
+    if calibration.grid is not None:
+        py, px = summary["pitch_yx_px"]
+        print(
+            f"lenslet pitch {py:.4f} x {px:.4f} px, rotation {summary['rotation_deg']:.4f} deg, "
+            f"{summary['lenslets']} lenslets ({summary['flagged']} flagged), "
+            f"RMS residual {summary['rms_residual_px']:.4f} px"
+        )
+    else:
+        print(
+            f"{summary['sub_images']} sub-images ({summary['flagged']} flagged), scale {summary['scale']:.5f}, "
+            f"rotation {summary['rotation_deg']:.4f} deg, RMS residual {summary['rms_residual_px']:.4f} px"
+        )
+    level = calibration.dark_level
+    print(f"dark level {level:.6g} ADU, {summary['defect_pixels']} defective pixels; wrote {out}")
+    return 0 if math.isfinite(level) else 2

@@ -1,0 +1,99 @@
+"""A design fitted to a calibration: the nominal optics with the measured MLA geometry.
+
+- Conventional LFM: the MLA pitch becomes the measured pitch (the mean of the two axes,
+  in micrometres on the sensor) and ``offset_um`` the measured lattice offset from the
+  optical axis, taken at the sensor's centre pixel ``(Y // 2, X // 2)``; the camera gets
+  the calibrated frame's pixel count. The rotation (and any per-axis difference) is
+  removed by rectification and recorded in ``assumed``.
+- Fourier LFM: each lenslet centre becomes its measured sub-image centre (the chief ray
+  of an on-axis point crosses the sensor at the lenslet centre). Touching apertures that the
+  measurement puts a little closer are reduced just enough not to overlap (noted in ``assumed``).
+"""
+
+from __future__ import annotations
+
+import math
+
+from lfm_studio.engine.calibration.record import Calibration
+from lfm_studio.engine.design import Design, LensletSpec, MLASpec
+from lfm_studio.engine.design.lenslet import overlap_depth_um
+
+
+def _axis(calibration: Calibration) -> tuple[float, float]:
+    ny, nx = calibration.frame_shape
+    return float(ny // 2), float(nx // 2)
+
+
+def _moved(
+    lenslets: tuple[LensletSpec, ...], centres: list[tuple[float, float]], shrink: float
+) -> tuple[LensletSpec, ...]:
+    """``lenslets`` at new ``centres`` (x, y) um, apertures ``shrink`` um smaller."""
+    return tuple(
+        LensletSpec(
+            center_um=centre,
+            aperture_diameter_um=lens.aperture_diameter_um - shrink,
+            focal_length_mm=lens.focal_length_mm,
+            shape=lens.shape,
+        )
+        for lens, centre in zip(lenslets, centres, strict=True)
+    )
+
+
+def nominal_design(calibration: Calibration) -> Design:
+    """The nominal design the calibration was made with (stored in it)."""
+    return Design.model_validate(calibration.design)
+
+
+def fitted_design(design: Design | None, calibration: Calibration) -> Design:
+    """``design`` (default: the calibration's nominal one) with the MLA geometry measured by ``calibration``."""
+    design = nominal_design(calibration) if design is None else design
+    if design.kind != calibration.kind:
+        raise ValueError(
+            f"the design is a {design.kind} LFM but the calibration was made for a {calibration.kind} one. "
+            "Fix: use the design the calibration was made with."
+        )
+    pixel_um = design.camera.pixel_pitch_um
+    axis_y, axis_x = _axis(calibration)
+    camera = design.camera.model_copy(update={"pixel_count": tuple(calibration.frame_shape)})
+    camera = type(design.camera).model_validate(camera.model_dump())
+    if calibration.grid is not None:
+        lattice = calibration.grid.lattice
+        pitch_px = math.sqrt(lattice.pitch[0] * lattice.pitch[1])
+        oy, ox = lattice.origin
+        shape = design.mla.shape
+        half = [0.5 if n % 2 == 0 else 0.0 for n in shape]  # an even array is centred between sites
+        offset_y = (
+            oy + half[0] * lattice.row_vector[0] + half[1] * lattice.col_vector[0] - axis_y
+        ) * pixel_um
+        offset_x = (
+            ox + half[0] * lattice.row_vector[1] + half[1] * lattice.col_vector[1] - axis_x
+        ) * pixel_um
+        mla = design.mla.model_copy(
+            update={"pitch_um": pitch_px * pixel_um, "offset_um": (offset_x, offset_y)}
+        )
+        mla = type(design.mla).model_validate(mla.model_dump())
+        note = (
+            f"calibrated: lattice pitch {lattice.pitch[0]:.4f} x {lattice.pitch[1]:.4f} px, rotation "
+            f"{math.degrees(lattice.rotation):.4f} deg (removed by rectification), origin "
+            f"({oy:.3f}, {ox:.3f}) px."
+        )
+    else:
+        fit = calibration.sub_images
+        if fit is None:  # excluded by Calibration.__post_init__
+            raise ValueError("a Fourier calibration needs its sub-image fit.")
+        centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in fit.measured.tolist()]
+        lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
+        shrink = max(
+            (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
+        )
+        if shrink > 0:  # touching apertures measured a little closer: keep them touching
+            lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
+        mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+        note = (
+            f"calibrated: {len(lenslets)} lenslet centres from their measured sub-images (similarity to the "
+            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)"
+            + (f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else ".")
+        )
+    return design.updated(
+        name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)
+    )

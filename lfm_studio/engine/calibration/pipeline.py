@@ -1,0 +1,157 @@
+"""Calibrate an instrument from a radiometry (and dark) frame; correct and rectify its raw frames.
+
+``calibrate`` runs: input checks -> dark subtraction (the dark frame pixel by pixel, else the
+camera baseline) -> defective pixels (hot in the dark and radiometry frames, dead in the
+radiometry frame) replaced by their 3 x 3 median ->
+conventional LFM: Fourier lattice, centroid refinement, flat-field envelope, a second
+refinement on the flat-fielded frame (vignetting no longer pulls the centroids) ->
+Fourier LFM: sub-image centres registered to the design. ``rectify_frame`` applies a
+calibration to a raw frame so that the design's projector can reconstruct it.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from lfm_studio.engine.calibration import defects as defect_pixels
+from lfm_studio.engine.calibration.checks import as_frame, check_frames, check_pitch
+from lfm_studio.engine.calibration.flat_field import fit_envelope, flat_field
+from lfm_studio.engine.calibration.grid_fit import DIM, LatticeFit, refine_lattice
+from lfm_studio.engine.calibration.grid_fourier import fourier_lattice
+from lfm_studio.engine.calibration.nominal import nominal_grid, nominal_sub_images
+from lfm_studio.engine.calibration.record import Calibration
+from lfm_studio.engine.calibration.rectify import lenslet_block, rectify
+from lfm_studio.engine.calibration.sub_images import fit_sub_images
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+
+_STEPS = 5
+HOT_RELATIVE = 0.25  # radiometry: a hot pixel is 25 % above its brightest neighbour
+
+
+def calibrate(
+    radiometry: object,
+    design: Design,
+    *,
+    dark: object | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> Calibration:
+    """Measure the lenslet grid (or sub-image centres) and the corrections of an instrument.
+
+    Parameters
+    ----------
+    radiometry : (Y, X) frame of a uniform fluorescent slide, ADU (tensor or array).
+    design : the nominal design (conventional: regular MLA; Fourier: any lenslet list).
+    dark : optional (Y, X) frame with the light blocked, same exposure, ADU.
+    progress, cancel : see :mod:`lfm_studio.engine.progress`.
+    """
+    frame = as_frame("radiometry", radiometry)
+    dark_frame = None if dark is None else as_frame("dark", dark)
+    check_frames(frame, dark_frame, design.camera)
+    checkpoint(cancel, progress, 0, _STEPS, "defective pixels")
+    dark_level = float(dark_frame.median()) if dark_frame is not None else design.camera.baseline_adu
+    lit = defect_pixels.subtract_dark(frame, dark_frame if dark_frame is not None else dark_level)
+    bad = defect_pixels.hot_pixels(lit, relative=HOT_RELATIVE) | defect_pixels.dead_pixels(lit)
+    if dark_frame is not None:
+        bad |= defect_pixels.hot_pixels(dark_frame)
+    image = defect_pixels.replace_defects(lit, bad)
+    shape = (int(frame.shape[0]), int(frame.shape[1]))
+    common = {
+        "frame_shape": shape,
+        "design": design.model_dump(mode="json"),
+        "dark_level": dark_level,
+        "dark_frame": None if dark_frame is None else dark_frame.to(torch.float32),
+        "defects": torch.nonzero(bad),
+    }
+    if design.kind == "fourier":
+        checkpoint(cancel, progress, 1, _STEPS, "sub-image centres")
+        fit = fit_sub_images(image, nominal_sub_images(design, shape))
+        checkpoint(cancel, progress, _STEPS, _STEPS, "done")
+        return Calibration(
+            kind="fourier",
+            envelope=None,
+            pixels_per_lenslet=None,
+            block=None,
+            grid=None,
+            sub_images=fit,
+            **common,
+        )
+    nominal = nominal_grid(design)
+    checkpoint(cancel, progress, 1, _STEPS, "lattice from Fourier peaks")
+    coarse = fourier_lattice(image, nominal.pitch)
+    check_pitch(coarse.pitch, nominal.pitch)
+    checkpoint(cancel, progress, 2, _STEPS, "lenslet centroids")
+    grid = refine_lattice(image, coarse, disk_diameter=nominal.disk_diameter)
+    checkpoint(cancel, progress, 3, _STEPS, "flat field")
+    envelope = fit_envelope(grid.measured[grid.used], grid.mass[grid.used], shape)
+    checkpoint(cancel, progress, 4, _STEPS, "lenslet centroids (flat fielded)")
+    grid = refine_lattice(flat_field(image, envelope), grid.lattice, disk_diameter=nominal.disk_diameter)
+    check_pitch(grid.lattice.pitch, nominal.pitch)
+    checkpoint(cancel, progress, _STEPS, _STEPS, "done")
+    return Calibration(
+        kind="conventional",
+        envelope=envelope,
+        pixels_per_lenslet=nominal.pixels_per_lenslet,
+        block=lenslet_block(grid.lattice, shape, lit=_lit(grid)),
+        grid=grid,
+        sub_images=None,
+        **common,
+    )
+
+
+def _lit(grid: LatticeFit) -> set[tuple[int, int]]:
+    """Indices of the lenslets that are not dim (the field of view; dust specks count as lit)."""
+    return {
+        tuple(ij)
+        for ij, flag in zip(grid.indices.tolist(), grid.flags.tolist(), strict=True)
+        if not flag & DIM
+    }
+
+
+def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
+    """``raw`` (Y, X) minus the dark frame (or level), defects replaced, divided by the flat-field envelope (float64)."""
+    frame = as_frame("raw frame", raw)
+    if tuple(frame.shape) != tuple(calibration.frame_shape):
+        raise ValueError(
+            f"raw frame shape {tuple(frame.shape)} differs from the calibration's frame shape "
+            f"{tuple(calibration.frame_shape)}. Fix: record the raw frame with the same camera region (ROI) "
+            "and binning as the radiometry frame, or calibrate again."
+        )
+    mask = torch.zeros(frame.shape, dtype=torch.bool)
+    if calibration.defects.numel():
+        mask[calibration.defects[:, 0], calibration.defects[:, 1]] = True
+    dark = (
+        calibration.dark_frame.to(torch.float64)
+        if calibration.dark_frame is not None
+        else calibration.dark_level
+    )
+    image = defect_pixels.replace_defects(defect_pixels.subtract_dark(frame, dark), mask)
+    return image if calibration.envelope is None else flat_field(image, calibration.envelope)
+
+
+def rectify_frame(
+    raw: object, calibration: Calibration, *, lenslets: tuple[int, int] | None = None
+) -> torch.Tensor:
+    """A raw camera frame ready for the design's projector.
+
+    Conventional LFM: corrected (:func:`correct_frame`) and resampled onto
+    ``pixels_per_lenslet`` pixels per lenslet (:mod:`.rectify`), shape ``(ni n, nj n)``:
+    the calibration's lenslet block, or ``lenslets=(ny, nx)`` centred on the lenslet nearest
+    the frame centre. Fourier LFM: corrected only; the measured sub-image centres enter
+    through :func:`~lfm_studio.engine.calibration.fitted_design.fitted_design` instead.
+    A time series ``(T, Y, X)`` is rectified frame by frame into ``(T, ...)``.
+    """
+    frames = torch.as_tensor(raw)
+    if frames.ndim == 3:
+        return torch.stack([rectify_frame(frame, calibration, lenslets=lenslets) for frame in frames])
+    image = correct_frame(raw, calibration)
+    if calibration.grid is None:
+        return image
+    lattice = calibration.grid.lattice
+    block = (
+        calibration.block if lenslets is None else lenslet_block(lattice, calibration.frame_shape, lenslets)
+    )
+    if block is None or calibration.pixels_per_lenslet is None:
+        raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
+    return rectify(image, lattice, calibration.pixels_per_lenslet, block)
