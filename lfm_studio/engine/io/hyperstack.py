@@ -20,6 +20,7 @@ import torch
 
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.io.calibration import Calibration, read_calibration
+from lfm_studio.engine.io.file_checks import InputFileError, output_os_error
 from lfm_studio.engine.io.metadata import HeaderError
 from lfm_studio.engine.units import um
 
@@ -87,7 +88,12 @@ def write_hyperstack(
     def write(fh) -> None:
         tifffile.imwrite(fh, array, imagej=True, resolution=resolution, metadata=metadata)
 
-    return atomic_write(path, write, overwrite=overwrite)
+    try:
+        return atomic_write(path, write, overwrite=overwrite)
+    except (FileExistsError, IsADirectoryError, FileNotFoundError):
+        raise
+    except OSError as error:  # read-only folder, full disk: atomic_write left nothing behind
+        raise output_os_error(Path(path).expanduser(), error) from error
 
 
 @dataclass(frozen=True)
@@ -105,15 +111,32 @@ def read_hyperstack(path: str | os.PathLike) -> RawTiff:
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(f"No such TIFF file: {source}")
-    with tifffile.TiffFile(source) as tif:
-        series = tif.series[0]
-        array = series.asarray()
-        info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
-        return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
+    try:
+        with tifffile.TiffFile(source) as tif:
+            if not tif.series:
+                raise InputFileError(f"{source} holds no image data. Fix: check that it is the right file.")
+            series = tif.series[0]
+            array = series.asarray()
+            info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
+            return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
+    except (tifffile.TiffFileError, ValueError, OSError, EOFError, IndexError) as error:
+        if isinstance(error, (InputFileError, HeaderError)):
+            raise
+        raise InputFileError(
+            f"{source} is truncated or corrupt, or not a TIFF ({type(error).__name__}: {error}). "
+            "Fix: write or copy the file again (an interrupted copy leaves a truncated file)."
+        ) from error
 
 
-def to_tensor(array: np.ndarray, dtype: torch.dtype, device: torch.device | str | None) -> torch.Tensor:
-    """numpy -> real floating tensor of ``dtype`` on ``device``."""
+def to_tensor(
+    array: np.ndarray, dtype: torch.dtype, device: torch.device | str | None, *, name: str = "the TIFF"
+) -> torch.Tensor:
+    """numpy -> real floating tensor of ``dtype`` on ``device``; complex data (``name`` is the file) is refused."""
+    if np.iscomplexobj(array):
+        raise InputFileError(
+            f"{name} holds complex data ({array.dtype}); images, volumes and PSF stacks are real intensities "
+            "(the real part alone would be a silently wrong result). Fix: save the intensity |x|^2."
+        )
     if not dtype.is_floating_point:
         raise TypeError(f"dtype must be a real floating torch dtype (float32, float64); got {dtype}.")
     numpy_type = np.float64 if dtype == torch.float64 else np.float32
