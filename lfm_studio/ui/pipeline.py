@@ -236,11 +236,15 @@ def reconstruction_available() -> bool:
 
 
 def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
-    """Camera counts (ADU) back to photo-electrons: baseline removed, divided by the gain, >= 0."""
+    """Camera counts (ADU) back to photons, ``max(ADU - baseline, 0) / gain / QE`` (the engine's
+    :func:`~lfm_studio.engine.io.counts_to_photons`, as in ``lfm-studio reconstruct``)."""
+    from lfm_studio.engine.io import CameraCalibration, counts_to_photons
+
     camera = design.camera
-    if image.info.get("photons") is None:
+    if image.info.get("photons") is None:  # noise-free: already photons
         return image.counts.clamp_min(0.0)
-    return ((image.counts - camera.baseline_adu) / camera.gain_adu_per_e).clamp_min(0.0)
+    calibration = CameraCalibration(camera.baseline_adu, camera.gain_adu_per_e, camera.quantum_efficiency)
+    return counts_to_photons(image.counts, calibration, name="the simulated image")
 
 
 def reconstruct(
@@ -248,7 +252,11 @@ def reconstruct(
 ) -> ReconstructionResult:
     """Accelerated Richardson-Lucy (accelerated_rl_options) of the image; PSNR per iteration and final PSNR/SSIM."""
     from lfm_studio.engine.metrics import compare, match_scale, psnr
-    from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy_iterates
+    from lfm_studio.engine.reconstruct import (
+        accelerated_rl_options,
+        check_reconstruction,
+        richardson_lucy_iterates,
+    )
 
     projector = image.setup.projector
     counts = photon_counts(image, design)
@@ -268,6 +276,7 @@ def reconstruct(
         ctx.partial((tuple(psnrs), tuple(changes)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
+    check_reconstruction(estimate)  # all zero, constant or NaN/Inf: an error, not a result
     report = compare(truth, estimate, normalize="scale")
     return ReconstructionResult(
         estimate,
