@@ -134,6 +134,9 @@ def estimate_baseline(frames: torch.Tensor, percentile: float = BASELINE_PERCENT
     which is why the caller warns and names the option that sets it.
     """
     values = frames.detach().reshape(-1).double()
+    values = values[torch.isfinite(values)]  # NaN/Inf pixels are refused later, by name
+    if values.numel() == 0:
+        return 0.0
     if values.numel() > 1 << 22:  # a regular subsample is enough for a percentile
         values = values[:: values.numel() // (1 << 22) + 1]
     return max(float(torch.quantile(values, percentile / 100.0)), 0.0)
