@@ -28,10 +28,11 @@ def allow_negative_values(parser: argparse.ArgumentParser) -> argparse.ArgumentP
 
     argparse reads a token that starts with '-' as an option unless it looks like a
     negative number; a range such as ``-40:40:10`` does not, so argparse said "expected
-    one argument". This widens "looks like a negative number" to numbers and ranges
-    (no option of ours starts with a digit, so nothing else changes).
+    one argument". This widens argparse's (private, but stable since Python 2.7) "looks
+    like a negative number" pattern to numbers and ranges; no option of ours starts with a
+    digit, so nothing else changes. tests/cli/test_range_options.py guards it.
     """
-    parser._negative_number_matcher = NEGATIVE_VALUE  # the hook argparse provides for this
+    parser._negative_number_matcher = NEGATIVE_VALUE
     return parser
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -106,26 +107,37 @@ class RawTiff:
     calibration: Calibration
 
 
+_UNREADABLE = (tifffile.TiffFileError, ValueError, OSError, EOFError, IndexError, struct.error)
+
+
+def _unreadable(source: Path, error: BaseException) -> InputFileError:
+    return InputFileError(
+        f"{source} is truncated or corrupt, or not a TIFF ({type(error).__name__}: {error}). "
+        "Fix: write or copy the file again (an interrupted copy leaves a truncated file)."
+    )
+
+
 def read_hyperstack(path: str | os.PathLike) -> RawTiff:
-    """Read the first image series of any TIFF, with its ImageJ Info and calibration."""
+    """Read the first image series of any TIFF, with its ImageJ Info and calibration.
+
+    A file that tifffile cannot parse or whose data ends early raises :class:`InputFileError`
+    naming it (not tifffile's "failed to read N bytes").
+    """
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(f"No such TIFF file: {source}")
     try:
-        with tifffile.TiffFile(source) as tif:
-            if not tif.series:
-                raise InputFileError(f"{source} holds no image data. Fix: check that it is the right file.")
+        tif = tifffile.TiffFile(source)
+    except _UNREADABLE as error:
+        raise _unreadable(source, error) from error
+    with tif:
+        try:
             series = tif.series[0]
             array = series.asarray()
             info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
-            return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
-    except (tifffile.TiffFileError, ValueError, OSError, EOFError, IndexError) as error:
-        if isinstance(error, (InputFileError, HeaderError)):
-            raise
-        raise InputFileError(
-            f"{source} is truncated or corrupt, or not a TIFF ({type(error).__name__}: {error}). "
-            "Fix: write or copy the file again (an interrupted copy leaves a truncated file)."
-        ) from error
+        except _UNREADABLE as error:
+            raise _unreadable(source, error) from error
+        return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
 
 
 def to_tensor(
