@@ -13,7 +13,7 @@ from collections.abc import Sequence
 
 from lfm_studio import __version__
 from lfm_studio.cli_bench import add_bench_parser
-from lfm_studio.cli_errors import EPILOG, exit_code_for
+from lfm_studio.cli_errors import EPILOG, INTERRUPTED, exit_code_for
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
@@ -62,6 +62,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"lfm-studio {args.command}: error: {error}", file=sys.stderr)
         return code
+    except KeyboardInterrupt:  # outputs are written atomically: nothing partial is left
+        print(f"lfm-studio {args.command}: interrupted; no output was written.", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -113,6 +113,21 @@ def test_permission_denied_while_writing_is_named_and_leaves_nothing(tmp_path, m
     assert list(tmp_path.iterdir()) == []
 
 
+def test_full_disk_is_named_and_leaves_nothing(tmp_path, monkeypatch):
+    import errno
+
+    from lfm_studio.engine.io import OutputError
+
+    def full(fh, *args, **kwargs):
+        fh.write(b"II*\x00" + b"\x00" * 1024)
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(tifffile, "imwrite", full)
+    with pytest.raises(OutputError, match=r"cannot write .*vol\.tif: no space left .*Fix: free some space"):
+        write_volume(tmp_path / "vol.tif", torch.ones(2, 3, 3), voxel_size=(1e-6,) * 3)
+    assert list(tmp_path.iterdir()) == []
+
+
 @pytest.mark.parametrize("interrupt", [RuntimeError("encoder crashed"), KeyboardInterrupt()])
 def test_a_write_interrupted_midway_keeps_the_previous_file(files, tmp_path, monkeypatch, interrupt):
     out = tmp_path / "vol.tif"
@@ -124,8 +139,11 @@ def test_a_write_interrupted_midway_keeps_the_previous_file(files, tmp_path, mon
         raise interrupt
 
     monkeypatch.setattr(tifffile, "imwrite", half_then_fail)
-    with pytest.raises(type(interrupt)):
-        _reconstruct(files, files["lf"], out, "--overwrite")
+    if isinstance(interrupt, KeyboardInterrupt):  # Ctrl+C: exit 130 and a message, no traceback
+        assert _reconstruct(files, files["lf"], out, "--overwrite") == 130
+    else:  # an unexpected error is a bug: it propagates (traceback, exit 1)
+        with pytest.raises(type(interrupt)):
+            _reconstruct(files, files["lf"], out, "--overwrite")
     assert out.read_bytes() == before and sorted(p.name for p in tmp_path.iterdir()) == ["vol.tif"]
 
 
