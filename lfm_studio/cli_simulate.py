@@ -153,7 +153,7 @@ def run_image(args: argparse.Namespace) -> int:
     write_image(
         outputs["--out"], image.cpu(), pixel_size=stack.pixel_size, metadata=meta, overwrite=args.overwrite
     )
-    kind = f"{image.dtype} ADU" if noisy else "noise-free, photons"
+    kind = f"{str(image.dtype).removeprefix('torch.')} ADU" if noisy else "noise-free, photons"
     print(f"wrote {args.out}: light-field image {tuple(counts.shape)} ({kind})")
     if "--expected" in outputs:
         mean = (

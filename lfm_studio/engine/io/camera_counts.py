@@ -14,7 +14,8 @@ with ``"units": "ADU"``. Reconstruction turns counts back into photons at the ca
 
 clipped at 0 (negative values are read noise below the baseline), so a volume
 reconstructed from them is in photons per voxel, the unit of the ground truth that
-``image --truth`` writes. A TIFF without this metadata (a measured camera frame) gets
+``image --truth`` writes: the volume that, projected through the PSF stack, gives the
+expected photons at the camera (per bead, the photons it emits in the PSF's normalisation). A TIFF without this metadata (a measured camera frame) gets
 the baseline and gain from the caller, or else a baseline estimated from the darkest
 pixels (:func:`estimate_baseline`) with a warning that names the estimate.
 """
