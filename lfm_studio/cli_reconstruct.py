@@ -3,8 +3,9 @@
 ``reconstruct`` reads a PSF stack (simulated, or bead-measured with ``--measured``) and
 a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one into a
 ``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. Camera
-counts (ADU) are first turned into photons, ``max(ADU - baseline, 0) / gain / QE``, from
-the image's camera metadata (``lfm-studio image`` writes it), from ``--baseline/--gain``,
+counts (ADU) are first turned into photons, ``max((ADU - baseline) / gain + c, 0) / QE``
+with the camera's noise floor ``c`` modelled as background
+(:func:`lfm_studio.engine.io.counts_to_photons`), from the image's camera metadata (``lfm-studio image`` writes it), from ``--baseline/--gain``,
 or with a baseline estimated from the darkest pixels and a warning; the volume is then in
 photons per voxel, the unit of ``image --truth``. A volume that comes out all zero,
 constant or NaN/Inf is refused (exit 5) and not written. The file is written once,
@@ -90,25 +91,30 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
     return stack
 
 
-def _reconstruct_frame(args: argparse.Namespace, projector, frame: torch.Tensor, report) -> torch.Tensor:
+def _reconstruct_frame(
+    args: argparse.Namespace, projector, frame: torch.Tensor, floor: float, report
+) -> torch.Tensor:
+    """One frame in photons; ``floor`` is the camera's noise floor it carries (photons per pixel)."""
     from lfm_studio.engine.reconstruct import reconstruct_frame
 
     return reconstruct_frame(
-        projector, frame, method=args.method, iterations=args.iterations, background=args.background,
+        projector, frame, method=args.method, iterations=args.iterations, background=args.background + floor,
         snr=args.snr, rtol=args.rtol, progress=report,
     )  # fmt: skip
 
 
 def _photons(args: argparse.Namespace, image):
-    """The frames in photons and the calibration used (warnings printed for what was assumed)."""
+    """The frames in photons, the noise floor they carry (photons per pixel) and the calibration used
+    (warnings printed for what was assumed)."""
     from lfm_studio.engine.io import counts_to_photons, resolve_calibration
 
     calibration, notes = resolve_calibration(
-        image.metadata, image.data, baseline=args.baseline, gain=args.gain
+        image.metadata, image.data, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
     )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
-    return counts_to_photons(image.data, calibration, name=str(args.image)), calibration
+    photons, floor = counts_to_photons(image.data, calibration, name=str(args.image))
+    return photons, floor, calibration
 
 
 def run_reconstruct(args: argparse.Namespace) -> int:
@@ -141,7 +147,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, "
             "or --measured to crop/resample a measured one."
         )
-    photons, calibration = _photons(args, image)
+    photons, floor, calibration = _photons(args, image)
     frames = photons if photons.ndim == 3 else photons[None]
     iterative = args.method in ITERATIVE
     count, steps = frames.shape[0], args.iterations if iterative else 1
@@ -154,7 +160,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
 
                 report(0, steps, "starting")
-                volume = _reconstruct_frame(args, setup.projector, frame, report).detach().cpu()
+                volume = _reconstruct_frame(args, setup.projector, frame, floor, report).detach().cpu()
                 what = f"the {args.method} reconstruction of {args.image}" + (
                     f" (frame {t})" if count > 1 else ""
                 )
@@ -168,6 +174,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         "method": args.method,
         "iterations": args.iterations if iterative else None,
         "background": args.background,
+        "noise_floor_photons": floor,
         "snr": args.snr,
         "psf": str(args.psf),
         "image": str(args.image),
@@ -270,8 +277,9 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
             help="reconstruct a volume from a light-field image and a PSF stack",
             description="Richardson-Lucy (plain or Biggs-Andrews accelerated), Wiener or Tikhonov "
             "reconstruction. A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume. "
-            "Camera counts are converted to photons first, max(ADU - baseline, 0) / gain / QE (negative "
-            "values are read noise and are clipped at 0), from the image's camera metadata, --baseline/--gain, "
+            "Camera counts are converted to photons first, max((ADU - baseline) / gain + c, 0) / QE, where c, "
+            "the camera's read-noise floor, keeps dark pixels from being clipped and is modelled as background; "
+            "the camera comes from the image's metadata, --baseline/--gain, "
             "or an estimated baseline (with a warning). Output: photons per voxel, the unit of "
             "'lfm-studio image --truth'. An all-zero, constant or NaN/Inf result is refused (exit 5).",
         )
@@ -315,6 +323,13 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="conversion gain in ADU per photo-electron (default: the image's metadata, else 1 with a "
         "warning: the volume is then in ADU above the baseline)",
+    )
+    camera.add_argument(
+        "--read-noise",
+        type=float,
+        default=None,
+        help="camera read noise in electrons rms (default: the image's metadata, else 0); sets the noise "
+        "floor added before clipping at 0 and modelled as background",
     )
     rec.add_argument(
         "--snr",

@@ -108,11 +108,17 @@ def prepare(
 
 
 def _solve(
-    request: Request, projector, photons: torch.Tensor, progress: ProgressCallback, cancel: CancelToken
+    request: Request,
+    projector,
+    photons: torch.Tensor,
+    floor: float,
+    progress: ProgressCallback,
+    cancel: CancelToken,
 ) -> torch.Tensor:
+    """Reconstruct ``photons``, which carry the camera's noise floor ``floor`` (photons per pixel)."""
     s = request.settings
     return reconstruct.reconstruct_frame(
-        projector, photons, method=s.method, iterations=s.iterations, background=s.background,
+        projector, photons, method=s.method, iterations=s.iterations, background=s.background + floor,
         snr=s.snr, progress=progress, cancel=cancel,
     )  # fmt: skip
 
@@ -132,9 +138,11 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
     calibration, notes = resolve_calibration(
         request.image.metadata, request.image.data, baseline=s.baseline, gain=s.gain
     )
-    photons = counts_to_photons(request.image.data, calibration, name=f"image layer {request.image_name!r}")
+    photons, floor = counts_to_photons(
+        request.image.data, calibration, name=f"image layer {request.image_name!r}"
+    )
     checkpoint(cancel, progress, 0, 1, METHODS[s.method])
-    volume = _solve(request, setup.projector, photons, progress, cancel).detach().cpu()
+    volume = _solve(request, setup.projector, photons, floor, progress, cancel).detach().cpu()
     reconstruct.check_reconstruction(
         volume,
         what=f"the {METHODS[s.method]} reconstruction of {request.image_name!r} with {request.psf_name!r}",

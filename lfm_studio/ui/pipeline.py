@@ -235,15 +235,20 @@ def reconstruction_available() -> bool:
     )
 
 
-def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
-    """Camera counts (ADU) back to photons, ``max(ADU - baseline, 0) / gain / QE`` (the engine's
-    :func:`~lfm_studio.engine.io.counts_to_photons`, as in ``lfm-studio reconstruct``)."""
+def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, float]:
+    """Camera counts (ADU) back to photons and the noise floor they carry (the background to model):
+    the engine's :func:`~lfm_studio.engine.io.counts_to_photons`, as in ``lfm-studio reconstruct``."""
     from lfm_studio.engine.io import CameraCalibration, counts_to_photons
 
     camera = design.camera
     if image.info.get("photons") is None:  # noise-free: already photons
-        return image.counts.clamp_min(0.0)
-    calibration = CameraCalibration(camera.baseline_adu, camera.gain_adu_per_e, camera.quantum_efficiency)
+        return image.counts.clamp_min(0.0), 0.0
+    calibration = CameraCalibration(
+        camera.baseline_adu,
+        camera.gain_adu_per_e,
+        camera.quantum_efficiency,
+        read_noise_e=camera.read_noise_e,
+    )
     return counts_to_photons(image.counts, calibration, name="the simulated image")
 
 
@@ -259,14 +264,14 @@ def reconstruct(
     )
 
     projector = image.setup.projector
-    counts = photon_counts(image, design)
+    counts, floor = photon_counts(image, design)
     truth = image.ground_truth
     total = settings.iterations
     psnrs: list[float] = []
     changes: list[float] = []
     estimate = None
     iterates = richardson_lucy_iterates(
-        projector, counts.to(_device_of(projector)), iterations=total, progress=_rl_progress(ctx),
+        projector, counts.to(_device_of(projector)), background=floor, iterations=total, progress=_rl_progress(ctx),
         cancel=ctx.cancel, **accelerated_rl_options(projector),
     )  # fmt: skip
     for it in iterates:

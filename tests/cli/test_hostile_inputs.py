@@ -212,8 +212,9 @@ def test_psf_and_image_pixel_sizes_must_match(files, tmp_path, capsys):
 
 
 def test_an_image_that_is_not_ours(files, tmp_path, capsys):
-    """A plain camera TIFF (uint16, no metadata): --baseline/--gain reproduce the metadata result up to
-    the unknown QE (RL is scale-equivariant); without them the baseline is estimated with a warning."""
+    """A plain camera TIFF (uint16, no metadata): --baseline/--gain/--read-noise reproduce the metadata
+    result up to the unknown QE (RL is scale-equivariant); without them the baseline is estimated with
+    a warning."""
     image = read_image(files["lf"])
     camera = image.metadata["camera"]
     plain = tmp_path / "camera.tif"
@@ -221,8 +222,9 @@ def test_an_image_that_is_not_ours(files, tmp_path, capsys):
     ours, given, guessed = (tmp_path / f"{n}.tif" for n in ("ours", "given", "guessed"))
     assert _reconstruct(files, files["lf"], ours) == 0
     capsys.readouterr()
-    gain = str(camera["gain_adu_per_e"])
-    assert _reconstruct(files, plain, given, "--baseline", str(camera["baseline_adu"]), "--gain", gain) == 0
+    options = ["--baseline", str(camera["baseline_adu"]), "--gain", str(camera["gain_adu_per_e"]),
+               "--read-noise", str(camera["read_noise_e"])]  # fmt: skip
+    assert _reconstruct(files, plain, given, *options) == 0
     err = capsys.readouterr().err
     assert "has no pixel size; taking the PSF's 6.5 um" in err and "estimated" not in err
     expected = read_volume(ours).data * camera["quantum_efficiency"]  # QE unknown for a foreign file: 1

@@ -76,7 +76,7 @@ def _camera_frame(stack: PSFStack) -> tuple[torch.Tensor, torch.Tensor]:
     truth = torch.zeros(setup.volume_shape)
     truth[1, 1, 2] = 40.0  # photons
     photons = setup.projector.forward(truth).clamp_min(0)
-    return truth, 100.0 + 2.0 * 0.5 * photons  # baseline 100 ADU, gain 2 ADU/e-, QE 0.5
+    return truth, 100.0 + 2.0 * 0.8 * photons  # baseline 100 ADU, gain 2 ADU/e-, QE 0.8
 
 
 def test_run_converts_counts_with_the_image_camera_metadata():
@@ -86,14 +86,15 @@ def test_run_converts_counts_with_the_image_camera_metadata():
     _, counts = _camera_frame(stack)
     meta = {
         "units": "ADU",
-        "camera": {"baseline_adu": 100.0, "gain_adu_per_e": 2.0, "quantum_efficiency": 0.5},
+        "camera": {"baseline_adu": 100.0, "gain_adu_per_e": 2.0, "quantum_efficiency": 0.8},
     }
     request = _prepare(stack, LightFieldImage(counts, 6.5 * um, meta), iterations=50)
     volume = run(request, lambda *a: None, None)
     assert volume.metadata["units"] == "photons per voxel" and volume.metadata["notes"] == []
     assert volume.metadata["camera"]["source"] == "image metadata"
-    # photons back, not ADU: (ADU - 100) / 2 / 0.5 sums to the 40 photons that were put in
-    assert float(volume.data.sum()) == pytest.approx(40.0, rel=1e-3)
+    # photons back (40 were put in), not ADU above the baseline (64): (ADU - 100) / 2 / 0.8;
+    # RL models the camera's noise floor as background, so 50 iterations land within 3 %
+    assert float(volume.data.sum()) == pytest.approx(40.0, rel=0.03)
 
 
 def test_run_estimates_the_baseline_of_a_foreign_image_and_says_so():

@@ -19,14 +19,35 @@ def test_counts_to_photons_inverts_the_noise_free_camera():
     adu = simulate_sensor(photons, CAMERA, shot_noise=False, read_noise=False, quantize=False, saturate=False)
     meta = {"units": "ADU", "camera": camera_metadata(CAMERA, photons=None, seed=0)}
     calibration, notes = resolve_calibration(meta, adu)
-    assert notes == [] and calibration.source == "image metadata"
-    assert torch.allclose(counts_to_photons(adu, calibration, name="x"), photons, rtol=1e-12, atol=1e-12)
+    assert notes == [] and calibration.source == "image metadata" and calibration.read_noise_e == 1.5
+    out, background = counts_to_photons(adu, calibration, name="x")
+    # The noise floor max(s^2, 3 s), s^2 = 1.5^2 + 1 / (12 * 2^2), rides on every pixel as background.
+    floor = max(1.5**2 + 1 / 48, 3 * (1.5**2 + 1 / 48) ** 0.5)
+    assert calibration.noise_floor_e == pytest.approx(floor, rel=1e-12)
+    assert background == pytest.approx(floor / 0.8, rel=1e-12)
+    assert torch.allclose(out - background, photons, rtol=1e-12, atol=1e-12)
 
 
-def test_below_baseline_is_clipped_at_zero():
-    calibration = CameraCalibration(100.0, 2.0, 0.5)
-    out = counts_to_photons(torch.tensor([90.0, 100.0, 110.0]), calibration, name="x")
-    assert out.tolist() == [0.0, 0.0, 10.0]  # (110 - 100) / 2 / 0.5
+def test_below_the_noise_floor_is_clipped_at_zero():
+    calibration = CameraCalibration(100.0, 2.0, 0.5)  # no read noise: the floor is the ADC rounding
+    c = 3 * (1 / 48) ** 0.5  # electrons: 3 sigma of a uniform rounding error of 1/2 ADU = 1/4 e-
+    out, background = counts_to_photons(torch.tensor([90.0, 100.0, 110.0]), calibration, name="x")
+    assert background == pytest.approx(c / 0.5, rel=1e-12)
+    assert out.tolist() == pytest.approx([0.0, c / 0.5, (5 + c) / 0.5], rel=1e-6)  # (110 - 100) / 2 = 5 e-
+
+
+def test_the_noise_floor_removes_the_clipping_bias_of_read_noise():
+    """A dark frame (read noise only): clipped at 0 it shows 0.4 sigma of fake light per pixel
+    (sigma / sqrt(2 pi)); shifted by the floor and with the floor as background, almost none."""
+    sigma = 1.5
+    dark = 100.0 + sigma * torch.randn(
+        1_000_000, generator=torch.Generator().manual_seed(0), dtype=torch.float64
+    )
+    calibration = CameraCalibration(100.0, 1.0, 1.0, read_noise_e=sigma, quantized=False)
+    out, background = counts_to_photons(dark, calibration, name="dark")
+    assert float(out.mean()) - background == pytest.approx(0.0, abs=0.01 * sigma)
+    clipped = float((dark - 100.0).clamp_min(0).mean())
+    assert clipped == pytest.approx(sigma / (2 * torch.pi) ** 0.5, rel=0.01)
 
 
 def test_adu_array_is_uint16_and_saturates():
@@ -59,7 +80,10 @@ def test_options_win_over_metadata_and_silence_the_warning():
 
 def test_noise_free_images_are_already_photons():
     calibration = calibration_from_metadata({"units": "photons", "camera": None})
-    assert calibration == CameraCalibration(source="noise-free image")
+    assert calibration == CameraCalibration(source="noise-free image", quantized=False)
+    assert calibration.noise_floor_e == 0.0  # no camera, no floor: the data pass unchanged
+    out, background = counts_to_photons(torch.tensor([0.0, 2.5]), calibration, name="x")
+    assert out.tolist() == [0.0, 2.5] and background == 0.0
 
 
 def test_nan_pixels_are_refused_by_name():
