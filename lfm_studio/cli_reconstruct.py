@@ -5,12 +5,14 @@ a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one int
 ``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. Camera
 counts (ADU) are first turned into photons, ``max((ADU - baseline) / gain + c, 0) / QE``
 with the camera's noise floor ``c`` modelled as background
-(:func:`lfm_studio.engine.io.counts_to_photons`), from the image's camera metadata (``lfm-studio image`` writes it), from ``--baseline/--gain``,
-or with a baseline estimated from the darkest pixels and a warning; the volume is then in
-photons per voxel, the unit of ``image --truth``. A volume that comes out all zero,
-constant or NaN/Inf is refused (exit 5) and not written. The file is written once,
-atomically, after the last frame: a failed or interrupted run leaves no partial output. ``metrics`` compares a volume with a ground truth (PSNR,
-SSIM, optionally per depth and LPIPS). Register both with :func:`add_reconstruct_parsers`.
+(:func:`lfm_studio.engine.io.counts_to_photons`), from the image's camera metadata
+(``lfm-studio image`` writes it), from ``--baseline/--gain/--read-noise``, or with a
+baseline estimated from the darkest pixels and a warning; the volume is then in photons
+per voxel, the unit of ``image --truth``. A volume that comes out all zero, constant or
+NaN/Inf is refused (exit 5) and not written. The file is written once, atomically, after
+the last frame: a failed or interrupted run leaves no partial output. ``metrics``
+compares a volume with a ground truth (PSNR, SSIM, optionally per depth and LPIPS).
+Register both with :func:`add_reconstruct_parsers`.
 """
 
 from __future__ import annotations
