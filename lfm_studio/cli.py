@@ -14,6 +14,7 @@ from collections.abc import Sequence
 from lfm_studio import __version__
 from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_calibrate import add_calibrate_parser
+from lfm_studio.cli_errors import EPILOG, INTERRUPTED, exit_code_for
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_metrics import add_metrics_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
@@ -32,6 +33,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="lfm-studio",
         description="Design studio for light-field microscopes (simulation, reconstruction, design).",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"lfm-studio {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -58,9 +61,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         return int(args.handler(args))
     except (ValueError, FileNotFoundError, FileExistsError) as error:
-        # Named engine errors (bad design values, missing metadata, ...) without a traceback.
+        # Named refusals (bad input, output refused, memory, rejected result) without a traceback;
+        # the exit code says which kind (EPILOG).
+        code = exit_code_for(error)
+        if code is None:
+            raise
         print(f"lfm-studio {args.command}: error: {error}", file=sys.stderr)
-        return 2
+        return code
+    except KeyboardInterrupt:  # outputs are written atomically: nothing partial is left
+        print(f"lfm-studio {args.command}: interrupted; no output was written.", file=sys.stderr)
+        return INTERRUPTED
 
 
 if __name__ == "__main__":

@@ -2,10 +2,17 @@
 
 ``reconstruct`` reads a PSF stack (simulated, or bead-measured with ``--measured``) and
 a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one into a
-``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. The
-file is written once, atomically, after the last frame: a failed or interrupted run
-leaves no partial output. Register it with :func:`add_reconstruct_parsers`; their quality
-is scored by ``lfm-studio metrics`` (:mod:`lfm_studio.cli_metrics`).
+``(T, Z, Y, X)`` volume) and writes the volume with its voxel size and depths. Camera
+counts (ADU) are first turned into photons, ``max((ADU - baseline) / gain + c, 0) / QE``
+with the camera's noise floor ``c`` modelled as background
+(:func:`lfm_studio.engine.io.counts_to_photons`), from the image's camera metadata
+(``lfm-studio image`` writes it), from ``--baseline/--gain/--read-noise``, or with a
+baseline estimated from the darkest pixels and a warning; the volume is then in photons
+per voxel, the unit of ``image --truth``. A volume that comes out all zero, constant or
+NaN/Inf is refused (exit 5) and not written. The file is written once, atomically, after
+the last frame: a failed or interrupted run leaves no partial output. Register it with
+:func:`add_reconstruct_parsers`; its quality is scored by ``lfm-studio metrics``
+(:mod:`lfm_studio.cli_metrics`).
 """
 
 from __future__ import annotations
@@ -13,12 +20,11 @@ from __future__ import annotations
 import argparse
 import math
 import sys
-from pathlib import Path
 
 import torch
 
 from lfm_studio.cli_progress import progress_bar
-from lfm_studio.cli_simulate import parse_depths, resolve_device
+from lfm_studio.cli_simulate import allow_negative_values, parse_depths, resolve_device
 from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
 from lfm_studio.engine.simulation import depth_grid
 
@@ -29,11 +35,6 @@ _READ_FLAGS = {
     "wavelength": "--wavelength-nm",
     "depths": "--depths=START:STOP:STEP (um, one depth per slice)",
 }
-
-
-def _refuse_existing(path: str, overwrite: bool) -> None:
-    if Path(path).exists() and not overwrite:
-        raise SystemExit(f"{path} exists. Fix: choose another --out or pass --overwrite.")
 
 
 def _depth_list(depths_um: tuple[float, float, float] | None) -> tuple[float, ...] | None:
@@ -91,26 +92,44 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
     return stack
 
 
-def _reconstruct_frame(args: argparse.Namespace, projector, frame: torch.Tensor, report) -> torch.Tensor:
+def _reconstruct_frame(
+    args: argparse.Namespace, projector, frame: torch.Tensor, floor: float, report
+) -> torch.Tensor:
+    """One frame in photons; ``floor`` is the camera's noise floor it carries (photons per pixel)."""
     from lfm_studio.engine.reconstruct import reconstruct_frame
 
     return reconstruct_frame(
-        projector, frame, method=args.method, iterations=args.iterations, background=args.background,
+        projector, frame, method=args.method, iterations=args.iterations, background=args.background + floor,
         snr=args.snr, rtol=args.rtol, progress=report,
     )  # fmt: skip
 
 
+def _photons(args: argparse.Namespace, image):
+    """The frames in photons, the noise floor they carry (photons per pixel) and the calibration used
+    (warnings printed for what was assumed)."""
+    from lfm_studio.engine.io import counts_to_photons, resolve_calibration
+
+    calibration, notes = resolve_calibration(
+        image.metadata, image.data, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+    )
+    for note in notes:
+        print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
+    photons, floor = counts_to_photons(image.data, calibration, name=str(args.image))
+    return photons, floor, calibration
+
+
 def run_reconstruct(args: argparse.Namespace) -> int:
     """Handler of ``reconstruct``: read, reconstruct every frame, write once; 0 on success."""
-    from lfm_studio.engine.io import write_volume
+    from lfm_studio.engine.io import check_output, write_volume
+    from lfm_studio.engine.reconstruct import check_reconstruction
     from lfm_studio.engine.simulation import imaging_setup
 
-    _refuse_existing(args.out, args.overwrite)
+    check_output(args.out, overwrite=args.overwrite, inputs=[args.psf, args.image])
     if args.iterations < 1:
         raise ValueError(f"--iterations must be >= 1; got {args.iterations}.")
     if args.background < 0 or not math.isfinite(args.background):
         raise ValueError(
-            f"--background must be a finite number >= 0 (counts per pixel); got {args.background}."
+            f"--background must be a finite number >= 0 (photons per pixel); got {args.background}."
         )
     device = resolve_device(args.device)
     stack = _read_psf(args, device)
@@ -123,13 +142,14 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"--method {args.method} needs a laterally shift-invariant (Fourier LFM) PSF stack; {args.psf} is a "
             "conventional-LFM pattern stack. Fix: use --method rl or rl-accelerated."
         )
-    frames = image.data if image.data.ndim == 3 else image.data[None]
-    if tuple(frames.shape[-2:]) != tuple(setup.projector.image_shape):
+    if tuple(image.data.shape[-2:]) != tuple(setup.projector.image_shape):
         raise ValueError(
-            f"{args.image} has frames of {tuple(frames.shape[-2:])} pixels but the PSF stack {args.psf} images "
-            f"{tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, or "
-            "--measured to crop/resample a measured one."
+            f"{args.image} has frames of {tuple(image.data.shape[-2:])} pixels but the PSF stack {args.psf} "
+            f"images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, "
+            "or --measured to crop/resample a measured one."
         )
+    photons, floor, calibration = _photons(args, image)
+    frames = photons if photons.ndim == 3 else photons[None]
     iterative = args.method in ITERATIVE
     count, steps = frames.shape[0], args.iterations if iterative else 1
     volumes = []
@@ -141,7 +161,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                     progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
 
                 report(0, steps, "starting")
-                volumes.append(_reconstruct_frame(args, setup.projector, frame, report).detach().cpu())
+                volume = _reconstruct_frame(args, setup.projector, frame, floor, report).detach().cpu()
+                what = f"the {args.method} reconstruction of {args.image}" + (
+                    f" (frame {t})" if count > 1 else ""
+                )
+                volumes.append(check_reconstruction(volume, what=what))
                 report(steps, steps, "done")
     except KeyboardInterrupt:
         print(f"lfm-studio reconstruct: interrupted; {args.out} was not written.", file=sys.stderr)
@@ -151,10 +175,13 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         "method": args.method,
         "iterations": args.iterations if iterative else None,
         "background": args.background,
+        "noise_floor_photons": floor,
         "snr": args.snr,
         "psf": str(args.psf),
         "image": str(args.image),
         "measured_psf": bool(args.measured),
+        "units": calibration.volume_units,
+        "camera": calibration.to_dict(),
     }
     write_volume(
         args.out,
@@ -171,11 +198,18 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
 def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
     """Register ``reconstruct`` on ``subparsers`` (from ``parser.add_subparsers()``)."""
-    rec = subparsers.add_parser(
-        "reconstruct",
-        help="reconstruct a volume from a light-field image and a PSF stack",
-        description="Richardson-Lucy (plain or Biggs-Andrews accelerated), Wiener or Tikhonov reconstruction. "
-        "A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume.",
+    rec = allow_negative_values(
+        subparsers.add_parser(
+            "reconstruct",
+            help="reconstruct a volume from a light-field image and a PSF stack",
+            description="Richardson-Lucy (plain or Biggs-Andrews accelerated), Wiener or Tikhonov "
+            "reconstruction. A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume. "
+            "Camera counts are converted to photons first, max((ADU - baseline) / gain + c, 0) / QE, where c, "
+            "the camera's read-noise floor, keeps dark pixels from being clipped and is modelled as background; "
+            "the camera comes from the image's metadata, --baseline/--gain, "
+            "or an estimated baseline (with a warning). Output: photons per voxel, the unit of "
+            "'lfm-studio image --truth'. An all-zero, constant or NaN/Inf result is refused (exit 5).",
+        )
     )
     rec.add_argument(
         "--psf", required=True, help="PSF stack TIFF (from 'lfm-studio simulate', or beads with --measured)"
@@ -199,7 +233,30 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         "--background",
         type=float,
         default=0.0,
-        help="background counts per pixel, e.g. the camera baseline (default 0)",
+        help="extra background in photons per pixel after the camera baseline is removed, e.g. "
+        "out-of-focus light (default 0; the baseline is --baseline)",
+    )
+    camera = rec.add_argument_group("camera counts of an image without lfm_studio camera metadata")
+    camera.add_argument(
+        "--baseline",
+        type=float,
+        default=None,
+        help="camera offset in ADU (default: the image's metadata, else estimated from the darkest 1 %% "
+        "of the pixels, with a warning)",
+    )
+    camera.add_argument(
+        "--gain",
+        type=float,
+        default=None,
+        help="conversion gain in ADU per photo-electron (default: the image's metadata, else 1 with a "
+        "warning: the volume is then in ADU above the baseline)",
+    )
+    camera.add_argument(
+        "--read-noise",
+        type=float,
+        default=None,
+        help="camera read noise in electrons rms (default: the image's metadata, else 0); sets the noise "
+        "floor added before clipping at 0 and modelled as background",
     )
     rec.add_argument(
         "--snr",
@@ -238,6 +295,6 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         "--depths",
         type=parse_depths,
         default=None,
-        help="START:STOP:STEP in um, one depth per slice (write --depths=-20:20:5 for a negative START)",
+        help="START:STOP:STEP in um, one depth per slice, e.g. --depths -20:20:5",
     )
     rec.set_defaults(handler=run_reconstruct)

@@ -13,11 +13,12 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.dtypes import real_dtype_named
+from lfm_studio.engine.memory import require_memory, tensor_bytes
 from lfm_studio.engine.operators import ShiftInvariantProjector
 from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
-from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
+from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
@@ -75,6 +76,8 @@ def simulate_psf(
     refine = design.accuracy.volume_oversampling
     if crop is not None and not (isinstance(crop, int) and crop >= 1):
         raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
+    sensor = tuple(min(crop, n) for n in design.camera.pixel_count) if crop is not None else None
+    require_psf_memory(design, len(depths), dtype=dtype, device=device, sensor=sensor)
     if design.kind == "fourier":
         system, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
         if crop is not None:
@@ -96,6 +99,40 @@ def simulate_psf(
     if design.kind == "fourier" and refine > 1:
         stack = replace(stack, metadata={**stack.metadata, "volume_oversampling": refine})
     return stack
+
+
+def require_psf_memory(
+    design: Design,
+    depth_count: int,
+    *,
+    dtype: str | None = None,
+    device: torch.device | str = "cpu",
+    sensor: tuple[int, int] | None = None,
+) -> None:
+    """Refuse, before allocating, a PSF stack whose sensor-sized arrays cannot fit in memory.
+
+    Lower bound of what :func:`simulate_psf` holds at once: a Fourier stack keeps
+    ``depths x ny x nx`` reals plus a few complex sensor-sized fields (``k`` times finer per
+    axis with ``accuracy.volume_oversampling = k``); a conventional one at least a few complex
+    sensor-sized fields (its projector images the whole sensor). ``sensor``: the (cropped)
+    sensor in camera pixels, default the design's.
+    """
+    ny, nx = sensor if sensor is not None else design.camera.pixel_count
+    if design.kind == "fourier":
+        refine = design.accuracy.volume_oversampling
+        ny, nx = ny * refine, nx * refine
+    real = real_dtype_named(dtype) if dtype is not None else torch.float32
+    complex_type = torch.complex128 if real == torch.float64 else torch.complex64
+    needed = 3 * tensor_bytes((ny, nx), complex_type)
+    if design.kind == "fourier":
+        needed += tensor_bytes((depth_count, ny, nx), real)
+    require_memory(
+        needed,
+        f"the PSF stack of {design.name!r} ({depth_count} depths on a {ny} x {nx} px sensor)",
+        "reduce camera.pixel_count in the design (crop the sensor), simulate fewer depths (--depths), "
+        "or run on a machine with more memory.",
+        device=device,
+    )
 
 
 @dataclass(frozen=True)
@@ -144,12 +181,37 @@ def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> Ima
 
 
 def make_phantom(
-    kind: str, setup: ImagingSetup, *, seed: int, count: int = 50, dtype: torch.dtype = torch.float32
+    kind: str,
+    setup: ImagingSetup,
+    *,
+    seed: int,
+    count: int | None = None,
+    dtype: torch.dtype = torch.float32,
 ) -> tuple[torch.Tensor, dict]:
     """A seeded volume on the setup's grid: ``"beads"`` (``count`` points) or ``"cells"``
-    (cell-like spheres filling the largest ellipsoid that fits, 3 um radius)."""
+    (cell-like spheres filling the largest ellipsoid that fits, 3 um radius).
+
+    ``count=None`` (the default) gives :func:`~lfm_studio.engine.phantoms.default_bead_count`
+    beads: 50, or what fits in a small volume; ``info["note"]`` then says how many and why.
+    An explicit ``count`` that does not fit is an error.
+    """
     shape, voxel = setup.volume_shape, setup.voxel_size
-    if kind == "beads":
+    require_memory(
+        3 * tensor_bytes(shape, dtype),
+        f"a phantom volume of {shape} voxels",
+        "crop the sensor (camera.pixel_count) or simulate fewer depths.",
+    )
+    note = None
+    if kind == "beads" and count is None:
+        wanted = default_bead_count(shape, voxel)
+        phantom = beads(shape, count=wanted, voxel_size=voxel, seed=seed, dtype=dtype, allow_fewer=True)
+        if phantom.count < DEFAULT_BEADS:
+            note = (
+                f"placed {phantom.count} beads, not the default {DEFAULT_BEADS}: more do not fit "
+                f"{2 * max(voxel) * 1e6:.3g} um apart in a volume of {shape} voxels. Fix: pass --count N "
+                "(at most what fits), or use more depths / a larger field of view."
+            )
+    elif kind == "beads":
         phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
     elif kind == "cells":
         semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
@@ -157,6 +219,8 @@ def make_phantom(
     else:
         raise ValueError(f"phantom must be 'beads', 'cells' or a TIFF volume path; got {kind!r}.")
     info = {"phantom": kind, "seed": seed, "objects": int(phantom.count)}
+    if note is not None:
+        info["note"] = note
     return phantom.data, info
 
 
@@ -187,6 +251,13 @@ def light_field_image(
     ``photons`` is the expected number of photons reaching the camera in the image;
     ``None`` gives the noise-free expected image (also returned as ``counts``).
     """
+    ny, nx = setup.projector.image_shape
+    require_memory(
+        4 * tensor_bytes((ny, nx), volume.dtype),
+        f"a light-field image of {ny} x {nx} pixels",
+        "crop the sensor (camera.pixel_count).",
+        device=volume.device,
+    )
     expected = setup.projector.forward(volume).clamp_min(0.0)
     if photons is None:
         return expected, expected
@@ -194,3 +265,13 @@ def light_field_image(
         raise ValueError(f"photons must be > 0 (expected photons in the image); got {photons!r}.")
     counts = simulate_sensor(expected, camera, photons=photons, generator=seed)
     return counts, expected
+
+
+def photons_per_unit(expected: torch.Tensor, photons: float | None) -> float:
+    """Photons at the camera per unit of the noise-free image ``expected`` (``photons / sum``; 1 when
+    ``photons`` is None): times the phantom, it gives the ground truth in photons per voxel, the
+    unit a reconstruction from photons (:func:`~lfm_studio.engine.io.counts_to_photons`) comes out in."""
+    if photons is None:
+        return 1.0
+    total = float(expected.detach().double().sum())
+    return photons / total if total > 0 else 0.0

@@ -1,7 +1,10 @@
 """Dock widget "Reconstruct light field": image layer + PSF layer -> volume layer, in the background.
 
 Pick the camera image and the PSF stack layers, the method (Richardson-Lucy, its
-accelerated form, Wiener, Tikhonov), iterations and background. Inputs are checked
+accelerated form, Wiener, Tikhonov), iterations and background. Camera counts become
+photons from the image's camera metadata (an image without it gets an estimated
+baseline, said in a warning notification), so the volume is in photons per voxel.
+Inputs are checked
 before anything starts (a mismatch, e.g. of pixel sizes, is an error notification
 naming both layers and values); the reconstruction then runs on a napari
 ``thread_worker`` with progress and Cancel. Only a finished reconstruction adds a
@@ -29,7 +32,7 @@ from lfm_studio.napari_plugin.layer_data import (
     volume_layer_data,
 )
 from lfm_studio.napari_plugin.layer_picker import LayerPicker
-from lfm_studio.napari_plugin.notify import report_error, report_info
+from lfm_studio.napari_plugin.notify import report_error, report_info, report_warning
 from lfm_studio.napari_plugin.task_controls import TaskControls
 
 MAX_ITERATIONS = 10_000
@@ -54,14 +57,6 @@ def _is_ours(layer: Any) -> int:
     return int(kind_of(layer.metadata) is not None)
 
 
-def baseline_of(psf_layer: Any) -> float | None:
-    """The camera baseline (ADU) of the design behind a PSF layer, if it records one."""
-    design = (psf_layer.metadata or {}).get("design") if psf_layer is not None else None
-    camera = design.get("camera") if isinstance(design, dict) else None
-    value = camera.get("baseline_adu") if isinstance(camera, dict) else None
-    return float(value) if isinstance(value, (int, float)) else None
-
-
 class ReconstructWidget(QWidget):
     """The "Reconstruct light field" dock widget of ``napari_viewer``."""
 
@@ -79,10 +74,10 @@ class ReconstructWidget(QWidget):
         self.background = QDoubleSpinBox()
         self.background.setRange(0.0, MAX_BACKGROUND)
         self.background.setDecimals(2)
-        self.background.setSuffix(" counts")
+        self.background.setSuffix(" photons")
         self.background.setToolTip(
-            "Background per pixel subtracted from the model (e.g. the camera baseline in ADU). "
-            "Set from the PSF's design when the PSF layer is chosen."
+            "Extra background per pixel in photons (e.g. out-of-focus light), modelled by RL. The camera "
+            "baseline is removed first, from the image's camera metadata (or estimated, with a warning)."
         )
         self.snr = QDoubleSpinBox()
         self.snr.setRange(1e-3, 1e9)
@@ -102,12 +97,10 @@ class ReconstructWidget(QWidget):
         layout.addWidget(self.controls)
         layout.addStretch(1)
         self.method.currentIndexChanged.connect(self._on_method)
-        self.psf_picker.layerChosen.connect(self._on_psf_chosen)
         self.controls.runClicked.connect(self.start)
         self._task: BackgroundTask | None = None
         self._request: reconstruction.Request | None = None
         self._on_method()
-        self._on_psf_chosen(self.psf_picker.layer())
 
     # ----- the contract (buttons call these; so can tests and scripts) -----
 
@@ -179,6 +172,8 @@ class ReconstructWidget(QWidget):
         request, self._task, self._request = self._request, None, None
         if outcome.state == "done" and request is not None:
             name = f"{request.image_name} {request.settings.method}"
+            for note in outcome.value.metadata.get("notes", []):
+                report_warning(f"{request.image_name}: {note}")
             self.viewer.add_layer(Layer.create(*volume_layer_data(outcome.value, name=name)))
         elif outcome.state == "cancelled":
             report_info("Reconstruction cancelled; no layer was added.")
@@ -189,8 +184,3 @@ class ReconstructWidget(QWidget):
         iterative = self.method.currentData() in reconstruction.ITERATIVE
         self.iterations.setEnabled(iterative)
         self.snr.setEnabled(not iterative)
-
-    def _on_psf_chosen(self, layer: Any) -> None:
-        baseline = baseline_of(layer)
-        if baseline is not None:
-            self.background.setValue(baseline)

@@ -3,8 +3,11 @@
 :func:`prepare` checks what would otherwise fail minutes later or give nonsense: the
 image and PSF pixel sizes match, the image has the PSF's sensor shape, and the
 method suits the PSF kind; each refusal names the layers, the values and a fix.
-:func:`run` builds the projector and reconstructs, reporting progress and stopping at
-the next iteration once ``cancel`` is set (the engine's checkpoints). The method
+:func:`run` turns camera counts into photons (the image's camera metadata, the
+settings' baseline/gain, or an estimated baseline with a note), builds the projector and
+reconstructs, reporting progress and stopping at the next iteration once ``cancel`` is
+set (the engine's checkpoints). A result that is all zero, constant or NaN/Inf is
+refused (:func:`~lfm_studio.engine.reconstruct.check_reconstruction`). The method
 choices and their options are those of ``lfm-studio reconstruct``.
 """
 
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine import reconstruct
-from lfm_studio.engine.io import LightFieldImage, Volume
+from lfm_studio.engine.io import LightFieldImage, Volume, counts_to_photons, resolve_calibration
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
@@ -36,12 +39,16 @@ DEFAULT_SNR = 100.0  # wiener: power SNR; tikhonov: mu = 1 / SNR
 @dataclass(frozen=True)
 class Settings:
     """Reconstruction options: ``method`` (see :data:`METHODS`), RL ``iterations``, ``background``
-    counts per pixel (e.g. the camera baseline, ADU) and ``snr`` for Wiener / Tikhonov."""
+    photons per pixel left after the camera baseline is removed, ``snr`` for Wiener / Tikhonov, and
+    the camera ``baseline`` (ADU) / ``gain`` (ADU per electron) for an image without camera metadata
+    (None: from the image's metadata, else estimated)."""
 
     method: str = "rl"
     iterations: int = 30
     background: float = 0.0
     snr: float = DEFAULT_SNR
+    baseline: float | None = None
+    gain: float | None = None
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -50,8 +57,8 @@ class Settings:
             raise ValueError(f"iterations must be an integer >= 1; got {self.iterations!r}.")
         if not (math.isfinite(self.background) and self.background >= 0):
             raise ValueError(
-                f"background must be a finite number >= 0 (counts per pixel); got {self.background!r}. "
-                "Fix: give the camera baseline, e.g. 100 ADU, or 0 for a baseline-free image."
+                f"background must be a finite number >= 0 (photons per pixel); got {self.background!r}. "
+                "Fix: 0, or the out-of-focus light per pixel (the camera baseline is removed separately)."
             )
         if not (math.isfinite(self.snr) and self.snr > 0):
             raise ValueError(f"SNR must be a finite number > 0; got {self.snr!r}. Fix: e.g. 100.")
@@ -100,16 +107,25 @@ def prepare(
     return Request(stack, image, settings, image_name, psf_name)
 
 
-def _solve(request: Request, projector, progress: ProgressCallback, cancel: CancelToken) -> torch.Tensor:
+def _solve(
+    request: Request,
+    projector,
+    photons: torch.Tensor,
+    floor: float,
+    progress: ProgressCallback,
+    cancel: CancelToken,
+) -> torch.Tensor:
+    """Reconstruct ``photons``, which carry the camera's noise floor ``floor`` (photons per pixel)."""
     s = request.settings
     return reconstruct.reconstruct_frame(
-        projector, request.image.data, method=s.method, iterations=s.iterations, background=s.background,
+        projector, photons, method=s.method, iterations=s.iterations, background=s.background + floor,
         snr=s.snr, progress=progress, cancel=cancel,
     )  # fmt: skip
 
 
 def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Volume:
-    """Reconstruct: the volume (object-space voxels, the PSF's depths) with the settings in its metadata."""
+    """Reconstruct: the volume (object-space voxels, the PSF's depths; photons per voxel) with the settings,
+    the camera calibration used and its ``notes`` (what was estimated) in its metadata."""
     checkpoint(cancel, progress, 0, 1, "building the projector")
     setup = imaging_setup(request.stack)
     if tuple(request.image.data.shape) != tuple(setup.projector.image_shape):
@@ -118,9 +134,19 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
             f"layer {request.psf_name!r} images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF "
             "simulated for this camera."
         )
-    checkpoint(cancel, progress, 0, 1, METHODS[request.settings.method])
-    volume = _solve(request, setup.projector, progress, cancel).detach().cpu()
     s = request.settings
+    calibration, notes = resolve_calibration(
+        request.image.metadata, request.image.data, baseline=s.baseline, gain=s.gain
+    )
+    photons, floor = counts_to_photons(
+        request.image.data, calibration, name=f"image layer {request.image_name!r}"
+    )
+    checkpoint(cancel, progress, 0, 1, METHODS[s.method])
+    volume = _solve(request, setup.projector, photons, floor, progress, cancel).detach().cpu()
+    reconstruct.check_reconstruction(
+        volume,
+        what=f"the {METHODS[s.method]} reconstruction of {request.image_name!r} with {request.psf_name!r}",
+    )
     metadata = {
         "method": s.method,
         "iterations": s.iterations if s.method in ITERATIVE else None,
@@ -128,5 +154,8 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
         "snr": None if s.method in ITERATIVE else s.snr,
         "image": request.image_name,
         "psf": request.psf_name,
+        "units": calibration.volume_units,
+        "camera": calibration.to_dict(),
+        "notes": notes,
     }
     return Volume(volume, setup.voxel_size, request.stack.depths, metadata)

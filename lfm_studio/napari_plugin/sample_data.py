@@ -5,13 +5,15 @@ same layers: the ``flfm_guo2019`` preset (Fourier LFM, 3 x 3 lenslets, 40x/0.95)
 288 x 288 pixel crop of its camera (every sub-image still lands on it) at 5 depths
 from -20 to 20 um, 8 beads and 1e6 photons with shot and read noise. About 2 s on a
 laptop CPU. The image is in camera counts (ADU) with the camera's 100 ADU baseline,
-so reconstruct it with background 100.
+recorded with the gain and QE in its metadata, so the Reconstruct widget turns it
+back into photons by itself.
 """
 
 from __future__ import annotations
 
 from lfm_studio.engine.design import Design, load_preset
-from lfm_studio.engine.io import LightFieldImage, Volume
+from lfm_studio.engine.io import LightFieldImage, Volume, camera_metadata
+from lfm_studio.engine.io.camera_counts import ADU
 from lfm_studio.engine.simulation import (
     camera_of,
     design_depths,
@@ -57,9 +59,8 @@ def bead_sample(seed: int = SEED) -> list[LayerData]:
     volume, info = make_phantom("beads", setup, seed=seed, count=BEADS)
     counts, _ = light_field_image(setup, volume, camera_of(design), photons=PHOTONS, seed=seed)
     provenance = {**info, "photons": PHOTONS, "design": design.name, "psf": NAMES[1]}
-    image = LightFieldImage(
-        counts.cpu(), stack.pixel_size, {**provenance, "camera_baseline_adu": design.camera.baseline_adu}
-    )
+    camera = {"units": ADU, "camera": camera_metadata(camera_of(design), photons=PHOTONS, seed=seed)}
+    image = LightFieldImage(counts.cpu(), stack.pixel_size, {**provenance, **camera})
     truth = Volume(volume.cpu(), setup.voxel_size, stack.depths, provenance)
     lf, psf, gt = NAMES
     return [

@@ -235,12 +235,21 @@ def reconstruction_available() -> bool:
     )
 
 
-def photon_counts(image: ImageResult, design: Design) -> torch.Tensor:
-    """Camera counts (ADU) back to photo-electrons: baseline removed, divided by the gain, >= 0."""
+def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, float]:
+    """Camera counts (ADU) back to photons and the noise floor they carry (the background to model):
+    the engine's :func:`~lfm_studio.engine.io.counts_to_photons`, as in ``lfm-studio reconstruct``."""
+    from lfm_studio.engine.io import CameraCalibration, counts_to_photons
+
     camera = design.camera
-    if image.info.get("photons") is None:
-        return image.counts.clamp_min(0.0)
-    return ((image.counts - camera.baseline_adu) / camera.gain_adu_per_e).clamp_min(0.0)
+    if image.info.get("photons") is None:  # noise-free: already photons
+        return image.counts.clamp_min(0.0), 0.0
+    calibration = CameraCalibration(
+        camera.baseline_adu,
+        camera.gain_adu_per_e,
+        camera.quantum_efficiency,
+        read_noise_e=camera.read_noise_e,
+    )
+    return counts_to_photons(image.counts, calibration, name="the simulated image")
 
 
 def peak_mode(settings: WorkflowSettings) -> bool | None:
@@ -258,10 +267,14 @@ def reconstruct(
     At the end: the scorecard (NCC, bead F1, PSNR, SSIM, each beside the all-zero volume's score).
     """
     from lfm_studio.engine.metrics import match_scale, ncc, psnr, scorecard
-    from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy_iterates
+    from lfm_studio.engine.reconstruct import (
+        accelerated_rl_options,
+        check_reconstruction,
+        richardson_lucy_iterates,
+    )
 
     projector = image.setup.projector
-    counts = photon_counts(image, design)
+    counts, floor = photon_counts(image, design)
     truth = image.ground_truth
     total = settings.iterations
     nccs: list[float] = []
@@ -269,7 +282,7 @@ def reconstruct(
     changes: list[float] = []
     estimate = None
     iterates = richardson_lucy_iterates(
-        projector, counts.to(_device_of(projector)), iterations=total, progress=_rl_progress(ctx),
+        projector, counts.to(_device_of(projector)), background=floor, iterations=total, progress=_rl_progress(ctx),
         cancel=ctx.cancel, **accelerated_rl_options(projector),
     )  # fmt: skip
     for it in iterates:
@@ -280,6 +293,7 @@ def reconstruct(
         ctx.partial((tuple(nccs), tuple(changes)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
+    check_reconstruction(estimate)  # all zero, constant or NaN/Inf: an error, not a result
     ctx.progress(total, total, "reconstruction: scoring against the phantom")
     card = scorecard(
         truth, estimate, normalize="scale", peaks=peak_mode(settings), voxel_size=image.voxel_size,

@@ -64,11 +64,11 @@ def test_simulate_then_image_writes_consistent_files(tmp_path, small_design, cap
     assert torch.equal(read_image(again).data, image.data)
 
 
-def test_existing_output_is_not_overwritten(tmp_path, small_design):
+def test_existing_output_is_not_overwritten(tmp_path, small_design, capsys):
     out = tmp_path / "psf.tif"
     out.write_bytes(b"user data")
-    with pytest.raises(SystemExit, match=r"exists\. Fix: choose another --out or pass --overwrite"):
-        main(["simulate", str(small_design), "--out", str(out)])
+    assert main(["simulate", str(small_design), "--out", str(out)]) == 3  # output refused
+    assert "exists. Fix: choose another --out or pass --overwrite" in capsys.readouterr().err
     assert out.read_bytes() == b"user data"
 
 

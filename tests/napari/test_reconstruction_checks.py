@@ -58,3 +58,66 @@ def test_mismatches_are_refused_with_the_reason(stack, image, settings, expected
 def test_invalid_settings_name_the_parameter(settings, expected):
     with pytest.raises(ValueError, match=expected):
         Settings(**settings)
+
+
+def _delta_stack() -> PSFStack:
+    """Three depths, each a point imaged to a different pixel (every depth is told apart)."""
+    data = torch.zeros(3, 16, 16)
+    for z, (y, x) in enumerate(((8, 6), (8, 8), (8, 10))):
+        data[z, y, x] = 1.0
+    return PSFStack(data, (-1 * um, 0.0, 1 * um), 6.5 * um, 10.0, 525 * nm)
+
+
+def _camera_frame(stack: PSFStack) -> tuple[torch.Tensor, torch.Tensor]:
+    """A 40-photon point and its camera frame in ADU."""
+    from lfm_studio.engine.simulation import imaging_setup
+
+    setup = imaging_setup(stack)
+    truth = torch.zeros(setup.volume_shape)
+    truth[1, 1, 2] = 40.0  # photons
+    photons = setup.projector.forward(truth).clamp_min(0)
+    return truth, 100.0 + 2.0 * 0.8 * photons  # baseline 100 ADU, gain 2 ADU/e-, QE 0.8
+
+
+def test_run_converts_counts_with_the_image_camera_metadata():
+    from lfm_studio.napari_plugin.reconstruction import run
+
+    stack = _delta_stack()
+    _, counts = _camera_frame(stack)
+    meta = {
+        "units": "ADU",
+        "camera": {"baseline_adu": 100.0, "gain_adu_per_e": 2.0, "quantum_efficiency": 0.8},
+    }
+    request = _prepare(stack, LightFieldImage(counts, 6.5 * um, meta), iterations=50)
+    volume = run(request, lambda *a: None, None)
+    assert volume.metadata["units"] == "photons per voxel" and volume.metadata["notes"] == []
+    assert volume.metadata["camera"]["source"] == "image metadata"
+    # photons back (40 were put in), not ADU above the baseline (64): (ADU - 100) / 2 / 0.8;
+    # RL models the camera's noise floor as background, so 50 iterations land within 3 %
+    assert float(volume.data.sum()) == pytest.approx(40.0, rel=0.03)
+
+
+def test_run_estimates_the_baseline_of_a_foreign_image_and_says_so():
+    from lfm_studio.napari_plugin.reconstruction import run
+
+    stack = _delta_stack()
+    _, counts = _camera_frame(stack)
+    volume = run(_prepare(stack, LightFieldImage(counts, 6.5 * um), iterations=5), lambda *a: None, None)
+    notes = volume.metadata["notes"]
+    assert volume.metadata["camera"]["source"] == "estimated" and "estimated the baseline as 100" in notes[0]
+
+
+def test_run_refuses_an_all_zero_result(monkeypatch):
+    from lfm_studio.engine import reconstruct
+    from lfm_studio.engine.reconstruct import ReconstructionRejectedError
+    from lfm_studio.napari_plugin.reconstruction import run
+
+    stack = _delta_stack()
+    _, counts = _camera_frame(stack)
+    monkeypatch.setattr(reconstruct, "reconstruct_frame", lambda projector, frame, **kw: torch.zeros(3, 4, 4))
+    with pytest.raises(ReconstructionRejectedError, match="'frame' with 'psf' is all zero"):
+        run(
+            _prepare(stack, LightFieldImage(counts, 6.5 * um), baseline=100.0, gain=1.0),
+            lambda *a: None,
+            None,
+        )

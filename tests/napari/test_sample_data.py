@@ -50,7 +50,7 @@ def test_sample_is_seeded_and_obeys_the_photon_budget(bead_layers):
         np.testing.assert_array_equal(a, b)
     assert int((gt > 0).sum()) == BEADS
     p = _preset()["camera"]
-    assert lf_meta["metadata"]["metadata"]["camera_baseline_adu"] == p["baseline_adu"]
+    assert lf_meta["metadata"]["metadata"]["camera"]["baseline_adu"] == p["baseline_adu"]
     # counts = gain (QE photons + noise) + baseline: the signal sums to gain QE photons (shot noise ~0.1 %)
     signal = float(lf.astype(np.float64).sum() - p["baseline_adu"] * lf.size)
     expected = p["gain_adu_per_e"] * p["quantum_efficiency"] * PHOTONS

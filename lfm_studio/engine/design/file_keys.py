@@ -71,3 +71,21 @@ def describe_unknown_keys(exc: ValidationError, *, file_version: int) -> str:
     if not notes:
         return ""
     return f"has {len(notes)} unknown key(s): " + ". ".join(notes) + ". Fix: remove or rename them."
+
+
+def describe_invalid_values(exc: ValidationError) -> str:
+    """One readable line per problem of ``exc`` (missing keys named with their place and the keys
+    known there; other errors as ``place: message (got value)``), instead of pydantic's dump."""
+    notes = []
+    for error in exc.errors():
+        *parent, key = error["loc"] or ("(top level)",)
+        shown, _plain, model = _locate(tuple(parent))
+        where = f"{shown}.{key}" if shown else str(key)
+        if error["type"] == "missing":
+            known = f" (keys of {shown or 'the top level'}: {', '.join(model.model_fields)})" if model else ""
+            notes.append(f"the key '{where}' is missing{known}")
+        else:
+            value = repr(error.get("input"))
+            value = value if len(value) <= 60 else value[:57] + "..."
+            notes.append(f"'{where}': {error['msg']} (got {value})")
+    return "; ".join(notes)

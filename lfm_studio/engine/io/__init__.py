@@ -15,7 +15,14 @@ Example::
                            depths=[(i - 25) * 2 * um for i in range(51)])  # a Fiji bead stack
 """
 
+from lfm_studio.engine.io.camera_counts import (
+    CameraCalibration,
+    camera_metadata,
+    counts_to_photons,
+    resolve_calibration,
+)
 from lfm_studio.engine.io.containers import LightFieldImage, Volume
+from lfm_studio.engine.io.file_checks import InputFileError, OutputError, check_output
 from lfm_studio.engine.io.metadata import SCHEMA_VERSION, HeaderError, MissingMetadataError
 from lfm_studio.engine.io.tiff_io import (
     read_image,
@@ -28,13 +35,20 @@ from lfm_studio.engine.io.tiff_io import (
 
 __all__ = [
     "SCHEMA_VERSION",
+    "CameraCalibration",
     "HeaderError",
+    "InputFileError",
     "LightFieldImage",
     "MissingMetadataError",
+    "OutputError",
     "Volume",
+    "camera_metadata",
+    "check_output",
+    "counts_to_photons",
     "read_image",
     "read_psf_stack",
     "read_volume",
+    "resolve_calibration",
     "write_image",
     "write_psf_stack",
     "write_volume",

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ import torch
 
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.io.calibration import Calibration, read_calibration
+from lfm_studio.engine.io.file_checks import InputFileError, output_os_error
 from lfm_studio.engine.io.metadata import HeaderError
 from lfm_studio.engine.units import um
 
@@ -87,7 +89,12 @@ def write_hyperstack(
     def write(fh) -> None:
         tifffile.imwrite(fh, array, imagej=True, resolution=resolution, metadata=metadata)
 
-    return atomic_write(path, write, overwrite=overwrite)
+    try:
+        return atomic_write(path, write, overwrite=overwrite)
+    except (FileExistsError, IsADirectoryError, FileNotFoundError):
+        raise
+    except OSError as error:  # read-only folder, full disk: atomic_write left nothing behind
+        raise output_os_error(Path(path).expanduser(), error) from error
 
 
 @dataclass(frozen=True)
@@ -100,33 +107,55 @@ class RawTiff:
     calibration: Calibration
 
 
-_TRUNCATED_FIX = "Fix: copy or export the file again (an interrupted copy or download leaves it short)."
+_TRUNCATED_FIX = "Fix: write or copy the file again (an interrupted copy or download leaves it short)."
+_UNREADABLE = (tifffile.TiffFileError, ValueError, OSError, EOFError, IndexError, struct.error)
+
+
+def _unreadable(source: Path, error: BaseException) -> InputFileError:
+    return InputFileError(
+        f"{source} is truncated or corrupt, or not a TIFF ({type(error).__name__}: {error}). {_TRUNCATED_FIX}"
+    )
 
 
 def read_hyperstack(path: str | os.PathLike) -> RawTiff:
-    """Read the first image series of any TIFF, with its ImageJ Info and calibration."""
+    """Read the first image series of any TIFF, with its ImageJ Info and calibration.
+
+    A file that tifffile cannot parse or whose data ends early raises :class:`InputFileError`
+    naming it (not tifffile's "failed to read N bytes").
+    """
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(f"No such TIFF file: {source}")
-    with tifffile.TiffFile(source) as tif:
-        series = tif.series[0]
+    try:
+        tif = tifffile.TiffFile(source)
+    except _UNREADABLE as error:
+        raise _unreadable(source, error) from error
+    with tif:
         try:
+            series = tif.series[0]
             array = series.asarray()
-        except (ValueError, OSError) as error:  # tifffile: "failed to read N bytes, got M"
-            raise ValueError(f"{source} is truncated or damaged ({error}). {_TRUNCATED_FIX}") from error
+            info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
+        except _UNREADABLE as error:
+            raise _unreadable(source, error) from error
         announced = (tif.imagej_metadata or {}).get("images") if tif.is_imagej else None
         planes = math.prod(n for n, axis in zip(series.shape, series.axes, strict=True) if axis not in "YXS")
         if isinstance(announced, int) and planes < announced:  # tifffile fell back to the pages it could read
-            raise ValueError(
+            raise InputFileError(
                 f"{source} is truncated: its ImageJ header announces {announced} images but only {planes} "
                 f"could be read ({source.stat().st_size} bytes on disk). {_TRUNCATED_FIX}"
             )
-        info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
         return RawTiff(array=array, axes=series.axes, info=info, calibration=read_calibration(tif))
 
 
-def to_tensor(array: np.ndarray, dtype: torch.dtype, device: torch.device | str | None) -> torch.Tensor:
-    """numpy -> real floating tensor of ``dtype`` on ``device``."""
+def to_tensor(
+    array: np.ndarray, dtype: torch.dtype, device: torch.device | str | None, *, name: str = "the TIFF"
+) -> torch.Tensor:
+    """numpy -> real floating tensor of ``dtype`` on ``device``; complex data (``name`` is the file) is refused."""
+    if np.iscomplexobj(array):
+        raise InputFileError(
+            f"{name} holds complex data ({array.dtype}); images, volumes and PSF stacks are real intensities "
+            "(the real part alone would be a silently wrong result). Fix: save the intensity |x|^2."
+        )
     if not dtype.is_floating_point:
         raise TypeError(f"dtype must be a real floating torch dtype (float32, float64); got {dtype}.")
     numpy_type = np.float64 if dtype == torch.float64 else np.float32

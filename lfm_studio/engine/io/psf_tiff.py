@@ -152,7 +152,7 @@ def read_psf_stack(
         hint = "Pass them to read_psf_stack, e.g. " + ", ".join(examples[key] for key in missing) + "."
         raise MissingMetadataError(name, missing, hint)
     return PSFStack(
-        data=hs.to_tensor(array, dtype, device),
+        data=hs.to_tensor(array, dtype, device, name=name),
         depths=tuple(values["depths"]),
         pixel_size=float(values["pixel_size"]),
         magnification=float(values["magnification"]),

@@ -122,7 +122,7 @@ def read_volume(
         )
         raise MissingMetadataError(name, ["voxel_size"], hint, what=f"voxel size {', '.join(missing)}")
     return Volume(
-        data=hs.to_tensor(array, dtype, device),
+        data=hs.to_tensor(array, dtype, device, name=name),
         voxel_size=tuple(stored),
         depths=depths if depths is not None else stored_depths,
         metadata=metadata,
@@ -199,7 +199,7 @@ def read_image(
             name, ["pixel_size"], "Pass pixel_size to read_image, e.g. pixel_size=6.5 * um (metres)."
         )
     return LightFieldImage(
-        data=hs.to_tensor(array, dtype, device), pixel_size=float(value), metadata=metadata
+        data=hs.to_tensor(array, dtype, device, name=name), pixel_size=float(value), metadata=metadata
     )
 
 

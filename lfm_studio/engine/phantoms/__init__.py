@@ -14,7 +14,7 @@ Example::
     brain = cells_in_ellipsoid(voxel_size=(2 * um,) * 3, seed=0)   # larval zebrafish brain, ~42k cells
 """
 
-from lfm_studio.engine.phantoms.beads import beads
+from lfm_studio.engine.phantoms.beads import DEFAULT_BEADS, beads, default_bead_count
 from lfm_studio.engine.phantoms.cells import (
     DEFAULT_CELL_DENSITY,
     ZEBRAFISH_BRAIN_SEMI_AXES,
@@ -25,11 +25,13 @@ from lfm_studio.engine.phantoms.phantom import Phantom
 from lfm_studio.engine.phantoms.placement import PlacementError
 
 __all__ = [
+    "DEFAULT_BEADS",
     "DEFAULT_CELL_DENSITY",
     "ZEBRAFISH_BRAIN_SEMI_AXES",
     "Phantom",
     "PlacementError",
     "beads",
     "cells_in_ellipsoid",
+    "default_bead_count",
     "from_tiff",
 ]

@@ -32,6 +32,7 @@ def beads(
     margin: float | None = None,
     min_separation: float | None = None,
     subvoxel: bool = False,
+    allow_fewer: bool = False,
     dtype: torch.dtype = torch.float32,
     device: torch.device | str | None = None,
 ) -> Phantom:
@@ -60,6 +61,9 @@ def beads(
         so every bead is a separate peak. 0 allows overlaps (coinciding points keep one value).
     subvoxel : bool
         Place sphere centres anywhere (not only at voxel centres); needs ``radius > 0``.
+    allow_fewer : bool
+        Place as many as fit (``Phantom.count`` may then be below ``count``) instead of
+        raising :class:`~lfm_studio.engine.phantoms.placement.PlacementError`.
     dtype, device : of the volume.
 
     Returns
@@ -109,13 +113,39 @@ def beads(
 
     scale = torch.full((3,), separation, dtype=torch.float64) if separation > 0 else None
     positions, _ = place_separated(
-        count, sample, low=(lo - centre) * spacing, high=(hi - centre) * spacing, scale=scale
-    )
+        count, sample, low=(lo - centre) * spacing, high=(hi - centre) * spacing, scale=scale,
+        allow_fewer=allow_fewer,
+    )  # fmt: skip
+    placed = int(positions.shape[0])
     indices = nearest_voxel(positions, shape, spacing)
-    values = torch.full((count,), float(intensity), dtype=torch.float64)
-    semi_axes = torch.full((count, 3), float(radius), dtype=torch.float64)
+    values = torch.full((placed,), float(intensity), dtype=torch.float64)
+    semi_axes = torch.full((placed, 3), float(radius), dtype=torch.float64)
     if radius == 0:
         data = stamp_points(shape, indices, values, dtype=dtype, device=device)
     else:
         data = stamp_ellipsoids(shape, d, positions, semi_axes, values, dtype=dtype, device=device)
     return Phantom(data, d, positions, indices, semi_axes, values)
+
+
+#: Beads in a default phantom when the volume has room for them.
+DEFAULT_BEADS = 50
+#: Fraction of the volume the beads' exclusion spheres fill by default: random sequential
+#: placement stalls near 0.3 (3-D) and fills thin slabs less, so a third of that always fits.
+DEFAULT_FILL = 0.1
+
+
+def default_bead_count(
+    shape: tuple[int, int, int], voxel_size: tuple[float, float, float], *, cap: int = DEFAULT_BEADS
+) -> int:
+    """How many point beads a default phantom holds: ``cap``, or fewer when the volume is small.
+
+    The count fills :data:`DEFAULT_FILL` of the volume with exclusion spheres of the
+    default separation ``2 max(voxel_size)`` (the space around the allowed centres
+    included), so a preset with few depths or a small field of view gets what fits
+    instead of a placement error. At least 1.
+    """
+    shape, d = check_shape(shape), check_triple("voxel_size", voxel_size, hint="(dz, dy, dx) in metres.")
+    separation = 2 * max(d)
+    room = math.prod((n - 1) * step + separation for n, step in zip(shape, d, strict=True))
+    sphere = math.pi / 6 * separation**3
+    return int(max(1, min(cap, math.floor(DEFAULT_FILL * room / sphere))))

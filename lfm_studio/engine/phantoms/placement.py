@@ -65,6 +65,7 @@ def place_separated(
     scale: torch.Tensor | None,
     min_size: float = 1.0,
     max_draws: int | None = None,
+    allow_fewer: bool = False,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``count`` non-conflicting objects drawn by ``sample``: centres ``(count, 3)`` and sizes ``(count,)``.
 
@@ -80,6 +81,8 @@ def place_separated(
     max_draws : give up after this many candidates (default ``30 * count + 100_000``), or as
         soon as the last batch's acceptance rate says the rest cannot fit in that budget
         (acceptance only falls as the volume fills, so this never gives up too early).
+    allow_fewer : return the objects placed so far instead of raising :class:`PlacementError`
+        when no more fit (the caller then has fewer than ``count`` and should say so).
     """
     found = torch.zeros((0, 3), dtype=torch.float64)
     sizes = torch.zeros(0, dtype=torch.float64)
@@ -106,6 +109,8 @@ def place_separated(
     drawn, rate = 0, 1.0
     while len(found) < count:
         if drawn >= limit or (count - len(found)) > rate * (limit - drawn):
+            if allow_fewer:
+                break
             raise PlacementError(
                 f"could place only {len(found)} of {count} non-overlapping objects after {drawn} random "
                 f"tries (the last batch accepted {rate:.2%}; random packing stalls near 30 % of the volume "

@@ -29,6 +29,7 @@ from lfm_studio.engine.reconstruct.backprojectors import (
 )
 from lfm_studio.engine.reconstruct.dispatch import METHODS, reconstruct_frame
 from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
+from lfm_studio.engine.reconstruct.result_check import ReconstructionRejectedError, check_reconstruction
 from lfm_studio.engine.reconstruct.richardson_lucy import (
     Iterate,
     poisson_nll,
@@ -42,7 +43,9 @@ __all__ = [
     "METHODS",
     "FilteredBackProjector",
     "Iterate",
+    "ReconstructionRejectedError",
     "accelerated_rl_options",
+    "check_reconstruction",
     "poisson_nll",
     "reconstruct_frame",
     "richardson_lucy",

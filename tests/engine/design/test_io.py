@@ -131,9 +131,19 @@ def test_invalid_physics_in_a_file_names_the_file_and_the_parameter(fourier):
     data["objective"]["numerical_aperture"] = 1.2
     with pytest.raises(
         DesignFileError,
-        match=r"(?s)x\.json does not describe a valid design: .*objective\n.*numerical_aperture 1\.2 must be below immersion_index 1",
+        match=r"x\.json does not describe a valid design: 'objective': .*numerical_aperture 1\.2 must be below immersion_index 1",
     ):
         design_from_json(json.dumps(data), origin="x.json")
+
+
+def test_missing_key_is_named_without_a_pydantic_dump(fourier):
+    data = _data(fourier)
+    del data["camera"]["pixel_count"]
+    with pytest.raises(DesignFileError) as caught:
+        design_from_json(json.dumps(data), origin="x.json")
+    message = str(caught.value)
+    assert "the key 'camera.pixel_count' is missing (keys of camera: pixel_pitch_um, pixel_count" in message
+    assert "Fix:" in message and "errors.pydantic.dev" not in message and "input_type" not in message
 
 
 def test_save_never_overwrites_without_being_asked(tmp_path, fourier, conventional):
