@@ -54,14 +54,12 @@ def run_calibrate(args: argparse.Namespace) -> int:
     from lfm_studio.engine.calibration import calibrate, save_calibration
     from lfm_studio.engine.calibration.calibration_io import dark_frame_path
     from lfm_studio.engine.design import resolve_design
+    from lfm_studio.engine.io.file_checks import check_output
 
-    out = Path(args.out)
-    targets = (out, dark_frame_path(out)) if args.dark is not None else (out,)
-    for target in targets:
-        if target.exists() and not args.overwrite:
-            raise FileExistsError(
-                f"--out: {target} already exists. Fix: pass --overwrite to replace it, or choose another name."
-            )
+    inputs = (args.radiometry, args.dark)
+    out = check_output(args.out, overwrite=args.overwrite, inputs=inputs)
+    if args.dark is not None:  # the dark frame is saved beside the calibration
+        check_output(dark_frame_path(out), overwrite=args.overwrite, inputs=inputs, flag="--out (dark frame)")
     design = resolve_design(args.design)
     pixel = design.camera.pixel_pitch
     radiometry = _read_frame("--radiometry", args.radiometry, pixel)

@@ -11,6 +11,7 @@ import tifffile
 import torch
 
 from lfm_studio import cli
+from lfm_studio.cli_errors import OUTPUT_REFUSED
 from lfm_studio.engine.calibration import LensletLattice, load_calibration
 from lfm_studio.engine.calibration.synthetic import conventional_design_for, fourier_frames, synthetic_frames
 from lfm_studio.engine.design import load_preset, save_design
@@ -66,10 +67,17 @@ def test_calibrate_writes_a_calibration_close_to_the_truth(files, tmp_path, caps
     assert math.degrees(lattice.rotation) == pytest.approx(1.4, abs=0.02)
     # An existing file is kept unless --overwrite is given.
     before = out.read_bytes()
-    assert _calibrate(files, out, dark=None) == 2
-    assert "already exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert _calibrate(files, out, dark=None) == OUTPUT_REFUSED
+    assert "exists. Fix" in capsys.readouterr().err and out.read_bytes() == before
     assert _calibrate(files, out, "--overwrite", dark=None) == 0
     assert load_calibration(out).dark_level == 100.0  # no dark frame: the design camera's baseline
+
+
+def test_calibrate_never_writes_over_its_input(files, capsys):
+    radiometry = files["radiometry"]
+    before = open(radiometry, "rb").read()
+    assert _calibrate(files, radiometry, "--overwrite", dark=None) == OUTPUT_REFUSED
+    assert "also an input" in capsys.readouterr().err and open(radiometry, "rb").read() == before
 
 
 @pytest.mark.parametrize(
