@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -75,9 +76,9 @@ def test_calibrate_writes_a_calibration_close_to_the_truth(files, tmp_path, caps
 
 def test_calibrate_never_writes_over_its_input(files, capsys):
     radiometry = files["radiometry"]
-    before = open(radiometry, "rb").read()
+    before = Path(radiometry).read_bytes()
     assert _calibrate(files, radiometry, "--overwrite", dark=None) == OUTPUT_REFUSED
-    assert "also an input" in capsys.readouterr().err and open(radiometry, "rb").read() == before
+    assert "also an input" in capsys.readouterr().err and Path(radiometry).read_bytes() == before
 
 
 @pytest.mark.parametrize(
