@@ -89,7 +89,7 @@ def test_a_sparse_psf_is_drawn_visibly_larger_than_with_a_linear_min_max_display
     data = stack.data.numpy()
     # 0.1-99.9 % limits (independent numpy reference) and gamma 0.5.
     low, high = np.percentile(data, [0.1, 99.9])
-    assert shown.contrast_limits == pytest.approx((low, high), rel=1e-4, abs=1e-7)
+    assert shown.contrast_limits == pytest.approx((low, high), rel=0.02, abs=1e-7)  # sampled percentiles
     assert shown.gamma == pytest.approx(0.5) and high < 0.1 * data.max()
 
     view = _napari_view(qtbot)
