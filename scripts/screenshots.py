@@ -1,18 +1,22 @@
-"""Regenerate the README screenshots in docs/screenshots/.
+"""Regenerate the README screenshots in docs/screenshots/ (and, with ``--workflow``, every display state).
 
-Opens the studio on the bundled default design (XLFM after Cong et al. 2017), waits
-until the quick PSF preview has been computed and drawn, and saves:
+Starts the studio exactly as ``lfm-studio gui`` does (:func:`lfm_studio.ui.app.launch_studio`:
+the bundled default design, XLFM after Cong et al. 2017, the real napari viewer, preview on),
+waits until the quick PSF preview has been computed and drawn, and saves:
 
 - ``main_window.png``: the whole window (parameters, MLA editor, viewer, plots, status bar);
 - ``mla_editor.png``: the MLA layout editor dock;
 - ``viewer.png``: the PSF viewer.
 
+``--full`` waits for the full PSF stack and its measured metrics first (minutes on a CPU).
+``--workflow DIR`` (implies ``--full``) then presses "Simulate image" and "Reconstruct" and
+saves the viewer in each state to DIR: ``psf_full.png``, ``light_field.png``, ``phantom.png``,
+``phantom_mip.png``, ``reconstruction.png`` (its brightest slice) and ``reconstruction_mip.png``,
+plus ``main_window_workflow.png`` (the status bar's stage trail with times).
+
 Headless machines need an X server with OpenGL (napari's canvas)::
 
     xvfb-run -a -s "-screen 0 1600x1000x24" .venv/bin/python scripts/screenshots.py
-
-Options: ``--out DIR`` (default docs/screenshots), ``--design NAME_OR_FILE``,
-``--full`` (also wait for the full PSF stack and its measured metrics; minutes on a CPU).
 """
 
 from __future__ import annotations
@@ -31,32 +35,73 @@ REPO = Path(__file__).resolve().parents[1]
 WINDOW_SIZE = (1600, 1000)
 
 
+def _save(widget, target: Path) -> None:
+    if not widget.grab().save(str(target)):
+        raise SystemExit(f"screenshots: could not write {target}")
+    print(f"wrote {target} ({widget.width()} x {widget.height()})")
+
+
+def _finished(state, job: str):
+    return lambda: state.job(job).state in ("done", "failed", "cancelled")
+
+
+def _require_done(state, job: str) -> None:
+    status = state.job(job)
+    if status.state != "done":
+        raise SystemExit(f"screenshots: the {job} stage ended {status.state}: {status.message}")
+
+
+def _workflow_states(app, window, out: Path, timeout: float) -> None:
+    """Simulate, reconstruct, and save the viewer at each display state."""
+    state, viewer, panel = window.state, window.viewer, window.workflow_panel
+    out.mkdir(parents=True, exist_ok=True)
+    _save(viewer, out / "psf_full.png")
+    panel.simulate_button.click()
+    wait_until(app, _finished(state, "image"), timeout, "the image")
+    _require_done(state, "image")
+    settle(app, 2.0)
+    _save(viewer, out / "light_field.png")
+    panel.reconstruct_button.click()
+    wait_until(app, _finished(state, "reconstruction"), timeout, "the reconstruction")
+    _require_done(state, "reconstruction")
+    settle(app, 2.0)
+    _save(viewer, out / "reconstruction.png")
+    viewer.set_mip(True)
+    settle(app, 2.0)
+    _save(viewer, out / "reconstruction_mip.png")
+    viewer.focus("phantom")
+    settle(app, 2.0)
+    _save(viewer, out / "phantom_mip.png")
+    viewer.set_mip(False)
+    settle(app, 2.0)
+    _save(viewer, out / "phantom.png")
+    viewer.focus("reconstruction")
+    settle(app, 1.0)
+    _save(window, out / "main_window_workflow.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "screenshots")
     parser.add_argument("--design", default=None, help="preset name or design file (default: the studio's)")
     parser.add_argument("--full", action="store_true", help="wait for the full PSF stack too")
-    parser.add_argument("--timeout", type=float, default=600.0, help="seconds to wait for each stage")
+    parser.add_argument("--workflow", type=Path, default=None, help="also save every display state here")
+    parser.add_argument("--timeout", type=float, default=1200.0, help="seconds to wait for each stage")
     args = parser.parse_args(argv)
 
-    from lfm_studio.ui.app import _open, build_studio
-    from lfm_studio.ui.widget_factories import prepare_qt_app, warm_up_viewer
+    from qtpy.QtWidgets import QApplication
 
-    design, path = _open(args.design)
-    app = prepare_qt_app()
-    window = build_studio(design, file_path=path)
-    warm_up_viewer(window.viewer)  # as run_studio does
+    from lfm_studio.ui.app import launch_studio
+
+    window = launch_studio(args.design)  # exactly what `lfm-studio gui` does before app.exec()
+    app = QApplication.instance()
     window.resize(*WINDOW_SIZE)
-    window.show()
     state = window.state
-    window.controller.start()
-    if args.full:
+    if args.full or args.workflow is not None:
         wait_until(
-            app,
-            lambda: state.psf is not None and state.job("metrics").state == "done",
-            args.timeout,
-            "the PSF",
+            app, lambda: state.psf is not None and _finished(state, "metrics")(), args.timeout, "the PSF"
         )
+        _require_done(state, "psf")
     else:
         wait_until(
             app, lambda: state.preview is not None or state.psf is not None, args.timeout, "the preview"
@@ -73,10 +118,9 @@ def main(argv: list[str] | None = None) -> int:
         if widget is None:
             print(f"skipped {name}: widget not available", file=sys.stderr)
             continue
-        target = args.out / name
-        if not widget.grab().save(str(target)):
-            raise SystemExit(f"screenshots: could not write {target}")
-        print(f"wrote {target} ({widget.width()} x {widget.height()})")
+        _save(widget, args.out / name)
+    if args.workflow is not None:
+        _workflow_states(app, window, args.workflow, args.timeout)
 
     window.controller.cancel()
     state.set_dirty(False)

@@ -80,20 +80,37 @@ def _leave_a_core_for_the_gui() -> None:
     torch.set_num_threads(max(1, min(torch.get_num_threads(), cores - 1)))
 
 
-def run_studio(design: str | None = None) -> int:
-    """Open the studio window on ``design`` (a file or preset; default: the bundled XLFM-like preset).
+def launch_studio(design: str | None = None):
+    """Everything ``lfm-studio gui`` does before the event loop; returns the shown main window.
 
-    Returns the Qt event loop's exit status. A design that cannot be read raises
-    before any window opens (the command line prints the reason).
+    Opens ``design`` (a file or preset; default: the bundled XLFM-like preset), builds the
+    window with the real widgets, shows it and starts the PSF stack (preview first). A design
+    that cannot be read raises before any window opens (the command line prints the reason).
     """
     _environment()
     loaded, path = _open(design)  # errors surface before Qt starts
     _leave_a_core_for_the_gui()
     from lfm_studio.ui.widget_factories import prepare_qt_app, warm_up_viewer
 
-    app = prepare_qt_app()
+    prepare_qt_app()
     window = build_studio(loaded, file_path=path)
     warm_up_viewer(window.viewer)
     window.show()
     window.controller.start()
+    return window
+
+
+def _event_loop(app, window) -> int:
+    """Run Qt's event loop until the last window closes (``window`` is kept alive meanwhile)."""
     return int(app.exec())
+
+
+def run_studio(design: str | None = None) -> int:
+    """Open the studio window on ``design`` (see :func:`launch_studio`) and run the event loop.
+
+    Returns the Qt event loop's exit status.
+    """
+    window = launch_studio(design)
+    from qtpy.QtWidgets import QApplication
+
+    return _event_loop(QApplication.instance(), window)

@@ -12,11 +12,14 @@ still running cancels the old one and bumps the name's generation counter; whate
 a superseded job delivers later (result or partial) is dropped, so a late result from
 old parameters never overwrites a newer one. Callbacks run on the GUI thread and only
 for a job that succeeded and is still current: a failed or cancelled job leaves the
-previous result untouched.
+previous result untouched. A result callback that raises makes the job "failed" with that
+error (never "done"); the exception also goes to ``sys.excepthook``, as any exception
+escaping a slot does.
 """
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
 import traceback
@@ -91,6 +94,22 @@ def _run(func: Callable[..., Any], ctx: JobContext, args: tuple) -> JobOutcome:
             seconds=time.perf_counter() - start,
         )  # fmt: skip
     return JobOutcome(ctx.name, ctx.generation, "done", value=value, seconds=time.perf_counter() - start)
+
+
+def _root_cause(error: BaseException) -> BaseException:
+    """The original error behind wrappers such as psygnal's ``EmitLoopError`` (``raise ... from``)."""
+    while error.__cause__ is not None:
+        error = error.__cause__
+    return error
+
+
+def _one_line(error: BaseException | None) -> str:
+    """``error`` for the status bar: its first non-empty line (the type name when it has no message)."""
+    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    text = lines[0] if lines else ""
+    return (
+        f"{type(error).__name__}: {text}" if isinstance(error, (KeyError, IndexError)) or not text else text
+    )
 
 
 class _Relay(QObject):
@@ -209,18 +228,25 @@ class JobRunner(QObject):
             return
         if outcome.state == "done" and job.ctx.cancel.is_set():
             outcome = JobOutcome(outcome.name, outcome.generation, "cancelled", seconds=outcome.seconds)
+        if outcome.state == "done" and job.on_result is not None:
+            try:
+                job.on_result(outcome.value)
+            except Exception as error:  # a result the GUI could not take: the stage failed
+                outcome = JobOutcome(
+                    outcome.name, outcome.generation, "failed", error=_root_cause(error),
+                    details=traceback.format_exc(), seconds=outcome.seconds,
+                )  # fmt: skip
+                sys.excepthook(*sys.exc_info())  # reported like any exception escaping a slot
         if outcome.state == "done":
             message = f"done in {outcome.seconds:.1f} s"
             self._set_status(job, JobStatus(outcome.name, "done", 1, 1, message, outcome.generation))
-            if job.on_result is not None:
-                job.on_result(outcome.value)
         elif outcome.state == "cancelled":
             done, total = job.status.done, job.status.total
             self._set_status(
                 job, JobStatus(outcome.name, "cancelled", done, total, "cancelled", outcome.generation)
             )
         else:
-            message = f"failed: {outcome.error}"
+            message = f"failed: {_one_line(outcome.error)}"
             self._set_status(job, JobStatus(outcome.name, "failed", 0, 0, message, outcome.generation))
             if job.on_error is not None:
                 job.on_error(outcome)

@@ -141,7 +141,8 @@ class MainWindow(QMainWindow):
     def _update_title(self, *_: Any) -> None:
         state = self.state
         where = state.file_path.name if state.file_path is not None else "not saved"
-        self.setWindowTitle(f"{state.design.name} ({where})[*] — {APP_TITLE}")  # Qt shows [*] as " *"
+        # "[*]": where Qt draws the modified mark ("*" while dirty); without it Qt warns on stderr.
+        self.setWindowTitle(f"{state.design.name} ({where})[*] — {APP_TITLE}")
         self.setWindowModified(state.dirty)
 
     def closeEvent(self, event: QCloseEvent) -> None:

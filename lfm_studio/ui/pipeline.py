@@ -136,12 +136,21 @@ def _psf_result(
 
 
 def compute_psf(ctx: Context, request: PSFRequest, cache: LensletCache | None) -> PSFResult:
-    """The PSF stage: the preview (handed over with ``ctx.partial``) when asked, then the full stack."""
+    """The PSF stage: the preview (handed over with ``ctx.partial``) when asked, then the full stack.
+
+    A preview the engine refuses (its reduced design is not computable, e.g. pixels binned too
+    coarse for the lenslet apertures) is skipped with a progress message: it must not cost the
+    full stack.
+    """
     if request.preview is not None:
-        preview = _psf_result(
-            request.design, request.preview, request.preview_depths, request.device, cache, ctx, True
-        )
-        ctx.partial(preview)
+        try:
+            preview = _psf_result(
+                request.design, request.preview, request.preview_depths, request.device, cache, ctx, True
+            )
+        except ValueError as error:  # the reduced design is not computable (e.g. binned too coarse)
+            ctx.progress(0, 1, f"PSF preview skipped ({error}); computing the full stack")
+        else:
+            ctx.partial(preview)
     depths = tuple(request.design.depths.values)
     return _psf_result(request.design, request.design, depths, request.device, cache, ctx, False)
 

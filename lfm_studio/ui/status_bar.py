@@ -1,4 +1,5 @@
-"""The status bar's job display: what runs, a progress bar, and a Cancel button."""
+"""The status bar's job display: the stage trail of the design-change loop, what runs, a progress
+bar, and a Cancel button."""
 
 from __future__ import annotations
 
@@ -6,7 +7,10 @@ from qtpy.QtCore import Signal
 from qtpy.QtWidgets import QHBoxLayout, QLabel, QProgressBar, QPushButton, QWidget
 
 from lfm_studio.ui.results import JobStatus
+from lfm_studio.ui.stage_trail import StageTrail
 from lfm_studio.ui.state import StudioState
+
+FAILED_STYLE = "QLabel { color: #ff6b6b; font-weight: bold; }"
 
 JOB_TITLES = {
     "psf": "PSF",
@@ -27,6 +31,10 @@ class JobStatusBar(QWidget):
         self.state = state
         layout = QHBoxLayout(self)
         layout.setContentsMargins(4, 0, 4, 0)
+        self.trail = StageTrail(state)
+        self.trail_label = QLabel("", self)
+        self.trail_label.setToolTip("The design-change loop: PSF -> image -> reconstruction, with times")
+        self.trail.listeners.append(self._render_trail)
         self.message = QLabel("Ready", self)
         self.progress = QProgressBar(self)
         self.progress.setFixedWidth(220)
@@ -35,6 +43,7 @@ class JobStatusBar(QWidget):
         self.cancel_button = QPushButton("Cancel", self)
         self.cancel_button.setToolTip("Stop the running computation; the previous result stays.")
         self.cancel_button.clicked.connect(self._on_cancel)
+        layout.addWidget(self.trail_label)
         layout.addWidget(self.message, 1)
         layout.addWidget(self.progress)
         layout.addWidget(self.cancel_button)
@@ -44,6 +53,14 @@ class JobStatusBar(QWidget):
 
     def disconnect_state(self) -> None:
         self.state.job_changed.disconnect(self._on_job)
+        self.trail.disconnect_state()
+
+    def _render_trail(self) -> None:
+        text = self.trail.text()
+        failed = any(record.state == "failed" for record in self.trail.records.values())
+        self.trail_label.setText(text + ("   |" if text else ""))
+        self.trail_label.setStyleSheet(FAILED_STYLE if failed else "")
+        self.trail_label.setToolTip(text)
 
     def _on_cancel(self) -> None:
         self.cancel_requested.emit()

@@ -34,6 +34,13 @@ from lfm_studio.engine.psf_stack import PSFStack
 
 #: Per displayed 3-D block: 2**24 float32 voxels = 64 MiB, about 0.45 s/frame in software GL.
 DEFAULT_MAX_VOXELS_3D = 2**24
+#: Display gamma of PSF stacks: a Fourier-LFM PSF is a few bright spots with faint side lobes
+#: in a black sensor frame; gamma 0.5 with 0.1-99.9 % limits shows both (linear showed single pixels).
+PSF_GAMMA = 0.5
+#: Percentiles (%) of the robust contrast limits of PSFs and camera images.
+ROBUST_PERCENTILES = (0.1, 99.9)
+#: Samples drawn (fixed seed) to estimate the percentiles of large data.
+PERCENTILE_SAMPLES = 2_000_000
 SENSOR, SAMPLE = "sensor", "sample"
 
 
@@ -49,6 +56,7 @@ class DisplayData:
     axis_labels: tuple[str, ...]
     colormap: str
     contrast_limits: tuple[float, float] | None  # None: per-slice auto contrast
+    gamma: float = 1.0  # display gamma (< 1 lifts faint structure: sparse PSFs)
     z_stretch: float = 1.0  # display-only axial exaggeration (through the layer affine)
     has_depth: bool = True  # the third-last axis is depth
     initial_step: dict[int, int] = field(default_factory=dict)  # starting slider positions
@@ -110,7 +118,8 @@ def psf_display(
         space=SENSOR,
         axis_labels=(*lead_labels, "z", "y", "x"),
         colormap="magma",
-        contrast_limits=None,
+        contrast_limits=_robust_limits(data, floor=0.0),
+        gamma=PSF_GAMMA,
         z_stretch=_z_stretch(z_span, min(ny, nx) * px),
         initial_step={axis: data.shape[axis] // 2 for axis in range(lead)} if conventional else {},
         metadata=meta,
@@ -190,11 +199,20 @@ def volume_display(
         colormap="inferno",
         contrast_limits=None,  # the data range, below
         z_stretch=_z_stretch(z_span, lateral),
+        initial_step={lead: brightest_slice(data)},  # sparse volumes: z = 0 is often empty
         metadata=meta,
     )
     _finish(shown, max_voxels_3d)
     shown.contrast_limits = shown.data_range  # one fixed range for the whole volume
     return shown
+
+
+def brightest_slice(data: np.ndarray) -> int:
+    """Index along the depth axis (third last) of the slice holding the volume's maximum."""
+    if data.ndim < 3 or not data.size:
+        return 0
+    peaks = torch.from_numpy(data).reshape(-1, *data.shape[-3:]).amax(dim=(0, 2, 3))
+    return int(peaks.argmax())
 
 
 #: Lateral size at or below which no further pyramid level is made (about a canvas width).
@@ -293,9 +311,23 @@ def _range(data: np.ndarray) -> tuple[float, float]:
     return (low, high) if high > low else (low, low + 1.0)
 
 
-def _robust_limits(data: np.ndarray) -> tuple[float, float]:
-    """0.1 / 99.9 percentiles of at most ~1M samples (camera images: hot pixels, baseline)."""
+def _robust_limits(data: np.ndarray, *, floor: float | None = None) -> tuple[float, float]:
+    """0.1 / 99.9 percentiles (:data:`ROBUST_PERCENTILES`) of ``data``, the low one at least ``floor``.
+
+    Large data is sampled at :data:`PERCENTILE_SAMPLES` random positions (fixed seed: regular
+    strides alias with the regular spot grid of a Fourier-LFM PSF). When the high percentile
+    does not exceed the low one (fewer than 0.1 % non-zero pixels, constant data) the high
+    limit is the data maximum, so the brightest structure is never clipped away entirely.
+    """
     flat = data.reshape(-1)
-    sample = flat[:: max(1, flat.size // 1_000_000)]
-    low, high = np.percentile(sample, [0.1, 99.9]) if sample.size else (0.0, 1.0)
-    return (float(low), float(high)) if high > low else _range(data)
+    if not flat.size:
+        return (0.0, 1.0)
+    if flat.size > PERCENTILE_SAMPLES:
+        picks = np.random.default_rng(0).integers(0, flat.size, PERCENTILE_SAMPLES)
+        flat = flat[picks]
+    low, high = (float(v) for v in np.percentile(flat, ROBUST_PERCENTILES))
+    if floor is not None:
+        low = max(low, floor)
+    if not high > low:
+        high = float(data.max())
+    return (low, high) if high > low else _range(data)

@@ -52,6 +52,7 @@ class NapariScene:
         self._layers: dict[str, Any] = {}
         self._shown: dict[str, DisplayData] = {}
         self.focused: str | None = None
+        self._mip = False  # maximum-intensity projection over depth in 2-D views
         self.widget, self.panel = QStackedWidget(), QStackedWidget()
         self.panel.setMinimumWidth(300)  # napari controls are unreadable narrower
         self._space = "sensor"
@@ -91,21 +92,29 @@ class NapariScene:
 
     # -- layers ---------------------------------------------------------------------------
     def put(self, shown: DisplayData) -> bool:
-        """Show ``shown`` in the layer of its name (created if needed); True when created."""
+        """Show ``shown`` in the layer of its name (created if needed); True when created.
+
+        A layer that cannot take the new data in place (3-D <-> 5-D PSF, a pyramid of another
+        depth: the 5-depth preview followed by the full stack) is replaced by a new one, which
+        inherits the focus. The bookkeeping (``_layers``, ``_shown``, ``focused``) is kept
+        consistent before napari is told, because napari emits dims events (and so calls
+        :meth:`_on_step`) from inside ``layers.remove`` / ``layers.append``.
+        """
         from napari.layers import Image
 
         layer = self._layers.get(shown.name)
         multiscale = bool(shown.levels)
+        refocus = replaced = False
         if layer is not None and (
             layer.ndim != shown.data.ndim
             or layer.metadata["space"] != shown.space
             or layer.multiscale != multiscale
             or (multiscale and len(layer.data) != len(shown.pyramid))
         ):
-            self._drop(shown.name)  # 3-D <-> 5-D PSF, or a pyramid of another depth: a new layer
-            layer = None
+            refocus = self.focused == shown.name
+            self._drop(shown.name)
+            layer, replaced = None, True
         created = layer is None
-        self._shown[shown.name] = shown
         auto = shown.contrast_limits is None
         data = shown.pyramid if multiscale else shown.data
         if created:
@@ -118,6 +127,7 @@ class NapariScene:
                 affine=_stretch(shown),
                 colormap=shown.colormap,
                 contrast_limits=shown.contrast_limits or shown.data_range,
+                gamma=shown.gamma,
                 auto_contrast=auto,
                 axis_labels=shown.axis_labels,
                 units=_units(shown),
@@ -125,27 +135,32 @@ class NapariScene:
                 metadata=self._metadata(shown),
             )
             layer.bounding_box.update({"points": False, "line_color": "#8c8c8c"})  # drawn in 3-D only
-            self._layers[shown.name] = layer
+            self._layers[shown.name], self._shown[shown.name] = layer, shown
             self._view(shown.space).viewer.layers.append(layer)
         else:
+            self._shown[shown.name] = shown
             layer.metadata = self._metadata(shown)
             layer.scale, layer.translate = shown.scale_um, shown.translate_um
             layer.affine = _stretch(shown)
             layer.data = data
-            if not auto:
-                layer.auto_contrast = False
-                layer.contrast_limits_range = shown.contrast_limits
-                layer.contrast_limits = shown.contrast_limits
-        if auto:  # slider range over the whole stack, limits per slice (napari's "continuous")
-            layer.contrast_limits_range = shown.data_range
+            layer.gamma = shown.gamma
+        layer.contrast_limits_range = _slider_range(shown)  # the slider spans the whole data
+        if auto:  # limits per slice (napari's "continuous")
             layer.auto_contrast = True
-        if created:
+        else:
+            layer.auto_contrast = False
+            layer.contrast_limits = shown.contrast_limits
+        layer.projection_mode = "max" if self._mip and shown.has_depth else "none"
+        self._apply_mip(shown.space)
+        if created and (refocus or not replaced or self.focused is None):  # else: stays hidden
             self.focus(shown.name)
             dims = self.model.dims
             for axis, step in shown.initial_step.items():
                 dims.set_current_step(axis + dims.ndim - shown.data.ndim, step)
         elif shown.name == self.focused:
             self._on_step()
+        elif created:
+            layer.visible = False  # another layer of its space is on screen
         return created
 
     def focus(self, name: str, *, reset: bool = True) -> None:
@@ -182,11 +197,46 @@ class NapariScene:
         self._on_step()
 
     def _drop(self, name: str) -> None:
+        """Remove layer ``name``: forget it (and its focus) first, then detach it from napari."""
         layer = self._layers.pop(name)
-        self._views[layer.metadata["space"]].viewer.layers.remove(layer)
         self._shown.pop(name, None)
+        if self.focused == name:
+            self.focused = None
+        self._views[layer.metadata["space"]].viewer.layers.remove(layer)
 
     # -- view -----------------------------------------------------------------------------
+    @property
+    def mip(self) -> bool:
+        """Whether 2-D views show the maximum-intensity projection over depth (not one slice)."""
+        return self._mip
+
+    def set_mip(self, on: bool) -> None:
+        """Maximum-intensity projection over depth for every layer with a depth axis (2-D views).
+
+        napari's thick slicing: the depth margins of each canvas cover the whole stack and the
+        layers project with ``"max"``. 3-D views render a MIP anyway.
+        """
+        self._mip = bool(on)
+        for name, layer in self._layers.items():
+            layer.projection_mode = "max" if self._mip and self._shown[name].has_depth else "none"
+        for space in self._views:
+            self._apply_mip(space)
+        self._on_step()
+
+    def _apply_mip(self, space: str) -> None:
+        """Depth margins of ``space``'s canvas: the full depth extent with MIP on, zero otherwise."""
+        dims = self._views[space].viewer.dims
+        deep = [self._shown[n] for n, layer in self._layers.items() if layer.metadata["space"] == space]
+        if dims.ndim < 3 or not any(shown.has_depth for shown in deep):
+            return
+        axis = dims.ndim - 3
+        world = dims.range[axis]
+        extent = 2.0 * (world.stop - world.start) + world.step if self._mip else 0.0
+        if dims.thickness[axis] != extent:
+            thickness = list(dims.thickness)
+            thickness[axis] = extent
+            dims.thickness = tuple(thickness)
+
     def set_3d(self, on: bool) -> None:
         for qt_viewer in self._views.values():
             qt_viewer.viewer.dims.ndisplay = 3 if on else 2
@@ -259,6 +309,9 @@ class NapariScene:
             if dims.ndisplay == 3 and shown.z_stretch != 1:
                 parts.append(f"depth axis drawn ×{shown.z_stretch:g}")
             for label, axis in sliced[:1]:
+                if label == "z" and self._mip and dims.ndisplay == 2:
+                    parts.append("maximum over all depths (MIP)")
+                    continue
                 value = dims.point[axis + offset] / (shown.z_stretch if label == "z" else 1.0)
                 depth = value if label == "z" else None
                 parts.append(f"{label} = {value:+.1f} µm")
@@ -267,6 +320,14 @@ class NapariScene:
                 parts.append(f"3-D preview: max of {factor}×{factor} pixels")
         self.model.canvas.overlays.text.text = "   ".join(parts)
         self.depth_changed.emit(depth)
+
+
+def _slider_range(shown: DisplayData) -> tuple[float, float]:
+    """The contrast slider's range: the data range, widened to hold fixed limits."""
+    low, high = shown.data_range
+    if shown.contrast_limits is not None:
+        low, high = min(low, shown.contrast_limits[0]), max(high, shown.contrast_limits[1])
+    return (low, high)
 
 
 def _stretch(shown: DisplayData) -> np.ndarray:

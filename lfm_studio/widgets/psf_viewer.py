@@ -111,7 +111,13 @@ class PSFViewer(QWidget):
             from lfm_studio.widgets.pyqtgraph_volume import PyqtgraphVolume
 
             self._scene = self._body = PyqtgraphVolume()
-            for control in (self._button_3d, self._plane, self._button_ortho, self._button_layers):
+            for control in (
+                self._button_3d,
+                self._button_mip,
+                self._plane,
+                self._button_ortho,
+                self._button_layers,
+            ):
                 control.setEnabled(False)
                 control.setToolTip("needs the napari viewer")
         layout.addWidget(self._body, 1)
@@ -179,6 +185,16 @@ class PSFViewer(QWidget):
         if self.backend == "napari":
             self._scene.set_3d(on)
         self._sync_controls()
+
+    def set_mip(self, on: bool) -> None:
+        """Show volumes as their maximum-intensity projection over depth in the 2-D view (napari only)."""
+        self._require_open("set_mip")
+        if self.backend == "napari":
+            self._scene.set_mip(on)
+        self._sync_controls()
+
+    def is_mip(self) -> bool:
+        return self.backend == "napari" and not self._closed and self._scene.mip
 
     def is_3d(self) -> bool:
         return self.backend == "napari" and not self._closed and self._scene.model.dims.ndisplay == 3
@@ -251,6 +267,10 @@ class PSFViewer(QWidget):
         self._combo.currentTextChanged.connect(self._on_combo)
         self._button_3d = _toggle("3D", "Render the stack in 3-D (depth axis may be stretched for display)")
         self._button_3d.toggled.connect(self.set_3d)
+        self._button_mip = _toggle(
+            "MIP", "Show the maximum-intensity projection over all depths instead of one slice"
+        )
+        self._button_mip.toggled.connect(self.set_mip)
         self._plane = QComboBox()
         self._plane.addItems(["XY", "XZ", "YZ"])
         self._plane.setToolTip("Slice plane of the 2-D view")
@@ -260,7 +280,14 @@ class PSFViewer(QWidget):
         self._button_layers = _toggle("Layers", "Show napari's layer list and contrast/colormap controls")
         reset = QPushButton("Reset view")
         reset.clicked.connect(self._on_reset)
-        for widget in (QLabel("Show:"), self._combo, self._button_3d, QLabel("Plane:"), self._plane):
+        for widget in (
+            QLabel("Show:"),
+            self._combo,
+            self._button_3d,
+            self._button_mip,
+            QLabel("Plane:"),
+            self._plane,
+        ):
             bar.addWidget(widget)
         for widget in (self._button_ortho, self._button_layers, reset):
             bar.addWidget(widget)
@@ -304,12 +331,13 @@ class PSFViewer(QWidget):
     def _sync_controls(self, plane: str | None = None) -> None:
         """Reflect the scene in the toolbar without feeding signals back."""
         names, focused = self._scene.names(), self._scene.focused
-        with _blocked(self._combo, self._button_3d, self._button_ortho, self._plane):
+        with _blocked(self._combo, self._button_3d, self._button_mip, self._button_ortho, self._plane):
             if [self._combo.itemText(i) for i in range(self._combo.count())] != names:
                 self._combo.clear()
                 self._combo.addItems(names)
             self._combo.setCurrentText(focused or "")
             self._button_3d.setChecked(self.is_3d())
+            self._button_mip.setChecked(self.is_mip())
             if self.backend == "napari":
                 self._button_ortho.setChecked(not self._ortho.isHidden())
             if plane is not None:

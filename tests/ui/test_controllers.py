@@ -178,6 +178,33 @@ def test_preview_then_full_stack(qtbot, design):
     assert len(state.psf.stack.depths) == 11 and not state.psf.preview
 
 
+def test_a_preview_the_engine_refuses_is_skipped_and_the_full_stack_still_comes(qtbot, design, monkeypatch):
+    # e.g. the default XLFM with 13 um pixels: its 2x-binned preview cannot hold the 1 mm lenslets.
+    from lfm_studio.engine.design import DepthSpec
+
+    deeper = design.updated(depths=DepthSpec(depth_range_um=(-10.0, 10.0), depth_step_um=2.0))  # 11 depths
+    real = pipeline._psf_result
+
+    def refuse_previews(design, run, depths, device, cache, ctx, preview):
+        if preview:
+            raise ValueError(
+                "oversampling 1 is too small for lenslet at (0, 0) m. Fix: use oversampling >= 2."
+            )
+        return real(design, run, depths, device, cache, ctx, preview)
+
+    monkeypatch.setattr(pipeline, "_psf_result", refuse_previews)
+    state = StudioState(deeper)
+    controller = StudioController(state, debounce_ms=10, preview=True)
+    messages, previews = [], []
+    state.job_changed.connect(lambda status: messages.append(status.message))
+    state.preview_changed.connect(previews.append)
+    controller.start()
+    qtbot.waitUntil(lambda: state.job("psf").state in ("done", "failed"), timeout=TIMEOUT_MS)
+    controller.shutdown()
+    assert state.job("psf").state == "done" and len(state.psf.stack.depths) == 11
+    assert previews == [] and any(m.startswith("PSF preview skipped (oversampling 1") for m in messages)
+
+
 def test_image_then_reconstruction_with_quality(qtbot, studio):
     state, controller, _, viewer = studio
     from lfm_studio.ui.results import WorkflowSettings

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 import threading
 
 import pytest
@@ -111,6 +112,31 @@ def test_a_failed_job_reports_and_keeps_the_previous_result(qtbot, runner):
     assert results == ["previous"]
     assert isinstance(errors[0].error, ValueError) and "Traceback" in errors[0].details
     assert statuses[-1].state == "failed" and "x must be > 0 m" in statuses[-1].message
+
+
+def test_a_result_the_gui_cannot_take_fails_the_job_instead_of_saying_done(qtbot, runner, monkeypatch):
+    # The KeyError 'PSF' case: the job succeeded but showing its result raised (inside a
+    # psygnal emission, which wraps it). The stage must read "failed" with the cause, not "done".
+    from psygnal import Signal
+
+    class Emitter:
+        changed = Signal(object)
+
+    emitter = Emitter()
+
+    def broken_view(value):
+        raise KeyError("PSF")
+
+    emitter.changed.connect(broken_view)
+    hooked, errors, statuses = [], [], []
+    monkeypatch.setattr(sys, "excepthook", lambda t, value, tb: hooked.append(value))
+    runner.status_changed.connect(statuses.append)
+    runner.submit("psf", _counting, 1, on_result=emitter.changed.emit, on_error=errors.append)
+    qtbot.waitUntil(lambda: bool(errors), timeout=TIMEOUT_MS)
+    assert isinstance(errors[0].error, KeyError) and errors[0].state == "failed"
+    assert statuses[-1].state == "failed" and statuses[-1].message == "failed: KeyError: 'PSF'"
+    assert "done" not in [s.state for s in statuses]
+    assert len(hooked) == 1  # still reported like any exception escaping a slot
 
 
 def test_a_job_superseded_before_it_starts_never_runs(qtbot, runner):

@@ -64,8 +64,11 @@ def test_show_psf_gives_a_layer_in_sensor_micrometres(viewer):
     stretch = layer.metadata["z_stretch"]
     assert stretch > 1 and layer.affine.affine_matrix[0, 0] == pytest.approx(stretch)
     np.testing.assert_array_equal(layer.data, spot_stack().data.numpy())
-    # Per-slice contrast (defocused slices are dimmer), slider range over the whole stack.
-    assert layer.auto_contrast and layer.contrast_limits_range[1] == pytest.approx(1.0)
+    # Fixed 0.1-99.9 % limits over the stack with gamma 0.5 (sparse PSFs); slider over the whole range.
+    low, high = np.percentile(spot_stack().data.numpy(), [0.1, 99.9])
+    assert not layer.auto_contrast and layer.gamma == pytest.approx(0.5)
+    np.testing.assert_allclose(layer.contrast_limits, (low, high), rtol=1e-5)
+    assert high < 0.99 and layer.contrast_limits_range[1] == pytest.approx(1.0)
 
 
 def test_showing_the_same_name_again_updates_the_layer_in_place(viewer):
