@@ -32,6 +32,7 @@ from qtpy.QtGui import QGuiApplication
 
 from lfm_studio import cli
 from lfm_studio.engine.design import load_preset, save_design
+from lfm_studio.engine.metrics import ncc
 from lfm_studio.ui import app as studio_app
 from lfm_studio.ui.edits import apply_changes
 from lfm_studio.widgets import napari_embed
@@ -42,12 +43,6 @@ pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnraisableException
 # Generous: the machine is shared; never a statement about speed.
 STAGE_TIMEOUT_MS = 900_000
 SENSOR_PIXELS, DEPTHS = 2048, 21
-ALL_ZERO_RECONSTRUCTION = (
-    "known engine defect (issue 12, 'No silent wrong results'): the studio's accelerated RL "
-    "(accelerated_rl_options: geometric acceleration + Wiener-Butterworth backprojector) collapses to an "
-    "all-zero volume at iteration 3 on this design, while plain RL converges; the reconstruct stage is "
-    "not the studio's. This test passes outright once the reconstruction is non-zero."
-)
 
 
 def default_equivalent_design():
@@ -165,22 +160,16 @@ def test_gui_launch_reaches_psf_image_and_reconstruction_without_any_error(
         _wait(qtbot, lambda: state.job("reconstruction").state in ("done", "failed"), callback_errors, state)
         status = state.job("reconstruction")
         trail = window.job_status.trail
-        if status.state == "done":
-            volume = state.reconstruction.volume
-            assert volume.shape == image.ground_truth.shape and torch.isfinite(volume).all()
-            assert viewer.layer("reconstruction") is not None and viewer._scene.focused == "reconstruction"
-            collapsed = float(volume.abs().max()) == 0.0
-            if not collapsed:
-                assert float(volume.max()) > 0 and float(volume.std()) > 0  # not all zero, not constant
-                # opened at its brightest slice (sparse beads: z = 0 is often empty)
-                peaks = volume.amax(dim=(1, 2))
-                z_index = viewer._scene.model.dims.current_step[0]
-                assert float(peaks[z_index]) == pytest.approx(float(peaks.max()))
-        else:  # a failed stage is shown as failed, with its error, never as "done"
-            assert trail.records["reconstruction"].state == "failed"
-            assert "reconstruction FAILED" in window.job_status.trail_label.text()
-            collapsed = "zero" in status.message.lower()
-            assert collapsed, status.message  # any other failure is a failure of this test
+        assert status.state == "done", status.message  # it once collapsed to an all-zero volume here
+        volume = state.reconstruction.volume
+        assert volume.shape == image.ground_truth.shape and torch.isfinite(volume).all()
+        assert viewer.layer("reconstruction") is not None and viewer._scene.focused == "reconstruction"
+        # Better than any trivial answer: the all-zero and constant volumes have NCC 0 with the truth.
+        assert float(ncc(image.ground_truth, volume)) > 0.3
+        # opened at its brightest slice (sparse beads: z = 0 is often empty)
+        peaks = volume.amax(dim=(1, 2))
+        z_index = viewer._scene.model.dims.current_step[0]
+        assert float(peaks[z_index]) == pytest.approx(float(peaks.max()))
 
         # 5. The stage trail names every stage with its time.
         assert [k for k in ("preview", "psf", "image", "reconstruction") if k in trail.records] == [
@@ -201,5 +190,3 @@ def test_gui_launch_reaches_psf_image_and_reconstruction_without_any_error(
     _, err = capfd.readouterr()
     assert err == "", err
     assert napari_embed.live_qt_viewers() == 0
-    if collapsed:  # checked last: everything else above must hold regardless
-        pytest.xfail(ALL_ZERO_RECONSTRUCTION)
