@@ -7,7 +7,8 @@ to the sensor, centred. The adjoint is the exact transpose: embed the image in t
 full convolution window, correlate with each PSF, crop each depth to the volume.
 
 FFT sizes avoid circular wrap-around (``>= V + P - 1``, 2-3-5 smooth); the PSF
-spectra (OTFs) are computed once and kept. On CPU, depths are processed in chunks
+spectra (OTFs) are computed once and kept (in the same depth chunks, so the set-up
+is linear in depths). On CPU, depths are processed in chunks
 that keep the working set cache-sized (batching all depths at once was measured
 3-4x slower at 1024^2 here, PLATFORM.md); on CUDA all depths go in one batch.
 """
@@ -63,10 +64,25 @@ class ShiftInvariantProjector:
         self.fft_shape = (next_fast_length(self.full_shape[0]), next_fast_length(self.full_shape[1]))
         self.dtype, self.device = psf.dtype, psf.device
         self.depth_chunk = depth_chunk or self._default_chunk()
+        self.otf_t = self._spectra(psf)
+
+    def _spectra(self, psf: torch.Tensor) -> torch.Tensor:
+        """OTFs in the transposed layout ``(Z, Fx//2+1, Fy)``: every 1D pass runs along contiguous memory.
+
+        Computed chunk by chunk of depths (as :meth:`forward` runs), so the set-up's working
+        set stays cache-sized and its time grows linearly with the number of depths; only
+        the result is allocated whole. Differentiable with respect to ``psf``.
+        """
         fy, fx = self.fft_shape
-        # OTFs stored transposed, (Z, Fx//2+1, Fy): every 1D pass runs along contiguous memory.
-        rows = fft.rfft_along(psf, fx, dim=-1).transpose(-2, -1).contiguous()
-        self.otf_t = fft.fft_along(rows, fy, dim=-1)
+        otf_t = None
+        for part in self._chunks():
+            rows = fft.rfft_along(psf[part], fx, dim=-1).transpose(-2, -1).contiguous()  # (c, Kx, Py)
+            spectra = fft.fft_along(rows, fy, dim=-1)  # (c, Kx, Fy)
+            if otf_t is None:
+                otf_t = spectra.new_empty((self.depths, *spectra.shape[1:]))
+            otf_t[part] = spectra
+        assert otf_t is not None  # at least one depth
+        return otf_t
 
     @property
     def otf(self) -> torch.Tensor:
