@@ -16,6 +16,7 @@ from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
+from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
 
 
 def _run_gui(args: argparse.Namespace) -> int:
@@ -31,6 +32,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="Design studio for light-field microscopes (simulation, reconstruction, design).",
     )
     parser.add_argument("--version", action="version", version=f"lfm-studio {__version__}")
+    parser.add_argument(
+        "--threads",
+        dest="torch_threads",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"torch CPU threads for the heavy work (default: ${THREADS_VARIABLE}, else every core this "
+        "process may use; 1 on a machine other jobs keep busy; see docs/benchmarks.md, thread policy)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
@@ -48,8 +58,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        args = parser.parse_args(["gui", *(argv if argv is not None else sys.argv[1:])])
+        # Only options were given (any positional would be the command): they go before "gui".
+        args = parser.parse_args([*(argv if argv is not None else sys.argv[1:]), "gui"])
     try:
+        configure_threads(args.torch_threads)
         return int(args.handler(args))
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         # Named engine errors (bad design values, missing metadata, ...) without a traceback.
