@@ -116,6 +116,7 @@ class _Problem:
         self.sensitivity = self._volume((projector.adjoint if matched else self.backproject)(ones))
         check_sensitivity(self.sensitivity, "A^T 1" if matched else "B 1")
         self.sensitivity_scale = float(self.sensitivity.detach().abs().max())
+        self.floored_sensitivity = floored(self.sensitivity, self.sensitivity_scale, self.dtype)  # once
         self.smallest_normal = torch.finfo(self.dtype).tiny
         self.image_scale = max(float(self.image.max()), float(self.background.max()))
         if matched:  # the sensitivity is A^T 1, and sum(A^T 1) = 1^T A 1: no extra projection
@@ -170,10 +171,13 @@ class _Problem:
             correction = (self.sensitivity + self._volume(self.backproject(ratio - 1.0))).clamp_min(0.0)
         else:
             correction = self._volume(self.backproject(ratio)).clamp_min(0.0)
-        denominator = self.sensitivity
         if tv_weight:
-            denominator = denominator * tv_denominator(point, tv_weight)
-        update = point * correction / floored(denominator, self.sensitivity_scale, self.dtype)
+            denominator = floored(
+                self.sensitivity * tv_denominator(point, tv_weight), self.sensitivity_scale, self.dtype
+            )
+        else:
+            denominator = self.floored_sensitivity
+        update = correction.mul_(point).div_(denominator)  # correction is a fresh tensor
         # Background voxels shrink geometrically; flush values below the smallest normal number (in
         # working and in data units) to 0 so they never turn denormal (denormal arithmetic is
         # 10-100x slower on x86 CPUs).
