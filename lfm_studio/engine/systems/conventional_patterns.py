@@ -86,6 +86,30 @@ def nip_fields(
 ) -> torch.Tensor:
     """Image-side Debye fields ``(Z, N, N)`` of an on-axis point at each depth on the NIP grid.
 
+    ``mirrored(nip_quadrants(...))`` with the same arguments (see there).
+    """
+    quadrants = nip_quadrants(
+        system, depths, reach=reach, dtype=dtype, device=device, radial_sampling=radial_sampling,
+        model=model, n_quadrature=n_quadrature, oversampling=oversampling,
+    )  # fmt: skip
+    return mirrored(quadrants, nip_field_size(system, reach, oversampling))
+
+
+def nip_quadrants(
+    system: ConventionalLFMSystem,
+    depths: tuple[float, ...],
+    *,
+    reach: int,
+    dtype: torch.dtype = torch.float32,
+    device: torch.device | str = "cpu",
+    radial_sampling: int | str = 8,
+    model: str = "debye",
+    n_quadrature: int | None = None,
+    oversampling: float = 1.0,
+) -> torch.Tensor:
+    """One quadrant ``(Z, h + 1, h + 1)`` of the on-axis NIP fields, ``h = N // 2`` (:func:`mirrored`
+    expands it): a quarter of the memory of the fields, kept for all depths during a build.
+
     One call for all depths: the Bessel table in ``(radius, theta)`` is shared by every
     depth. ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
     (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
@@ -98,7 +122,7 @@ def nip_fields(
     cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
     # The on-axis field is radially symmetric and the grid (odd n) centred on it: compute
     # one quadrant, samples 0..h from the axis (a source offset puts the image centre on
-    # the quadrant's first sample), and mirror it.
+    # the quadrant's first sample); mirrored() expands it.
     h = n // 2
     quadrant = Grid(h + 1, dx)
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
@@ -107,9 +131,16 @@ def nip_fields(
         image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
         dtype=cdtype, device=device,
     )  # fmt: skip
-    mirror = (torch.arange(n, device=device) - h).abs()
-    data = field.data.reshape(len(depths), h + 1, h + 1)
-    return data.index_select(-2, mirror).index_select(-1, mirror)
+    return field.data.reshape(len(depths), h + 1, h + 1)
+
+
+def mirrored(quadrants: torch.Tensor, n: int) -> torch.Tensor:
+    """The centred ``(Z, n, n)`` fields (``n`` odd, ``n // 2`` below the quadrant's size) from
+    quadrants ``(Z, h + 1, h + 1)`` holding samples ``0..h`` from the axis."""
+    if n % 2 == 0 or n // 2 >= quadrants.shape[-1]:
+        raise ValueError(f"n must be odd and at most {2 * quadrants.shape[-1] - 1}; got {n}.")
+    mirror = (torch.arange(n, device=quadrants.device) - n // 2).abs()
+    return quadrants.index_select(-2, mirror).index_select(-1, mirror)
 
 
 def _unique_offsets(half: int) -> list[tuple[int, int]]:
