@@ -28,6 +28,7 @@ Nothing here asserts a time: the machine is shared.
 
 from __future__ import annotations
 
+import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
 import json
 import math

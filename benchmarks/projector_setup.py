@@ -16,6 +16,7 @@ does not depend on their values), float32, ``pixels x pixels``; volumes ``volume
 
 from __future__ import annotations
 
+import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
 import statistics
 import time

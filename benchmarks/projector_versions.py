@@ -12,6 +12,7 @@ this machine); prints medians and the ratio old / new measured in the same run.
 
 from __future__ import annotations
 
+import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
 import importlib.util
 import statistics

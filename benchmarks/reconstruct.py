@@ -33,6 +33,7 @@ Every run prints its thread settings (torch threads, cores, OMP_WAIT_POLICY).
 
 from __future__ import annotations
 
+import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
 import statistics
 import time

@@ -38,8 +38,8 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=None,
         metavar="N",
-        help=f"torch CPU threads for the heavy work (default: ${THREADS_VARIABLE}, else every core this "
-        "process may use; 1 on a machine other jobs keep busy; see docs/benchmarks.md, thread policy)",
+        help=f"torch CPU threads for the heavy work (default: ${THREADS_VARIABLE}, else the cores idle at "
+        "start: this process's cores minus the load average, at least 1; docs/benchmarks.md, thread policy)",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 

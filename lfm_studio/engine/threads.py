@@ -11,16 +11,18 @@ Measured on the 2-core development machine (PLATFORM.md, docs/benchmarks.md):
 
 The policy:
 
-- heavy engine work (the CLI, the studio's workers): all cores this process may use
-  (:func:`default_threads`), with ``OMP_WAIT_POLICY=PASSIVE``;
+- heavy engine work (the CLI, the studio's workers): the cores that are idle when the work
+  starts (:func:`idle_cores`: the process's cores minus the load average; both cores on a
+  quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
 - tests and benchmarks: 1 thread unless they say otherwise (``scripts/test.sh`` exports
   ``OMP_NUM_THREADS=1``); every benchmark prints :func:`describe_threads`.
 
 ``LFM_STUDIO_THREADS`` (or ``OMP_NUM_THREADS``) in the environment overrides the default.
-The OpenMP runtime reads ``OMP_WAIT_POLICY`` once, when torch is first imported, so the
-CLI sets it before importing anything that imports torch (first lines of ``lfm_studio.cli``);
-:func:`wait_policy_is_passive` reports whether the running process got it.
+The OpenMP runtime reads ``OMP_WAIT_POLICY`` once, when torch is first imported, so importing
+``lfm_studio`` sets it (unless the user did) before any torch import of ours; a program that
+imports torch *before* ``lfm_studio`` keeps spinning threads, and :func:`wait_policy_in_effect`
+says so (benchmarks print it).
 """
 
 from __future__ import annotations
@@ -68,20 +70,40 @@ def check_threads(threads: int, name: str = "threads") -> int:
     return threads
 
 
+def idle_cores() -> int:
+    """Cores not busy with other work now: available cores minus the 1-minute load average
+    (rounded), at least 1 (all available cores where the load is unknown)."""
+    cores = available_cores()
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not Unix
+        return cores
+    return max(1, min(cores, cores - round(load)))
+
+
 def default_threads(workload: str = "heavy") -> int:
-    """Threads the policy picks for ``workload`` (``"heavy"``: FFT-bound engine work; ``"small"``:
-    small convolutions/training, always 1); the environment override wins for ``"heavy"``."""
+    """Threads the policy picks for ``workload``: ``"heavy"`` (FFT-bound engine work) the idle
+    cores (:func:`idle_cores`; 2-thread runs on a busy 2-core machine were 2.5x slower than
+    1 thread), ``"small"`` (small convolutions, training) always 1. The environment override
+    wins for ``"heavy"``."""
     if workload not in WORKLOADS:
         raise ValueError(f"workload must be one of {WORKLOADS}; got {workload!r}.")
     if workload == "small":
         return 1
     override = _from_environment()
-    return override if override is not None else available_cores()
+    return override if override is not None else idle_cores()
 
 
-def wait_policy_is_passive() -> bool:
-    """Whether ``OMP_WAIT_POLICY`` is PASSIVE in this process's environment (set before torch loaded)."""
-    return os.environ.get("OMP_WAIT_POLICY", "").strip().upper() == WAIT_POLICY
+def wait_policy_in_effect() -> str:
+    """The OpenMP wait policy torch's runtime runs with: the user's ``OMP_WAIT_POLICY``, PASSIVE when
+    ``lfm_studio`` was imported before torch, else ``"unset (spinning)"`` (torch loaded first)."""
+    import lfm_studio
+
+    if lfm_studio.WAIT_POLICY_AT_START:
+        return lfm_studio.WAIT_POLICY_AT_START
+    return (
+        "unset (spinning): torch loaded before lfm_studio" if lfm_studio.TORCH_LOADED_FIRST else WAIT_POLICY
+    )
 
 
 def configure_threads(threads: int | None = None, *, workload: str = "heavy") -> int:
@@ -109,7 +131,7 @@ def torch_threads(threads: int) -> Iterator[int]:
 
 def describe_threads() -> str:
     """One line for benchmark output: torch threads, cores, OpenMP wait policy."""
-    policy = os.environ.get("OMP_WAIT_POLICY", "unset (spinning)")
+    policy = wait_policy_in_effect()
     return (
         f"threads: torch {torch.get_num_threads()} intra-op, {available_cores()} core(s) available, "
         f"OMP_WAIT_POLICY={policy}"

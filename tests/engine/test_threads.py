@@ -17,7 +17,9 @@ from lfm_studio.engine.threads import (
     configure_threads,
     default_threads,
     describe_threads,
+    idle_cores,
     torch_threads,
+    wait_policy_in_effect,
 )
 
 
@@ -28,11 +30,27 @@ def _restore_threads():
     torch.set_num_threads(threads)
 
 
-def test_heavy_work_defaults_to_every_available_core(monkeypatch):
+@pytest.mark.parametrize(("load", "busy"), [(0.0, 0), (0.6, 1), (1.4, 1), (100.0, 10**6)])
+def test_heavy_work_defaults_to_the_idle_cores(monkeypatch, load, busy):
     monkeypatch.delenv(THREADS_VARIABLE, raising=False)
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    assert default_threads() == available_cores() == len(os.sched_getaffinity(0))
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    cores = len(os.sched_getaffinity(0))
+    assert available_cores() == cores
+    assert default_threads() == idle_cores() == max(1, cores - busy)  # at least one thread
     assert default_threads("small") == 1  # small convolutions: 2 threads ran 5-40x slower
+
+
+def test_benchmarks_can_tell_whether_the_wait_policy_reached_torch(monkeypatch):
+    import lfm_studio
+
+    monkeypatch.setattr(lfm_studio, "WAIT_POLICY_AT_START", None)
+    monkeypatch.setattr(lfm_studio, "TORCH_LOADED_FIRST", False)
+    assert wait_policy_in_effect() == "PASSIVE"
+    monkeypatch.setattr(lfm_studio, "TORCH_LOADED_FIRST", True)
+    assert wait_policy_in_effect().startswith("unset (spinning)")
+    monkeypatch.setattr(lfm_studio, "WAIT_POLICY_AT_START", "ACTIVE")
+    assert wait_policy_in_effect() == "ACTIVE"
 
 
 def test_environment_overrides_the_default_in_order(monkeypatch):
