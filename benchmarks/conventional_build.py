@@ -138,6 +138,9 @@ def build_reference(depths: tuple[float, ...]) -> np.ndarray:
 
 
 def _child(args) -> None:
+    from lfm_studio.engine.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI does
     torch.set_num_threads(args.threads[0])
     depths = _depths(args.depths)
     start = time.perf_counter()

@@ -24,6 +24,7 @@ import time
 import torch
 
 from lfm_studio.engine import fft
+from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.operators import ShiftInvariantProjector
 from lfm_studio.engine.threads import describe_threads, torch_threads
 
@@ -43,6 +44,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     parser.add_argument("--repeats", type=int, default=3)
     args = parser.parse_args()
+    keep_freed_memory()  # as the CLI does
     with torch_threads(args.threads):
         print(describe_threads())
         print(f"camera {args.pixels}^2 px, volume {args.volume}^2 voxels, float32, median of {args.repeats}")

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import torch
 
+from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.operators import ShiftInvariantProjector
 from lfm_studio.engine.threads import describe_threads, torch_threads
 
@@ -54,6 +55,7 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--repeats", type=int, default=5)
     args = parser.parse_args()
+    keep_freed_memory()  # as the CLI does
     generator = torch.Generator().manual_seed(0)
     psf = torch.rand((args.depths, args.pixels, args.pixels), generator=generator)
     lateral = (args.volume, args.volume)

@@ -44,6 +44,7 @@ import scipy.fft
 import scipy.signal
 import torch
 
+from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.design import load_preset
 from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.phantoms import beads
@@ -416,6 +417,7 @@ def main() -> None:
     parser.add_argument("--skip-iteration", action="store_true")
     parser.add_argument("--skip-quality", action="store_true")
     args = parser.parse_args()
+    keep_freed_memory()  # as the CLI does
     print(describe_threads())
     if not args.skip_iteration:
         section_iteration(args)

@@ -16,6 +16,7 @@ from lfm_studio.cli_bench import add_bench_parser
 from lfm_studio.cli_info import add_info_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_simulate import add_simulate_parsers
+from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
 
 
@@ -62,6 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         args = parser.parse_args([*(argv if argv is not None else sys.argv[1:]), "gui"])
     try:
         configure_threads(args.torch_threads)
+        keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
         return int(args.handler(args))
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         # Named engine errors (bad design values, missing metadata, ...) without a traceback.
