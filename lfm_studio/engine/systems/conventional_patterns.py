@@ -31,6 +31,7 @@ from lfm_studio.engine.optics.pupils import disk_coverage
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 
+DEBYE_DEPTHS = 4  # depths per Debye evaluation of the NIP fields (bounds its temporaries)
 OUTPUT_OVERSAMPLING = 1.4  # sensor-field samples per Nyquist interval of the sub-image intensity
 
 
@@ -110,8 +111,8 @@ def nip_quadrants(
     """One quadrant ``(Z, h + 1, h + 1)`` of the on-axis NIP fields, ``h = N // 2`` (:func:`mirrored`
     expands it): a quarter of the memory of the fields, kept for all depths during a build.
 
-    One call for all depths: the Bessel table in ``(radius, theta)`` is shared by every
-    depth. ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
+    :data:`DEBYE_DEPTHS` depths per Debye call (the Bessel table in ``(radius, theta)`` is
+    shared by the depths of a call). ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
     (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
     ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
     grid factor of :func:`samples_per_pitch`.
@@ -126,12 +127,19 @@ def nip_quadrants(
     h = n // 2
     quadrant = Grid(h + 1, dx)
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
-    field = debye_psf(
-        system.objective, quadrant, system.wavelength, z, position=(offset, offset),
-        image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
-        dtype=cdtype, device=device,
-    )  # fmt: skip
-    return field.data.reshape(len(depths), h + 1, h + 1)
+    out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
+    # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
+    # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
+    # peaked at 490 MB above the result; the radial tables are per depth anyway.
+    for start in range(0, len(depths), DEBYE_DEPTHS):
+        part = slice(start, min(len(depths), start + DEBYE_DEPTHS))
+        field = debye_psf(
+            system.objective, quadrant, system.wavelength, z[part], position=(offset, offset),
+            image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
+            dtype=cdtype, device=device,
+        )  # fmt: skip
+        out[part] = field.data.reshape(-1, h + 1, h + 1)
+    return out
 
 
 def mirrored(quadrants: torch.Tensor, n: int) -> torch.Tensor:
@@ -299,14 +307,17 @@ def offset_pattern(
     oy, ox = field_n // 2 - a * step, field_n // 2 - b * step
     span = (2 * reach + 1) * ns
     top, left = oy - reach * ns - ns // 2, ox - reach * ns - ns // 2
-    region = base[:, top : top + span, left : left + span].to(cdtype)
     weights = lit.to(device=base.device).repeat_interleave(ns, 0).repeat_interleave(ns, 1).to(cdtype)
     if aperture is not None:
         weights = weights * aperture.repeat(2 * reach + 1, 2 * reach + 1)
-    field = _lattice_transform(transform, region * weights, reach, per_lenslet)
     out_step = system.pitch / per_lenslet
-    power = (field.real**2 + field.imag**2) * (out_step * out_step)
-    return _bin(power, m).to(dtype)
+    patterns = []
+    for z in range(base.shape[0]):  # one depth at a time: the GEMM temporaries stay ~50 MB
+        region = base[z : z + 1, top : top + span, left : left + span].to(cdtype) * weights
+        field = _lattice_transform(transform, region, reach, per_lenslet)
+        power = (field.real**2 + field.imag**2) * (out_step * out_step)
+        patterns.append(_bin(power, m).to(dtype))
+    return torch.cat(patterns, dim=0)
 
 
 def _lattice_transform(
