@@ -36,11 +36,12 @@ steps then amplify noise (false peaks) or, with an unmatched back projector, dri
 to 0 for good. The RL loop therefore evaluates the Poisson NLL of every extrapolated point
 (its ``A y + b`` is needed for the RL step anyway; the NLL is one pass over the image) and
 :meth:`BiggsAndrews.accept` rejects a point whose NLL exceeds that of the previous step's
-starting point (by more than ``NLL_SLACK * sum(y)``, rounding): the step is then taken from ``x_k`` itself (one extra forward projection)
-and the history is cleared (``alpha = 0`` until two new steps are known), the *adaptive
-restart* of accelerated gradient methods (O'Donoghue & Candes, Found. Comput. Math. 15, 715,
+starting point (by more than ``NLL_SLACK * sum(y)``, rounding): the step is then taken
+from ``x_k`` itself (one extra forward projection) and the history is cleared
+(``alpha = 0`` until two new steps are known), the *adaptive restart* of accelerated
+gradient methods (O'Donoghue & Candes, Found. Comput. Math. 15, 715,
 2015). With the matched back projector each RL step does not increase the NLL (EM), so the
-NLL of the points steps start from never increases.
+NLL of the points steps start from never increases beyond that rounding slack.
 """
 
 from __future__ import annotations
