@@ -20,6 +20,8 @@ from lfm_studio.cli_metrics import add_metrics_parser
 from lfm_studio.cli_reconstruct import add_reconstruct_parsers
 from lfm_studio.cli_resolution import add_resolution_parser
 from lfm_studio.cli_simulate import add_simulate_parsers
+from lfm_studio.engine.allocator import keep_freed_memory
+from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
 
 
 def _run_gui(args: argparse.Namespace) -> int:
@@ -37,6 +39,15 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("--version", action="version", version=f"lfm-studio {__version__}")
+    parser.add_argument(
+        "--threads",
+        dest="torch_threads",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"torch CPU threads for the heavy work (default: ${THREADS_VARIABLE}, else the cores idle at "
+        "start: this process's cores minus the load average, at least 1; docs/benchmarks.md, thread policy)",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
@@ -57,8 +68,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
-        args = parser.parse_args(["gui", *(argv if argv is not None else sys.argv[1:])])
+        # Only options were given (any positional would be the command): they go before "gui".
+        args = parser.parse_args([*(argv if argv is not None else sys.argv[1:]), "gui"])
     try:
+        configure_threads(args.torch_threads)
+        keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
         return int(args.handler(args))
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         # Named refusals (bad input, output refused, memory, rejected result) without a traceback;

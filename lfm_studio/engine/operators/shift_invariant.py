@@ -7,7 +7,8 @@ to the sensor, centred. The adjoint is the exact transpose: embed the image in t
 full convolution window, correlate with each PSF, crop each depth to the volume.
 
 FFT sizes avoid circular wrap-around (``>= V + P - 1``, 2-3-5 smooth); the PSF
-spectra (OTFs) are computed once and kept. On CPU, depths are processed in chunks
+spectra (OTFs) are computed once and kept (in the same depth chunks, so the set-up
+is linear in depths). On CPU, depths are processed in chunks
 that keep the working set cache-sized (batching all depths at once was measured
 3-4x slower at 1024^2 here, PLATFORM.md); on CUDA all depths go in one batch.
 """
@@ -26,6 +27,28 @@ _CPU_CHUNK_BYTES = 24 * 2**20  # about the 32 MB L3 of this CPU, leaving room fo
 def _centre_offset(full: int, part: int) -> int:
     """Start index of a centred window of length ``part`` inside ``full``."""
     return (full - part + 1) // 2
+
+
+def _zero_padded(rows: torch.Tensor, length: int) -> torch.Tensor:
+    """``rows`` zero-padded at the end of the last dim to ``length`` (contiguous).
+
+    Padding by hand before an FFT of exactly ``length``: where freed memory goes back to
+    the system (no :func:`lfm_studio.engine.allocator.keep_freed_memory`), torch's own
+    ``n=length`` path took 83-244 ms for a 1201 x 339 complex64 block to 2400 points
+    against 38 ms padded first (1 thread); with kept memory both take the same time.
+    """
+    return torch.nn.functional.pad(rows, (0, length - rows.shape[-1]))
+
+
+def _multiply_accumulate(total: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
+    """``total + sum_i spectra[i] * otf[i]``, one fused pass per depth (no ``(c, Kx, Fy)`` product
+    temporary); in place unless autograd tracks the values."""
+    for i in range(spectra.shape[0]):
+        if total.requires_grad or spectra.requires_grad or otf.requires_grad:
+            total = total.addcmul(spectra[i], otf[i])
+        else:
+            total.addcmul_(spectra[i], otf[i])
+    return total
 
 
 class ShiftInvariantProjector:
@@ -63,10 +86,25 @@ class ShiftInvariantProjector:
         self.fft_shape = (next_fast_length(self.full_shape[0]), next_fast_length(self.full_shape[1]))
         self.dtype, self.device = psf.dtype, psf.device
         self.depth_chunk = depth_chunk or self._default_chunk()
+        self.otf_t = self._spectra(psf)
+
+    def _spectra(self, psf: torch.Tensor) -> torch.Tensor:
+        """OTFs in the transposed layout ``(Z, Fx//2+1, Fy)``: every 1D pass runs along contiguous memory.
+
+        Computed chunk by chunk of depths (as :meth:`forward` runs), so the set-up's working
+        set stays cache-sized and its time grows linearly with the number of depths; only
+        the result is allocated whole. Differentiable with respect to ``psf``.
+        """
         fy, fx = self.fft_shape
-        # OTFs stored transposed, (Z, Fx//2+1, Fy): every 1D pass runs along contiguous memory.
-        rows = fft.rfft_along(psf, fx, dim=-1).transpose(-2, -1).contiguous()
-        self.otf_t = fft.fft_along(rows, fy, dim=-1)
+        otf_t = None
+        for part in self._chunks():
+            rows = fft.rfft_along(psf[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Py), a view
+            spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            if otf_t is None:
+                otf_t = spectra.new_empty((self.depths, *spectra.shape[1:]))
+            otf_t[part] = spectra
+        assert otf_t is not None  # at least one depth
+        return otf_t
 
     @property
     def otf(self) -> torch.Tensor:
@@ -110,9 +148,12 @@ class ShiftInvariantProjector:
         fy, fx = self.fft_shape
         total = None
         for part in self._chunks():
-            rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1).contiguous()  # (c, Kx, Vy)
-            term = (fft.fft_along(rows, fy, dim=-1) * self.otf_t[part]).sum(dim=0)  # (Kx, Fy)
-            total = term if total is None else total + term
+            rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Vy), a view
+            spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            if total is None:
+                total = spectra.new_zeros(spectra.shape[1:])
+            total = _multiply_accumulate(total, spectra, self.otf_t[part])
+        assert total is not None  # at least one depth
         oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
         ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
         columns = fft.ifft_along_unscaled(total, dim=-1)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
@@ -145,9 +186,23 @@ class ShiftInvariantProjector:
         rows = fft.rfft_along(torch.nn.functional.pad(image, (ox, fx - ox - px)), fx, dim=-1)  # (Py, Kx)
         rows = torch.nn.functional.pad(rows.transpose(0, 1), (oy, fy - oy - py))  # (Kx, Fy), image rows at oy
         spectrum = fft.fft_along(rows, fy, dim=-1)
-        parts = []
+        # ifft(S H*) = conj(fft(conj(S) H)): with the adjoint's conj(otf) filters every depth then
+        # multiplies plain tensors (a product with a lazily conjugated operand runs ~1.7x slower
+        # here) and only the cropped (Kx, Vy) columns are conjugated.
+        flipped = filters_t.is_conj()
+        if flipped:
+            spectrum, filters_t = spectrum.conj().resolve_conj(), filters_t.conj()
+        scale = 1.0 / (fy * fx)
+        out, parts = spectrum.real.new_empty(self.volume_shape), []
         for part in self._chunks():
-            columns = fft.ifft_along_unscaled(spectrum * filters_t[part], dim=-1)[..., :vy]  # (c, Kx, Vy)
-            back = fft.irfft_along_unscaled(columns.transpose(-2, -1).contiguous(), fx, dim=-1)[..., :vx]
-            parts.append(back)
-        return torch.cat(parts, dim=0) * (1.0 / (fy * fx))
+            product = spectrum * filters_t[part]  # (c, Kx, Fy)
+            if flipped:
+                columns = fft.fft_along(product, fy, dim=-1)[..., :vy].conj()  # (c, Kx, Vy)
+            else:
+                columns = fft.ifft_along_unscaled(product, dim=-1)[..., :vy]
+            back = fft.irfft_along_unscaled(columns.transpose(-2, -1).resolve_conj().contiguous(), fx, dim=-1)
+            if back.requires_grad:  # autograd: no writes into a shared output
+                parts.append(back[..., :vx] * scale)
+            else:  # scaled straight into the output: no concatenation pass
+                torch.mul(back[..., :vx], scale, out=out[part])
+        return torch.cat(parts, dim=0) if parts else out

@@ -19,7 +19,7 @@ from lfm_studio.engine.reconstruct.wiener import wiener
 #: Method names and what they run.
 METHODS = {
     "rl": "Richardson-Lucy",
-    "rl-accelerated": "accelerated Richardson-Lucy (geometric extrapolation, Wiener-Butterworth for Fourier LFM)",
+    "rl-accelerated": "accelerated Richardson-Lucy (geometric extrapolation with a likelihood safeguard)",
     "wiener": "Wiener deconvolution per depth",
     "tikhonov": "multi-depth Tikhonov per spatial frequency",
 }

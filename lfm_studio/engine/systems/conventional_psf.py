@@ -13,7 +13,9 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.conventional_patterns import (
     OUTPUT_OVERSAMPLING,
     conventional_patterns,
-    nip_fields,
+    mirrored,
+    nip_field_size,
+    nip_quadrants,
 )
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 
@@ -97,8 +99,9 @@ def conventional_psf_stack(
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
     groups = depth_groups(system, depths)
-    # One Debye evaluation for every depth, on the widest grid any group needs.
-    fields = nip_fields(
+    # One Debye evaluation for every depth, on the widest grid any group needs; kept as quadrants
+    # (a quarter of the memory) and expanded per chunk of depths.
+    quadrants = nip_quadrants(
         system, depths, reach=max(groups), dtype=dtype, device=device, radial_sampling=acc.radial_sampling,
         model=acc.model, n_quadrature=acc.debye_points, oversampling=acc.nip_oversampling,
     )  # fmt: skip
@@ -115,11 +118,13 @@ def conventional_psf_stack(
         checkpoint(
             cancel, progress, done, len(chunks), f"depth group {done + 1}/{len(chunks)} (reach {reach})"
         )
+        fields = mirrored(quadrants[indices], nip_field_size(system, reach, acc.nip_oversampling))
         patterns = conventional_patterns(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
-            cancel=cancel, nip_field=fields[indices], nip_oversampling=acc.nip_oversampling,
+            cancel=cancel, nip_field=fields, nip_oversampling=acc.nip_oversampling,
             pixel_oversampling=acc.pixel_oversampling, light_margin=acc.light_margin,
         )  # fmt: skip
+        del fields
         h = patterns.shape[-1]
         start = (width - h) // 2
         data[:, :, indices, start : start + h, start : start + h] = patterns.permute(1, 2, 0, 3, 4)

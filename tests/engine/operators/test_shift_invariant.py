@@ -81,3 +81,35 @@ def test_named_errors():
 
 def test_next_fast_length():
     assert [next_fast_length(n) for n in (1, 7, 11, 13, 97, 2048, 2049)] == [1, 8, 12, 15, 100, 2048, 2160]
+
+
+@pytest.mark.parametrize("chunk", [1, 2, 3, 5])
+def test_chunked_setup_gives_the_zero_padded_rfft2_of_every_psf(chunk):
+    """The OTFs built chunk by chunk of depths equal numpy's rfft2 of each zero-padded PSF."""
+    psf = _random((5, 12, 9), 13)
+    projector = ShiftInvariantProjector(psf, (6, 7), depth_chunk=chunk)
+    expected = np.fft.rfft2(psf.numpy(), s=projector.fft_shape, axes=(-2, -1))
+    # float64 FFTs of O(1) data with ~100 terms: rounding ~1e-14 absolute.
+    assert np.allclose(projector.otf.numpy(), expected, rtol=1e-12, atol=1e-12)
+
+
+def test_operator_does_not_depend_on_the_setup_chunk():
+    """One depth per chunk and all depths in one chunk give the same A x, A^T y and adjoint identity."""
+    psf = _random((6, 15, 13), 14, torch.float32)
+    x = _random((6, 7, 8), 15, torch.float32)
+    y = _random((15, 13), 16, torch.float32)
+    single, whole = (ShiftInvariantProjector(psf, (7, 8), depth_chunk=c) for c in (1, 6))
+    # float32 FFT chains of O(1) data: a few 1e-7 relative per pass.
+    assert torch.allclose(single.forward(x), whole.forward(x), rtol=1e-5, atol=1e-5)
+    assert torch.allclose(single.adjoint(y), whole.adjoint(y), rtol=1e-5, atol=1e-5)
+    lhs = float((single.forward(x).double() * y.double()).sum())
+    rhs = float((x.double() * single.adjoint(y).double()).sum())
+    assert abs(lhs - rhs) <= 1e-5 * abs(lhs)
+
+
+def test_gradient_reaches_the_psf_through_a_chunked_setup():
+    psf = _random((3, 6, 5), 17).requires_grad_()
+    x = _random((3, 4, 3), 18)
+    assert torch.autograd.gradcheck(
+        lambda h: ShiftInvariantProjector(h, (4, 3), depth_chunk=1).forward(x), (psf,)
+    )

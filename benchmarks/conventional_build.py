@@ -1,0 +1,209 @@
+"""Conventional-LFM build: ours against a pyolaf-style numpy reference, time and peak memory.
+
+    python benchmarks/conventional_build.py [--depths 31] [--threads 1 2] [--repeats 1] [--quick]
+
+Configuration of issue 17: preset ``lfm_10x_na03`` (10x/0.3, 125 um / 1.875 mm lenslets),
+41 x 41 lenslets, 15 px and 5 voxels per lenslet, ``--depths`` depths over +-150 um, the
+``standard`` accuracy preset (float32 fields, 5 sensor-field samples per pixel, NIP grid
+1.5x: 75 NIP samples per pitch).
+
+- **ours**: ``conventional_psf_stack`` (Debye NIP fields, the lattice Fresnel transform of
+  :mod:`lfm_studio.engine.systems.conventional_patterns`, pixel integration).
+- **pyolaf-style reference** (numpy, written here; pyolaf is not installed): the same
+  model computed the way pyolaf does it, per depth and voxel sub-position: the NIP field
+  of the lenslets within reach times the microlens transmittance
+  ``exp(-j k (x^2 + y^2) / (2 f))`` (tiled square lenslets), Fresnel propagation to the
+  sensor by the FFT transfer-function method ``exp(-j pi lambda d (fx^2 + fy^2))`` on the
+  NIP grid (zero-padded by one pitch on each side), ``|U|^2`` binned onto the pixels.
+  It uses the engine's NIP fields (the Debye part, identical in both, is timed inside
+  the reference too) and the same 6 of 25 sub-positions (lattice symmetry). It needs the
+  NIP grid to be the sensor sub-sample grid (75 = 15 x 5 samples per pitch here).
+
+Each build runs in a fresh process under ``/usr/bin/time -v`` (peak RSS = "Maximum
+resident set size"), ours and the reference alternately, for each thread count; the
+table gives build seconds, peak GB and the ratios reference / ours from the same run.
+The agreement of the two pattern stacks (worst-depth relative L2) is printed once.
+Nothing here asserts a time: the machine is shared.
+"""
+
+from __future__ import annotations
+
+import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
+import argparse
+import json
+import math
+import os
+import re
+import statistics
+import subprocess
+import sys
+import time
+
+import numpy as np
+import torch
+
+PRESET = "lfm_10x_na03"
+
+
+def _system_and_accuracy():
+    from lfm_studio.engine.design import load_preset
+    from lfm_studio.engine.systems.from_design import conventional_accuracy_of, conventional_system_of
+
+    design = load_preset(PRESET)
+    system = conventional_system_of(design, lenslets=(41, 41), pixels_per_lenslet=15, voxels_per_lenslet=5)
+    return system, conventional_accuracy_of(design, system)
+
+
+def _depths(count: int) -> tuple[float, ...]:
+    return tuple((-150.0 + 300.0 * i / max(1, count - 1)) * 1e-6 for i in range(count))
+
+
+def build_ours(depths: tuple[float, ...]) -> np.ndarray:
+    """Our pattern stack ``(S, S, Z, H, H)``."""
+    from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack
+
+    system, accuracy = _system_and_accuracy()
+    return conventional_psf_stack(system, depths, accuracy=accuracy).data.numpy()
+
+
+def build_reference(depths: tuple[float, ...]) -> np.ndarray:
+    """The pyolaf-style stack ``(S, S, Z, H, H)`` (see the module notes), complex128 fields."""
+    from lfm_studio.engine.systems.conventional_patterns import (
+        _expand_symmetric,
+        _unique_offsets,
+        light_radius,
+        nip_fields,
+        samples_per_pitch,
+        sub_samples,
+    )
+    from lfm_studio.engine.systems.conventional_psf import depth_groups
+
+    system, accuracy = _system_and_accuracy()
+    s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
+    ns = samples_per_pitch(system, accuracy.nip_oversampling)
+    m = sub_samples(system, accuracy.pixel_oversampling)
+    if ns != q * m:
+        raise ValueError(
+            f"the reference needs NIP samples per pitch ({ns}) = pixels x sub-samples ({q * m})."
+        )
+    dx, k = system.pitch / ns, 2.0 * math.pi / system.wavelength
+    d, f = system.mla_to_camera, system.lenslet_focal_length
+    groups = depth_groups(system, depths)
+    width = (2 * max(groups) + 3) * q
+    out = np.zeros((s, s, len(depths), width, width), dtype=np.float32)
+    for reach, indices in groups.items():
+        base = nip_fields(
+            system, tuple(depths[i] for i in indices), reach=reach, dtype=torch.float64,
+            oversampling=accuracy.nip_oversampling,
+        ).numpy()  # fmt: skip
+        canvas = (2 * reach + 3) * ns
+        n = canvas + 2 * ns  # one pitch of zero padding on each side
+        x = (np.arange(ns) - ns // 2) * dx
+        lens = np.exp(-1j * k * (x[:, None] ** 2 + x[None, :] ** 2) / (2.0 * f))
+        mla = np.tile(lens, (2 * reach + 1, 2 * reach + 1))
+        freq = np.fft.fftfreq(n, dx)
+        transfer = np.exp(-1j * math.pi * system.wavelength * d * (freq[:, None] ** 2 + freq[None, :] ** 2))
+        radius = light_radius(system, tuple(depths[i] for i in indices), accuracy.light_margin)
+        unique = {}
+        for a, b in _unique_offsets(s // 2):
+            step, field_n = ns // s, base.shape[-1]
+            oy, ox = field_n // 2 - a * step, field_n // 2 - b * step
+            span = (2 * reach + 1) * ns
+            top, left = oy - reach * ns - ns // 2, ox - reach * ns - ns // 2
+            lit = np.zeros((2 * reach + 1, 2 * reach + 1))
+            p = system.pitch
+            for i in range(-reach, reach + 1):
+                for j in range(-reach, reach + 1):
+                    gap = math.hypot(
+                        max(abs(i * p - a * p / s) - p / 2, 0), max(abs(j * p - b * p / s) - p / 2, 0)
+                    )
+                    lit[reach + i, reach + j] = gap <= radius
+            mask = np.kron(lit, np.ones((ns, ns)))
+            patterns = []
+            for z in range(len(indices)):  # one full-field propagation per depth and sub-position
+                plane = np.zeros((n, n), dtype=np.complex128)
+                start = 2 * ns  # region starts one pitch into the canvas, after the padding
+                plane[start : start + span, start : start + span] = (
+                    base[z, top : top + span, left : left + span] * mla * mask
+                )
+                sensor = np.fft.ifft2(np.fft.fft2(plane) * transfer)[ns : ns + canvas, ns : ns + canvas]
+                power = (sensor.real**2 + sensor.imag**2) * dx * dx
+                patterns.append(power.reshape(canvas // m, m, canvas // m, m).sum(axis=(1, 3)))
+            unique[(a, b)] = torch.from_numpy(np.stack(patterns))
+        full = _expand_symmetric(unique, s).numpy()  # (Z, S, S, H, H)
+        h = full.shape[-1]
+        c = (width - h) // 2
+        out[:, :, indices, c : c + h, c : c + h] = full.transpose(1, 2, 0, 3, 4)
+    return out
+
+
+def _child(args) -> None:
+    from lfm_studio.engine.allocator import keep_freed_memory
+
+    keep_freed_memory()  # as the CLI does
+    torch.set_num_threads(args.threads[0])
+    depths = _depths(args.depths)
+    start = time.perf_counter()
+    data = (build_ours if args.child == "ours" else build_reference)(depths)
+    seconds = time.perf_counter() - start
+    if args.save:
+        np.save(args.save, data)
+    print(json.dumps({"seconds": seconds}))
+
+
+def _run(which: str, threads: int, depths: int, save: str | None = None) -> tuple[float, float]:
+    command = ["/usr/bin/time", "-v", sys.executable, __file__, "--child", which, "--threads", str(threads)]
+    command += ["--depths", str(depths)] + (["--save", save] if save else [])
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+    result = subprocess.run(command, capture_output=True, text=True, check=True, env=env)
+    seconds = json.loads(result.stdout.strip().splitlines()[-1])["seconds"]
+    peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", result.stderr).group(1))
+    return seconds, peak_kb / 2**20
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--depths", type=int, default=31)
+    parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--repeats", type=int, default=1)
+    parser.add_argument("--quick", action="store_true", help="7 depths, 1 thread")
+    parser.add_argument("--child", choices=("ours", "reference"), help=argparse.SUPPRESS)
+    parser.add_argument("--save", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        _child(args)
+        return
+    if args.quick:
+        args.depths, args.threads = 7, [1]
+    from lfm_studio.engine.threads import available_cores
+
+    print(
+        f"# {PRESET}, 41 x 41 lenslets, 15 px / 5 voxels per lenslet, {args.depths} depths over +-150 um, "
+        f"standard preset; threads {args.threads} of {available_cores()} cores, "
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}; fresh process per build"
+    )
+    results = {}
+    for _ in range(args.repeats):
+        for threads in args.threads:
+            for which in ("ours", "reference"):
+                results.setdefault((which, threads), []).append(_run(which, threads, args.depths))
+    print("| threads | ours s | reference s | reference / ours | ours peak GB | reference peak GB |")
+    print("|---|---|---|---|---|---|")
+    for threads in args.threads:
+        ours, ref = results[("ours", threads)], results[("reference", threads)]
+        t_ours, t_ref = statistics.median(r[0] for r in ours), statistics.median(r[0] for r in ref)
+        m_ours, m_ref = max(r[1] for r in ours), max(r[1] for r in ref)
+        print(
+            f"| {threads} | {t_ours:.1f} | {t_ref:.1f} | {t_ref / t_ours:.2f} | {m_ours:.2f} | {m_ref:.2f} |"
+        )
+    a, b = build_ours(_depths(args.depths)), build_reference(_depths(args.depths))
+    errors = [
+        float(np.linalg.norm(a[:, :, z] - b[:, :, z]) / np.linalg.norm(b[:, :, z])) for z in range(a.shape[2])
+    ]
+    print(
+        f"agreement ours vs reference: worst-depth relative L2 {max(errors):.2e} (median {np.median(errors):.2e})"
+    )
+
+
+if __name__ == "__main__":
+    main()

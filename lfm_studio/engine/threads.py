@@ -1,0 +1,138 @@
+"""Thread policy: how many torch CPU threads the engine's heavy work runs on, set on purpose.
+
+Measured on the 2-core development machine (PLATFORM.md, docs/benchmarks.md):
+
+- FFT-bound work (PSF stacks, projectors, Richardson-Lucy) gains 1.2-1.9x from 2 threads
+  on a quiet machine;
+- small convolutions (training) ran 5-40x *slower* with 2 threads than with 1;
+- when another job holds one core, 2-thread runs were up to 16x slower (1-thread runs
+  stayed within 10 %), because OpenMP threads spin at barriers waiting for a descheduled
+  partner. ``OMP_WAIT_POLICY=PASSIVE`` (threads sleep instead of spinning) removed that.
+
+The policy:
+
+- heavy engine work (the CLI, the studio's workers): the cores that are idle when the work
+  starts (:func:`idle_cores`: the process's cores minus the load average; both cores on a
+  quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
+- small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
+- tests and benchmarks: 1 thread unless they say otherwise (``scripts/test.sh`` exports
+  ``OMP_NUM_THREADS=1``); every benchmark prints :func:`describe_threads`.
+
+``LFM_STUDIO_THREADS`` (or ``OMP_NUM_THREADS``) in the environment overrides the default.
+The OpenMP runtime reads ``OMP_WAIT_POLICY`` once, when torch is first imported, so importing
+``lfm_studio`` sets it (unless the user did) before any torch import of ours; a program that
+imports torch *before* ``lfm_studio`` keeps spinning threads, and :func:`wait_policy_in_effect`
+says so (benchmarks print it).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+
+import torch
+
+WAIT_POLICY = "PASSIVE"  # what the CLI puts in OMP_WAIT_POLICY before torch loads
+THREADS_VARIABLE = "LFM_STUDIO_THREADS"
+WORKLOADS = ("heavy", "small")
+
+
+def available_cores() -> int:
+    """CPU cores this process may run on (its affinity mask; ``os.cpu_count()`` where unknown)."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except (AttributeError, OSError):  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _from_environment() -> int | None:
+    for name in (THREADS_VARIABLE, "OMP_NUM_THREADS"):
+        value = os.environ.get(name, "").strip()
+        if value:
+            try:
+                threads = int(value)
+            except ValueError:
+                raise ValueError(
+                    f"{name} must be a positive integer; got {value!r}. Fix: e.g. {name}=1."
+                ) from None
+            return check_threads(threads, name)
+    return None
+
+
+def check_threads(threads: int, name: str = "threads") -> int:
+    """``threads`` as an int >= 1, or a ValueError naming ``name``."""
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(
+            f"{name} must be a positive integer; got {threads!r}. "
+            f"Fix: 1 for small kernels or a loaded machine, up to {available_cores()} (the cores here)."
+        )
+    return threads
+
+
+def idle_cores() -> int:
+    """Cores not busy with other work now: available cores minus the 1-minute load average
+    (rounded), at least 1 (all available cores where the load is unknown)."""
+    cores = available_cores()
+    try:
+        load = os.getloadavg()[0]
+    except (AttributeError, OSError):  # not Unix
+        return cores
+    return max(1, min(cores, cores - round(load)))
+
+
+def default_threads(workload: str = "heavy") -> int:
+    """Threads the policy picks for ``workload``: ``"heavy"`` (FFT-bound engine work) the idle
+    cores (:func:`idle_cores`; 2-thread runs on a busy 2-core machine were 2.5x slower than
+    1 thread), ``"small"`` (small convolutions, training) always 1. The environment override
+    wins for ``"heavy"``."""
+    if workload not in WORKLOADS:
+        raise ValueError(f"workload must be one of {WORKLOADS}; got {workload!r}.")
+    if workload == "small":
+        return 1
+    override = _from_environment()
+    return override if override is not None else idle_cores()
+
+
+def wait_policy_in_effect() -> str:
+    """The OpenMP wait policy torch's runtime runs with: the user's ``OMP_WAIT_POLICY``, PASSIVE when
+    ``lfm_studio`` was imported before torch, else ``"unset (spinning)"`` (torch loaded first)."""
+    import lfm_studio
+
+    if lfm_studio.WAIT_POLICY_AT_START:
+        return lfm_studio.WAIT_POLICY_AT_START
+    return (
+        "unset (spinning): torch loaded before lfm_studio" if lfm_studio.TORCH_LOADED_FIRST else WAIT_POLICY
+    )
+
+
+def configure_threads(threads: int | None = None, *, workload: str = "heavy") -> int:
+    """Set torch's intra-op CPU threads by the policy (``threads=None``) or to ``threads``; return it.
+
+    Process-wide (torch has one intra-op pool): call it once at start-up (the CLI's ``main``,
+    the studio before starting workers), not per job.
+    """
+    count = default_threads(workload) if threads is None else check_threads(threads)
+    if torch.get_num_threads() != count:
+        torch.set_num_threads(count)
+    return count
+
+
+@contextlib.contextmanager
+def torch_threads(threads: int) -> Iterator[int]:
+    """Run a block with ``threads`` torch CPU threads, then restore the previous count (benchmarks)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(check_threads(threads))
+    try:
+        yield threads
+    finally:
+        torch.set_num_threads(previous)
+
+
+def describe_threads() -> str:
+    """One line for benchmark output: torch threads, cores, OpenMP wait policy."""
+    policy = wait_policy_in_effect()
+    return (
+        f"threads: torch {torch.get_num_threads()} intra-op, {available_cores()} core(s) available, "
+        f"OMP_WAIT_POLICY={policy}"
+    )

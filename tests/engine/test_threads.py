@@ -1,0 +1,106 @@
+"""Thread policy: defaults, overrides, named errors, restoring, the CLI option, the wait policy."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+import torch
+
+from lfm_studio.cli import build_parser, main
+from lfm_studio.engine.threads import (
+    THREADS_VARIABLE,
+    available_cores,
+    check_threads,
+    configure_threads,
+    default_threads,
+    describe_threads,
+    idle_cores,
+    torch_threads,
+    wait_policy_in_effect,
+)
+
+
+@pytest.fixture(autouse=True)
+def _restore_threads():
+    threads = torch.get_num_threads()
+    yield
+    torch.set_num_threads(threads)
+
+
+@pytest.mark.parametrize(("load", "busy"), [(0.0, 0), (0.6, 1), (1.4, 1), (100.0, 10**6)])
+def test_heavy_work_defaults_to_the_idle_cores(monkeypatch, load, busy):
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setattr(os, "getloadavg", lambda: (load, load, load))
+    cores = len(os.sched_getaffinity(0))
+    assert available_cores() == cores
+    assert default_threads() == idle_cores() == max(1, cores - busy)  # at least one thread
+    assert default_threads("small") == 1  # small convolutions: 2 threads ran 5-40x slower
+
+
+def test_benchmarks_can_tell_whether_the_wait_policy_reached_torch(monkeypatch):
+    import lfm_studio
+
+    monkeypatch.setattr(lfm_studio, "WAIT_POLICY_AT_START", None)
+    monkeypatch.setattr(lfm_studio, "TORCH_LOADED_FIRST", False)
+    assert wait_policy_in_effect() == "PASSIVE"
+    monkeypatch.setattr(lfm_studio, "TORCH_LOADED_FIRST", True)
+    assert wait_policy_in_effect().startswith("unset (spinning)")
+    monkeypatch.setattr(lfm_studio, "WAIT_POLICY_AT_START", "ACTIVE")
+    assert wait_policy_in_effect() == "ACTIVE"
+
+
+def test_environment_overrides_the_default_in_order(monkeypatch):
+    monkeypatch.setenv("OMP_NUM_THREADS", "3")
+    monkeypatch.delenv(THREADS_VARIABLE, raising=False)
+    assert default_threads() == 3
+    monkeypatch.setenv(THREADS_VARIABLE, "5")
+    assert default_threads() == 5
+    monkeypatch.setenv(THREADS_VARIABLE, "many")
+    with pytest.raises(ValueError, match=rf"{THREADS_VARIABLE} must be a positive integer; got 'many'"):
+        default_threads()
+
+
+@pytest.mark.parametrize("bad", [0, -2, 1.5, True, "2"])
+def test_bad_thread_counts_are_named(bad):
+    with pytest.raises(ValueError, match=r"threads must be a positive integer; got .*Fix"):
+        check_threads(bad)
+    with pytest.raises(ValueError, match="workload must be one of"):
+        default_threads("huge")
+
+
+def test_configure_sets_torch_and_the_context_manager_restores():
+    assert configure_threads(1) == 1 and torch.get_num_threads() == 1
+    with torch_threads(2) as count:
+        assert count == 2 and torch.get_num_threads() == 2
+        assert "torch 2 intra-op" in describe_threads()
+    assert torch.get_num_threads() == 1
+    assert configure_threads(workload="small") == 1
+
+
+def test_cli_threads_option_sets_torch_threads_before_the_command(capsys):
+    assert build_parser().parse_args(["--threads", "2", "info", "xlfm_cong2017"]).torch_threads == 2
+    torch.set_num_threads(2)
+    assert main(["--threads", "1", "info", "xlfm_cong2017", "--json"]) == 0
+    assert torch.get_num_threads() == 1
+    capsys.readouterr()
+    assert main(["--threads", "0", "info", "xlfm_cong2017"]) == 2
+    assert "threads must be a positive integer; got 0" in capsys.readouterr().err
+
+
+def _wait_policy_in_fresh_interpreter(env: dict[str, str]) -> str:
+    code = "import lfm_studio, torch, os; print(os.environ.get('OMP_WAIT_POLICY'))"
+    result = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True, timeout=120
+    )
+    return result.stdout.strip()
+
+
+def test_importing_the_package_sets_a_passive_wait_policy_unless_the_user_chose_one():
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
+    assert _wait_policy_in_fresh_interpreter(env) == "PASSIVE"
+    assert _wait_policy_in_fresh_interpreter({**env, "OMP_WAIT_POLICY": "ACTIVE"}) == "ACTIVE"
