@@ -15,6 +15,9 @@ unset QT_QPA_PLATFORM   # pytest-xvfb provides a real X server for napari's Open
 # Idle OpenMP threads sleep instead of spinning: with another job on one of the 2 cores,
 # spinning 2-thread torch runs were up to 16x slower (PLATFORM.md). Results do not depend on it.
 export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
+# The CLI's default thread count follows the machine's load (engine/threads.py); tests call it
+# in-process, so fix it here: every test runs on the same number of threads, whatever the load.
+export LFM_STUDIO_THREADS="${LFM_STUDIO_THREADS:-2}"
 
 echo "== machine"
 python - <<'PY'
@@ -22,8 +25,8 @@ import os, platform, torch
 print(f"python {platform.python_version()}, torch {torch.__version__}, numpy {__import__('numpy').__version__}")
 print(f"CPU capability {torch.backends.cpu.get_cpu_capability()}, {os.cpu_count()} cores, "
       f"torch intra-op threads {torch.get_num_threads()}, interop {torch.get_num_interop_threads()}")
-print("OMP_NUM_THREADS=%s MKL_NUM_THREADS=%s OMP_WAIT_POLICY=%s ATEN_CPU_CAPABILITY=%s" % tuple(
-    os.environ.get(k, "(unset)") for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OMP_WAIT_POLICY", "ATEN_CPU_CAPABILITY")))
+print("LFM_STUDIO_THREADS=%s OMP_NUM_THREADS=%s MKL_NUM_THREADS=%s OMP_WAIT_POLICY=%s ATEN_CPU_CAPABILITY=%s" % tuple(
+    os.environ.get(k, "(unset)") for k in ("LFM_STUDIO_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "OMP_WAIT_POLICY", "ATEN_CPU_CAPABILITY")))
 PY
 
 echo "== ruff"

@@ -15,8 +15,9 @@ The policy:
   starts (:func:`idle_cores`: the process's cores minus the load average; both cores on a
   quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
-- tests and benchmarks: 1 thread unless they say otherwise (``scripts/test.sh`` exports
-  ``OMP_NUM_THREADS=1``); every benchmark prints :func:`describe_threads`.
+- tests: a fixed count, whatever the load (``scripts/test.sh`` exports
+  ``LFM_STUDIO_THREADS=2`` unless set), so that in-process CLI calls never change the thread
+  count between two tests; benchmarks state theirs and print :func:`describe_threads`.
 
 ``LFM_STUDIO_THREADS`` (or ``OMP_NUM_THREADS``) in the environment overrides the default.
 The OpenMP runtime reads ``OMP_WAIT_POLICY`` once, when torch is first imported, so importing
