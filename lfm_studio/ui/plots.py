@@ -16,6 +16,7 @@ from qtpy.QtCore import Qt
 from qtpy.QtGui import QBrush, QColor
 from qtpy.QtWidgets import (
     QAbstractItemView,
+    QGraphicsOpacityEffect,
     QHeaderView,
     QLabel,
     QTableWidget,
@@ -50,15 +51,54 @@ def _plot(title: str, x_label: str, y_label: str) -> pg.PlotWidget:
     return widget
 
 
+STALE_OPACITY = 0.35  # how a stale plot is greyed out
+
+
 class _StateView(QWidget):
-    """A plot that observes some of the state's signals (disconnect before destruction)."""
+    """A plot that observes some of the state's signals (disconnect before destruction).
+
+    :meth:`set_stale` puts a label over the view (and greys the widgets in ``_dimmed``)
+    while what it shows no longer matches the design (see :mod:`lfm_studio.ui.stale_marks`).
+    """
 
     def __init__(self, state: StudioState | None, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.state = state
         self._connections: list[tuple[object, object]] = []
+        self._dimmed: list[QWidget] = []
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
+        self.stale_label = QLabel(self)
+        self.stale_label.setObjectName("staleLabel")
+        self.stale_label.setWordWrap(True)
+        self.stale_label.setVisible(False)
+        layout.addWidget(self.stale_label)
+
+    @property
+    def stale_text(self) -> str | None:
+        """The stale label's text, or None while the view is fresh."""
+        return None if self.stale_label.isHidden() else self.stale_label.text()
+
+    def set_stale(self, text: str | None) -> None:
+        """Mark the view stale with ``text`` (greyed, with a label), or fresh with None."""
+        failed = bool(text) and ("failed" in text or "cancelled" in text)
+        colours = ("#f8d7da", "#842029") if failed else ("#fff3cd", "#664d03")
+        self.stale_label.setStyleSheet(
+            f"QLabel {{ background: {colours[0]}; color: {colours[1]}; padding: 3px; }}"
+        )
+        self.stale_label.setText(text or "")
+        self.stale_label.setVisible(bool(text))
+        for widget in self._dimmed:
+            if text:
+                effect = QGraphicsOpacityEffect(widget)
+                effect.setOpacity(STALE_OPACITY)
+                widget.setGraphicsEffect(effect)
+            else:
+                widget.setGraphicsEffect(None)
+
+    def is_dimmed(self) -> bool:
+        """Whether the view's plots are greyed out as stale."""
+        return any(widget.graphicsEffect() is not None for widget in self._dimmed)
 
     def _observe(self, signal, slot, current) -> None:
         signal.connect(slot)
@@ -80,6 +120,7 @@ class ProfilePlots(_StateView):
         self.axial_plot = _plot("Peak intensity per depth", "depth (µm)", "peak")
         self.layout().addWidget(self.lateral_plot)
         self.layout().addWidget(self.axial_plot)
+        self._dimmed = [self.lateral_plot, self.axial_plot]
         solid, dashed = (
             pg.mkPen("#1565c0", width=2),
             pg.mkPen("#1565c0", width=1.5, style=Qt.PenStyle.DashLine),
@@ -220,6 +261,7 @@ class ConvergencePlot(_StateView):
         super().__init__(state, parent)
         self.plot = _plot("Richardson-Lucy convergence", "iteration", "NCC with the ground truth")
         self.layout().addWidget(self.plot)
+        self._dimmed = [self.plot]
         pen = pg.mkPen("#6a1b9a", width=2)
         self.curve = self.plot.plot(pen=pen, symbol="o", symbolSize=4, symbolBrush="#6a1b9a")
         self.floor = pg.InfiniteLine(
