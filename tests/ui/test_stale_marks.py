@@ -1,0 +1,137 @@
+"""Stale marks (issue 20): a result on screen that no longer matches the design is marked stale.
+
+The marks computed from constructed states (no jobs), then the studio window with the real
+viewer (pyqtgraph fallback and napari) on the small Fourier design: a PSF job that is
+recomputing and then fails leaves the previous PSF marked "stale" with the error in the
+viewer's banner and the plots; a fresh result clears every mark; no exception reaches a slot.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+from types import SimpleNamespace
+
+import pytest
+from qtpy.QtCore import QSettings
+from qtpy.QtWidgets import QApplication
+
+from lfm_studio.ui import pipeline
+from lfm_studio.ui.app import build_studio
+from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.results import JobStatus
+from lfm_studio.ui.stale_marks import metrics_mark, stage_mark
+from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.psf_viewer import PSFViewer
+from tests.ui.conftest import collect_widgets
+from tests.ui.standins import FakeMLAEditor, small_fourier_design
+
+TIMEOUT_MS = 60_000  # only a hang should reach it
+ERROR = "not enough memory for 3 depths (test)"
+
+
+@pytest.fixture(scope="module")
+def design():
+    return small_fourier_design()
+
+
+def test_marks_follow_staleness_jobs_and_results(design):
+    state = StudioState(design)
+    assert stage_mark(state, "psf") is None  # nothing shown, nothing failed: nothing to mark
+    state.set_job(JobStatus("psf", "failed", message="failed: disk full"))
+    assert stage_mark(state, "psf") == "PSF failed: disk full"  # nothing shown, but the failure is said
+    state.set_psf(SimpleNamespace(design=design))
+    state.mark_fresh("psf")
+    assert stage_mark(state, "psf") is None and metrics_mark(state) is None  # fresh
+    state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
+    assert state.stale == {"psf", "image", "reconstruction"}
+    assert stage_mark(state, "psf") == "stale: shows the previous design; PSF failed: disk full"
+    state.set_job(JobStatus("psf", "running", 1, 4, "lenslet 1/4", generation=2))
+    assert stage_mark(state, "psf") == "stale: shows the previous design; recomputing…"
+    assert metrics_mark(state) == "formula estimates only: measured values wait for the PSF (recomputing…)"
+    state.set_job(JobStatus("psf", "cancelled", generation=2))
+    assert stage_mark(state, "psf") == "stale: shows the previous design; PSF cancelled"
+    assert metrics_mark(state) == "formula estimates only: PSF cancelled"
+    state.set_preview(SimpleNamespace(design=state.design))  # the new design's quick preview
+    state.set_job(JobStatus("psf", "running", generation=3))
+    assert stage_mark(state, "psf") == "quick preview of this design; full PSF: recomputing…"
+    assert stage_mark(state, "image") is None  # no image shown
+    state.set_image(SimpleNamespace(design=design))
+    assert stage_mark(state, "image") == "stale: made with the previous design or settings"
+    with pytest.raises(ValueError, match="stage must be one of"):
+        stage_mark(state, "metrics")
+
+
+def _gated_failure(entered: threading.Event, gate: threading.Event):
+    def compute_psf(ctx, request, cache):
+        entered.set()
+        while not gate.wait(0.01):
+            ctx.check()  # a cancel still stops it
+        raise RuntimeError(ERROR)
+
+    return compute_psf
+
+
+@pytest.mark.parametrize("backend", ["pyqtgraph", "napari"])
+def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
+    qtbot, tmp_path, design, monkeypatch, backend
+):
+    hooked: list[BaseException] = []
+    monkeypatch.setattr(sys, "excepthook", lambda kind, value, tb: hooked.append(value))
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    window = build_studio(
+        design, settings=settings, preview=False, debounce_ms=10,
+        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets),
+        viewer_factory=lambda: PSFViewer(use_napari=backend == "napari"),
+    )  # fmt: skip
+    window.show()
+    qtbot.waitExposed(window)
+    state, controller, viewer = window.state, window.controller, window.viewer
+    views = (window.profiles, window.requirements)
+    assert viewer.backend == backend
+    try:
+        controller.start()
+        qtbot.waitUntil(lambda: state.psf is not None and "psf" not in state.stale, timeout=TIMEOUT_MS)
+        qtbot.waitUntil(lambda: not state.job("psf").active, timeout=TIMEOUT_MS)
+        first = state.psf
+        assert viewer.layer_names() == ["PSF"]
+        assert viewer.stale_text is None and [v.stale_text for v in views] == [None, None]
+        assert not window.profiles.is_dimmed()
+
+        entered, gate = threading.Event(), threading.Event()
+        monkeypatch.setattr(pipeline, "compute_psf", _gated_failure(entered, gate))
+        state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
+        controller.flush()
+        assert entered.wait(60)
+        qtbot.waitUntil(lambda: state.job("psf").active, timeout=TIMEOUT_MS)
+        assert viewer.stale_text == "PSF: stale: shows the previous design; recomputing…"
+        assert window.profiles.stale_text == "stale: shows the previous design; recomputing…"
+        assert window.profiles.is_dimmed()
+        assert "measured values wait for the PSF" in window.requirements.stale_text
+
+        gate.set()
+        qtbot.waitUntil(lambda: state.job("psf").state == "failed", timeout=TIMEOUT_MS)
+        assert state.psf is first  # the last good PSF stays on screen ...
+        expected = f"stale: shows the previous design; PSF failed: {ERROR}"
+        assert viewer.stale_text == f"PSF: {expected}"  # ... marked stale, with the error
+        assert window.profiles.stale_text == expected and window.profiles.is_dimmed()
+        assert window.requirements.stale_text == f"formula estimates only: PSF failed: {ERROR}"
+        if window.failure_notices.last is not None:
+            window.failure_notices.last.close()
+
+        monkeypatch.undo()  # the real pipeline again (and the real excepthook: re-install ours)
+        monkeypatch.setattr(sys, "excepthook", lambda kind, value, tb: hooked.append(value))
+        fixed = apply_changes(design, {"wavelength_nm": 690.0})
+        state.set_design(fixed)
+        controller.flush()
+        qtbot.waitUntil(lambda: state.psf.design == fixed and "psf" not in state.stale, timeout=TIMEOUT_MS)
+        assert viewer.stale_text is None  # the fresh result clears every mark
+        assert [v.stale_text for v in views] == [None, None] and not window.profiles.is_dimmed()
+        assert hooked == []
+    finally:
+        controller.cancel()
+        state.set_dirty(False)
+        with qtbot.waitSignal(window.destroyed, timeout=TIMEOUT_MS):
+            assert window.close()
+        QApplication.sendPostedEvents(None, 0)
+        collect_widgets()
