@@ -16,7 +16,6 @@ from qtpy.QtCore import Qt
 from qtpy.QtGui import QBrush, QColor
 from qtpy.QtWidgets import (
     QAbstractItemView,
-    QGraphicsOpacityEffect,
     QHeaderView,
     QLabel,
     QTableWidget,
@@ -51,13 +50,13 @@ def _plot(title: str, x_label: str, y_label: str) -> pg.PlotWidget:
     return widget
 
 
-STALE_OPACITY = 0.35  # how a stale plot is greyed out
+STALE_OPACITY = 0.3  # opacity of a stale plot's curves
 
 
 class _StateView(QWidget):
     """A plot that observes some of the state's signals (disconnect before destruction).
 
-    :meth:`set_stale` puts a label over the view (and greys the widgets in ``_dimmed``)
+    :meth:`set_stale` puts a label over the view (and fades the plot items in ``_dimmed``)
     while what it shows no longer matches the design (see :mod:`lfm_studio.ui.stale_marks`).
     """
 
@@ -65,7 +64,7 @@ class _StateView(QWidget):
         super().__init__(parent)
         self.state = state
         self._connections: list[tuple[object, object]] = []
-        self._dimmed: list[QWidget] = []
+        self._dimmed: list[pg.GraphicsObject] = []
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
         self.stale_label = QLabel(self)
@@ -88,17 +87,12 @@ class _StateView(QWidget):
         )
         self.stale_label.setText(text or "")
         self.stale_label.setVisible(bool(text))
-        for widget in self._dimmed:
-            if text:
-                effect = QGraphicsOpacityEffect(widget)
-                effect.setOpacity(STALE_OPACITY)
-                widget.setGraphicsEffect(effect)
-            else:
-                widget.setGraphicsEffect(None)
+        for item in self._dimmed:
+            item.setOpacity(STALE_OPACITY if text else 1.0)
 
     def is_dimmed(self) -> bool:
-        """Whether the view's plots are greyed out as stale."""
-        return any(widget.graphicsEffect() is not None for widget in self._dimmed)
+        """Whether the view's curves are faded out as stale."""
+        return any(item.opacity() < 1.0 for item in self._dimmed)
 
     def _observe(self, signal, slot, current) -> None:
         signal.connect(slot)
@@ -120,7 +114,6 @@ class ProfilePlots(_StateView):
         self.axial_plot = _plot("Peak intensity per depth", "depth (µm)", "peak")
         self.layout().addWidget(self.lateral_plot)
         self.layout().addWidget(self.axial_plot)
-        self._dimmed = [self.lateral_plot, self.axial_plot]
         solid, dashed = (
             pg.mkPen("#1565c0", width=2),
             pg.mkPen("#1565c0", width=1.5, style=Qt.PenStyle.DashLine),
@@ -129,6 +122,7 @@ class ProfilePlots(_StateView):
         self.axial_curve = self.axial_plot.plot(pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0")
         self.lateral_preview = self.lateral_plot.plot(pen=dashed)
         self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5)
+        self._dimmed = [self.lateral_curve, self.axial_curve, self.lateral_preview, self.axial_preview]
         if state is not None:
             self._observe(state.psf_changed, self.show_result, state.psf)
             self._observe(state.preview_changed, self.show_preview, state.preview)
@@ -261,9 +255,9 @@ class ConvergencePlot(_StateView):
         super().__init__(state, parent)
         self.plot = _plot("Richardson-Lucy convergence", "iteration", "NCC with the ground truth")
         self.layout().addWidget(self.plot)
-        self._dimmed = [self.plot]
         pen = pg.mkPen("#6a1b9a", width=2)
         self.curve = self.plot.plot(pen=pen, symbol="o", symbolSize=4, symbolBrush="#6a1b9a")
+        self._dimmed = [self.curve]
         self.floor = pg.InfiniteLine(
             pos=0.0, angle=0, pen=pg.mkPen("#757575", width=1, style=Qt.PenStyle.DashLine),
             label="all-zero floor", labelOpts={"position": 0.85, "color": "#757575"},

@@ -291,6 +291,8 @@ class PSFViewer(QWidget):
         self._stale.setText(f"{focused}: {text}" if text else "")
         self._stale.setToolTip("The view shows an out-of-date result; it updates when a fresh one arrives.")
         self._stale.setVisible(text is not None)
+        if self.backend == "napari" and not self._closed:
+            self._scene.set_stale_note(_short_note(text))
 
     def _build_toolbar(self) -> QHBoxLayout:
         bar = QHBoxLayout()
@@ -379,6 +381,16 @@ class PSFViewer(QWidget):
         shown = self._scene.shown(self._scene.focused)
         self._info.setText(describe(shown, stretched=self.backend == "napari") if shown is not None else "")
         self._update_stale()
+
+
+def _short_note(mark: str | None) -> str:
+    """The canvas read-out's short form of a stale mark (the banner above has the whole text)."""
+    if not mark:
+        return ""
+    for word in ("failed", "cancelled", "recomputing"):
+        if word in mark:
+            return f"STALE ({word})"
+    return "STALE"
 
 
 def _toggle(text: str, tip: str) -> QPushButton:

@@ -72,6 +72,14 @@ def _gated_failure(entered: threading.Event, gate: threading.Event):
     return compute_psf
 
 
+def _canvas_note(viewer) -> str | None:
+    """napari: the canvas read-out's text after the slice position (None with the fallback)."""
+    if viewer.backend != "napari":
+        return None
+    text = viewer._scene.model.canvas.overlays.text.text
+    return text.split("µm")[-1].strip()  # "PSF   z = +0.0 µm   STALE (failed)" -> "STALE (failed)"
+
+
 @pytest.mark.parametrize("backend", ["pyqtgraph", "napari"])
 def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
     qtbot, tmp_path, design, monkeypatch, backend
@@ -115,6 +123,8 @@ def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
         expected = f"stale: shows the previous design; PSF failed: {ERROR}"
         assert viewer.stale_text == f"PSF: {expected}"  # ... marked stale, with the error
         assert window.profiles.stale_text == expected and window.profiles.is_dimmed()
+        napari = backend == "napari"
+        assert _canvas_note(viewer) == ("STALE (failed)" if napari else None)  # napari: also on the canvas
         assert window.requirements.stale_text == f"formula estimates only: PSF failed: {ERROR}"
         if window.failure_notices.last is not None:
             window.failure_notices.last.close()
@@ -126,6 +136,7 @@ def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
         controller.flush()
         qtbot.waitUntil(lambda: state.psf.design == fixed and "psf" not in state.stale, timeout=TIMEOUT_MS)
         assert viewer.stale_text is None  # the fresh result clears every mark
+        assert _canvas_note(viewer) == ("" if napari else None)
         assert [v.stale_text for v in views] == [None, None] and not window.profiles.is_dimmed()
         assert hooked == []
     finally:
