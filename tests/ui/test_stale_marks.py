@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import sys
 import threading
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -19,8 +20,9 @@ from qtpy.QtWidgets import QApplication
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.plots import ConvergencePlot
 from lfm_studio.ui.results import JobStatus
-from lfm_studio.ui.stale_marks import metrics_mark, stage_mark
+from lfm_studio.ui.stale_marks import StaleMarks, metrics_mark, stage_mark
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from tests.ui.conftest import collect_widgets
@@ -60,6 +62,40 @@ def test_marks_follow_staleness_jobs_and_results(design):
     assert stage_mark(state, "image") == "stale: made with the previous design or settings"
     with pytest.raises(ValueError, match="stage must be one of"):
         stage_mark(state, "metrics")
+
+
+class _MarkRecorder:
+    def __init__(self):
+        self.marks: dict[str, str] = {}
+
+    def set_stale_marks(self, marks):
+        self.marks = dict(marks)
+
+
+def test_image_and_reconstruction_marks_reach_their_layers_and_the_convergence_plot(qtbot, design):
+    state = StudioState(design)
+    viewer, plot = _MarkRecorder(), ConvergencePlot(state)
+    qtbot.addWidget(plot)
+    marks = StaleMarks(state, viewer=viewer, convergence=plot)
+    state.set_image(SimpleNamespace(design=design))
+    state.set_reconstruction(SimpleNamespace(ncc_curve=(0.2, 0.5), change_curve=(0.1, 0.05)))
+    for stage in ("psf", "image", "reconstruction"):
+        state.mark_fresh(stage)
+    assert viewer.marks == {} and plot.stale_text is None and not plot.is_dimmed()
+    state.set_workflow(replace(state.workflow, iterations=state.workflow.iterations + 5))
+    assert state.stale == {"reconstruction"}  # only the reconstruction depends on the iterations
+    head = "stale: made with the previous design or settings"
+    assert viewer.marks == {"reconstruction": head}
+    assert plot.stale_text == head and plot.is_dimmed()
+    state.set_job(JobStatus("reconstruction", "failed", message="failed: RL diverged"))
+    assert plot.stale_text == f"{head}; reconstruction failed: RL diverged"
+    state.set_design(apply_changes(design, {"camera.read_noise_e": 2.0}))  # noise: same PSF, new image
+    assert set(viewer.marks) == {"light field", "phantom", "reconstruction"}
+    state.mark_fresh("image")
+    state.mark_fresh("reconstruction")
+    assert viewer.marks == {} and plot.stale_text is None and not plot.is_dimmed()
+    marks.disconnect_state()
+    plot.disconnect_state()
 
 
 def _gated_failure(entered: threading.Event, gate: threading.Event):
