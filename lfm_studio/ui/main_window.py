@@ -22,6 +22,7 @@ from lfm_studio.ui.file_menu import FileActions
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.parameter_panel import ParameterPanel
 from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
+from lfm_studio.ui.stale_marks import StaleMarks
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.status_bar import JobStatusBar
 from lfm_studio.ui.widget_factories import unavailable
@@ -83,6 +84,10 @@ class MainWindow(QMainWindow):
         self.plot_tabs.addTab(self.profiles, "PSF profiles")
         self.plot_tabs.addTab(self.convergence, "RL convergence")
         plots = self._dock("Plots", self.plot_tabs, Area.RightDockWidgetArea)
+        self.stale_marks = StaleMarks(  # out-of-date results are marked as such in the views
+            state, viewer=viewer, profiles=self.profiles, convergence=self.convergence,
+            requirements=self.requirements, parent=self,
+        )  # fmt: skip
 
         mla = QWidget()
         column = QVBoxLayout(mla)
@@ -159,7 +164,7 @@ class MainWindow(QMainWindow):
         ):
             signal.disconnect(slot)
         for part in (*self._bindings, self.parameter_panel, self.workflow_panel, self.requirements, self.profiles,
-                     self.convergence, self.file_actions, self.job_status, self.failure_notices):  # fmt: skip
+                     self.convergence, self.stale_marks, self.file_actions, self.job_status, self.failure_notices):  # fmt: skip
             part.disconnect_state()
         close_viewer = getattr(self.viewer, "close_viewer", None)
         if close_viewer is not None:

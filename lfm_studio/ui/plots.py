@@ -50,15 +50,49 @@ def _plot(title: str, x_label: str, y_label: str) -> pg.PlotWidget:
     return widget
 
 
+STALE_OPACITY = 0.3  # opacity of a stale plot's curves
+
+
 class _StateView(QWidget):
-    """A plot that observes some of the state's signals (disconnect before destruction)."""
+    """A plot that observes some of the state's signals (disconnect before destruction).
+
+    :meth:`set_stale` puts a label over the view (and fades the plot items in ``_dimmed``)
+    while what it shows no longer matches the design (see :mod:`lfm_studio.ui.stale_marks`).
+    """
 
     def __init__(self, state: StudioState | None, parent: QWidget | None = None) -> None:
         super().__init__(parent)
         self.state = state
         self._connections: list[tuple[object, object]] = []
+        self._dimmed: list[pg.GraphicsObject] = []
         layout = QVBoxLayout(self)
         layout.setContentsMargins(0, 0, 0, 0)
+        self.stale_label = QLabel(self)
+        self.stale_label.setObjectName("staleLabel")
+        self.stale_label.setWordWrap(True)
+        self.stale_label.setVisible(False)
+        layout.addWidget(self.stale_label)
+
+    @property
+    def stale_text(self) -> str | None:
+        """The stale label's text, or None while the view is fresh."""
+        return None if self.stale_label.isHidden() else self.stale_label.text()
+
+    def set_stale(self, text: str | None) -> None:
+        """Mark the view stale with ``text`` (greyed, with a label), or fresh with None."""
+        failed = bool(text) and ("failed" in text or "cancelled" in text)
+        colours = ("#f8d7da", "#842029") if failed else ("#fff3cd", "#664d03")
+        self.stale_label.setStyleSheet(
+            f"QLabel {{ background: {colours[0]}; color: {colours[1]}; padding: 3px; }}"
+        )
+        self.stale_label.setText(text or "")
+        self.stale_label.setVisible(bool(text))
+        for item in self._dimmed:
+            item.setOpacity(STALE_OPACITY if text else 1.0)
+
+    def is_dimmed(self) -> bool:
+        """Whether the view's curves are faded out as stale."""
+        return any(item.opacity() < 1.0 for item in self._dimmed)
 
     def _observe(self, signal, slot, current) -> None:
         signal.connect(slot)
@@ -88,6 +122,7 @@ class ProfilePlots(_StateView):
         self.axial_curve = self.axial_plot.plot(pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0")
         self.lateral_preview = self.lateral_plot.plot(pen=dashed)
         self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5)
+        self._dimmed = [self.lateral_curve, self.axial_curve, self.lateral_preview, self.axial_preview]
         if state is not None:
             self._observe(state.psf_changed, self.show_result, state.psf)
             self._observe(state.preview_changed, self.show_preview, state.preview)
@@ -222,6 +257,7 @@ class ConvergencePlot(_StateView):
         self.layout().addWidget(self.plot)
         pen = pg.mkPen("#6a1b9a", width=2)
         self.curve = self.plot.plot(pen=pen, symbol="o", symbolSize=4, symbolBrush="#6a1b9a")
+        self._dimmed = [self.curve]
         self.floor = pg.InfiniteLine(
             pos=0.0, angle=0, pen=pg.mkPen("#757575", width=1, style=Qt.PenStyle.DashLine),
             label="all-zero floor", labelOpts={"position": 0.85, "color": "#757575"},

@@ -29,6 +29,7 @@ if TYPE_CHECKING:
 _PLANES = {"xy": (0, 1, 2), "xz": (1, 0, 2), "yz": (2, 0, 1)}  # order of the last three axes
 #: Camera angles (degrees) of a fresh 3-D view: oblique, so depth shows at once.
 CAMERA_ANGLES_3D = (0.0, -35.0, 60.0)
+STALE_COLOR = "#ffb74d"  # the canvas read-out while the focused layer is out of date
 
 
 class NapariScene:
@@ -53,6 +54,7 @@ class NapariScene:
         self._shown: dict[str, DisplayData] = {}
         self.focused: str | None = None
         self._mip = False  # maximum-intensity projection over depth in 2-D views
+        self._stale_note = ""  # appended to the canvas read-out while the focused layer is out of date
         self.widget, self.panel = QStackedWidget(), QStackedWidget()
         self.panel.setMinimumWidth(300)  # napari controls are unreadable narrower
         self._space = "sensor"
@@ -290,6 +292,12 @@ class NapariScene:
         self.reset_view()
         self._on_step()
 
+    def set_stale_note(self, note: str) -> None:
+        """Show ``note`` (e.g. ``"STALE (PSF failed)"``) in the canvas read-out, in amber; ``""`` clears it."""
+        if note != self._stale_note:
+            self._stale_note = note
+            self._on_step()
+
     def drawn_factor(self, name: str) -> int:
         """Lateral max-pooling factor of what 3-D rendering draws for ``name`` (napari renders a
         multiscale layer from its coarsest level in 3-D); 1 in 2-D views, whose level follows the zoom."""
@@ -318,7 +326,11 @@ class NapariScene:
             factor = self.drawn_factor(shown.name)
             if factor > 1:
                 parts.append(f"3-D preview: max of {factor}×{factor} pixels")
-        self.model.canvas.overlays.text.text = "   ".join(parts)
+        if self._stale_note and shown is not None:
+            parts.append(self._stale_note)
+        overlay = self.model.canvas.overlays.text
+        overlay.color = STALE_COLOR if self._stale_note and shown is not None else "white"
+        overlay.text = "   ".join(parts)
         self.depth_changed.emit(depth)
 
 

@@ -95,6 +95,12 @@ class PSFViewer(QWidget):
         self._info = QLabel("")
         self._info.setStyleSheet("QLabel { color: gray; }")
         layout.addWidget(self._info)
+        self._stale_marks: dict[str, str] = {}
+        self._stale = QLabel()  # over the view: the shown layer no longer matches the design
+        self._stale.setObjectName("staleBanner")
+        self._stale.setWordWrap(True)
+        self._stale.setVisible(False)
+        layout.addWidget(self._stale)
         if reason is None:
             try:
                 self._scene = NapariScene()
@@ -132,6 +138,19 @@ class PSFViewer(QWidget):
     def message(self) -> str | None:
         """Why the fallback is shown (``None`` with napari)."""
         return self._message.text() if self._reason is not None else None
+
+    @property
+    def stale_text(self) -> str | None:
+        """The banner over the view (the shown layer's stale mark), or None when it shows a fresh result."""
+        return self._stale.text() if not self._stale.isHidden() else None
+
+    def set_stale_marks(self, marks: dict[str, str]) -> None:
+        """Marks per layer name (e.g. ``{"PSF": "stale: shows the previous design; PSF failed: ..."}``).
+
+        The shown layer's mark appears as a banner over the view; layers not in ``marks`` are fresh.
+        """
+        self._stale_marks = {str(name): str(text) for name, text in marks.items() if text}
+        self._update_stale()
 
     def show_display(self, shown: DisplayData) -> None:
         """Show prepared display data (built off the GUI thread); updates the layer of its name in place."""
@@ -234,6 +253,7 @@ class PSFViewer(QWidget):
         self._scene = self._body = None
         self._combo.clear()
         self._info.setText("viewer closed")
+        self._update_stale()
 
     def closeEvent(self, event: Any) -> None:
         self.close_viewer()
@@ -258,6 +278,21 @@ class PSFViewer(QWidget):
             )
         if self._closed:
             raise RuntimeError(f"PSFViewer.{what}: the viewer was closed (close_viewer()).")
+
+    def _update_stale(self) -> None:
+        focused = None if self._closed else self._scene.focused
+        text = self._stale_marks.get(focused) if focused is not None else None
+        failed = text is not None and ("failed" in text or "cancelled" in text)
+        colours = ("#f8d7da", "#842029") if failed else ("#fff3cd", "#664d03")
+        self._stale.setStyleSheet(
+            f"QLabel {{ background: {colours[0]}; color: {colours[1]}; font-weight: bold; padding: 4px; "
+            f"border-left: 6px solid {colours[1]}; }}"
+        )
+        self._stale.setText(f"{focused}: {text}" if text else "")
+        self._stale.setToolTip("The view shows an out-of-date result; it updates when a fresh one arrives.")
+        self._stale.setVisible(text is not None)
+        if self.backend == "napari" and not self._closed:
+            self._scene.set_stale_note(_short_note(text))
 
     def _build_toolbar(self) -> QHBoxLayout:
         bar = QHBoxLayout()
@@ -345,6 +380,17 @@ class PSFViewer(QWidget):
         self._update_ortho()
         shown = self._scene.shown(self._scene.focused)
         self._info.setText(describe(shown, stretched=self.backend == "napari") if shown is not None else "")
+        self._update_stale()
+
+
+def _short_note(mark: str | None) -> str:
+    """The canvas read-out's short form of a stale mark (the banner above has the whole text)."""
+    if not mark:
+        return ""
+    for word in ("failed", "cancelled", "recomputing"):
+        if word in mark:
+            return f"STALE ({word})"
+    return "STALE"
 
 
 def _toggle(text: str, tip: str) -> QPushButton:

@@ -1,0 +1,145 @@
+"""Stale marks: what the views say when the result they show no longer matches the design.
+
+A stage (:data:`~lfm_studio.ui.results.STAGES`) whose result is on screen but stale (the
+design or settings changed since), being recomputed, or whose job failed or was cancelled,
+gets a one-line mark such as ``"stale: shows the previous design; PSF failed: out of
+memory"``. :func:`stage_mark` computes it from the state alone (pure, Qt-free);
+:class:`StaleMarks` keeps the views' marks up to date: the viewer's banner per layer, the
+PSF profile plots, the measured rows of the requirements table and the RL convergence plot.
+A fresh result clears the mark.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from qtpy.QtCore import QObject
+
+from lfm_studio.ui.state import StudioState
+
+STAGE_LABELS = {"psf": "PSF", "image": "image", "reconstruction": "reconstruction"}
+#: The viewer's layers (the names :mod:`lfm_studio.ui.pipeline` gives them) and their stage.
+LAYER_STAGES = {
+    "PSF": "psf",
+    "light field": "image",
+    "phantom": "image",
+    "reconstruction": "reconstruction",
+}
+
+
+def _shown_result(state: StudioState, stage: str) -> Any:
+    if stage == "psf":
+        return state.psf if state.psf is not None else state.preview
+    return state.image if stage == "image" else state.reconstruction
+
+
+def _job_part(state: StudioState, stage: str) -> str:
+    """What the stage's job is doing about it: recomputing, failed (with the error), cancelled or nothing."""
+    job = state.job(stage)
+    label = STAGE_LABELS[stage]
+    if job.active:
+        return "recomputing…"
+    if job.state == "failed":
+        error = job.message.removeprefix("failed: ") or "unknown error"
+        return f"{label} failed: {error}"
+    if job.state == "cancelled":
+        return f"{label} cancelled"
+    return ""
+
+
+def _current_preview_only(state: StudioState) -> bool:
+    """The viewer shows the current design's quick preview (the full stack is older or absent)."""
+    preview, psf = state.preview, state.psf
+    current = state.design
+    return preview is not None and preview.design == current and (psf is None or psf.design != current)
+
+
+def stage_mark(state: StudioState, stage: str) -> str | None:
+    """The mark for ``stage``'s result on screen, or None when it is fresh (or nothing is shown and nothing failed).
+
+    Examples: ``"stale: shows the previous design; recomputing…"``, ``"stale: shows the
+    previous design; PSF failed: <error>"``, ``"quick preview of this design; full PSF: recomputing…"``.
+    """
+    if stage not in STAGE_LABELS:
+        raise ValueError(f"stage must be one of {tuple(STAGE_LABELS)}; got {stage!r}.")
+    if stage not in state.stale:
+        return None
+    shown, part = _shown_result(state, stage), _job_part(state, stage)
+    if shown is None:
+        return part if state.job(stage).state == "failed" else None
+    if stage == "psf" and _current_preview_only(state):
+        return f"quick preview of this design; full PSF: {part or 'not computed yet'}"
+    head = (
+        "stale: shows the previous design"
+        if stage == "psf"
+        else "stale: made with the previous design or settings"
+    )
+    return f"{head}; {part}" if part else head
+
+
+def metrics_mark(state: StudioState) -> str | None:
+    """The requirements table's mark: its measured rows wait for (or lost) the current design's PSF."""
+    if "psf" not in state.stale:
+        return None
+    psf_part = _job_part(state, "psf")
+    if psf_part.startswith("PSF failed") or psf_part == "PSF cancelled":
+        return f"formula estimates only: {psf_part}"
+    return "formula estimates only: measured values wait for the PSF" + (
+        " (recomputing…)" if psf_part else ""
+    )
+
+
+class StaleMarks(QObject):
+    """Keeps the stale marks of a viewer and plots in step with the state.
+
+    Parameters
+    ----------
+    state : the application state.
+    viewer : anything with ``set_stale_marks(dict[layer name, str])`` (the PSFViewer), or None.
+    profiles, convergence, requirements : views with ``set_stale(str | None)``, or None.
+    """
+
+    def __init__(
+        self,
+        state: StudioState,
+        *,
+        viewer: Any = None,
+        profiles: Any = None,
+        convergence: Any = None,
+        requirements: Any = None,
+        parent: QObject | None = None,
+    ) -> None:
+        super().__init__(parent)
+        self.state = state
+        self.viewer = viewer if hasattr(viewer, "set_stale_marks") else None
+        self.profiles, self.convergence, self.requirements = profiles, convergence, requirements
+        self._signals = (
+            state.stale_changed, state.job_changed, state.psf_changed, state.preview_changed,
+            state.image_changed, state.reconstruction_changed, state.metrics_changed,
+        )  # fmt: skip
+        for signal in self._signals:
+            signal.connect(self.refresh)
+        self.refresh()
+
+    def marks(self) -> dict[str, str]:
+        """Stage -> mark for every marked stage."""
+        found = {stage: stage_mark(self.state, stage) for stage in STAGE_LABELS}
+        return {stage: mark for stage, mark in found.items() if mark}
+
+    def refresh(self, *_: Any) -> None:
+        """Recompute the marks and hand them to the views."""
+        marks = self.marks()
+        if self.viewer is not None:
+            self.viewer.set_stale_marks(
+                {layer: marks[stage] for layer, stage in LAYER_STAGES.items() if stage in marks}
+            )
+        if self.profiles is not None:
+            self.profiles.set_stale(marks.get("psf"))
+        if self.convergence is not None:
+            self.convergence.set_stale(marks.get("reconstruction"))
+        if self.requirements is not None:
+            self.requirements.set_stale(metrics_mark(self.state))
+
+    def disconnect_state(self) -> None:
+        for signal in self._signals:
+            signal.disconnect(self.refresh)
