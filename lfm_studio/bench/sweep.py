@@ -139,10 +139,18 @@ def run_case(
     grid_base = next((t for g, t in zip(grid, grid_seconds, strict=True) if g.default), math.nan)
     for g, t in zip(grid, grid_seconds, strict=True):
         report(f"{g.label}: two-point resolution")
-        quality = grid_quality(case, g, iterations=grid_iterations or RESOLUTION_ITERATIONS)
+        try:
+            quality = grid_quality(case, g, iterations=grid_iterations or RESOLUTION_ITERATIONS)
+            note, lateral, axial = quality.note, quality.lateral_um, quality.axial_um
+        except ValueError as error:  # e.g. no light reaches the crop: the row keeps its time, says why
+            note, lateral, axial = (
+                "resolution not measured: " + " ".join(str(error).split()),
+                math.nan,
+                math.nan,
+            )
         rows.append(
-            Row(case.name, g.knob, g.value, t, t / grid_base, math.nan, math.nan, note=quality.note,
-                lateral_um=quality.lateral_um, axial_um=quality.axial_um)
+            Row(case.name, g.knob, g.value, t, t / grid_base, math.nan, math.nan, note=note,
+                lateral_um=lateral, axial_um=axial)
         )  # fmt: skip
     for i in pareto_front([(r.seconds, r.psf_error) for r in rows]):
         rows[i].front = True
