@@ -1,13 +1,16 @@
 """``lfm-studio bench``: run time against error for every accuracy knob (the Pareto table and plot).
 
-    lfm-studio bench [--design NAME|FILE ...] [--quick] [--out DIR] [--json] [--repeats N]
+    lfm-studio bench [--design NAME|FILE ...] [--quick] [--grid-only] [--out DIR] [--json] [--repeats N]
 
 For each design (default: every shipped preset) the PSF stack is computed at the
 converged reference and at every knob setting (one knob changed from the standard
 preset at a time, plus the presets); the table gives the time (fastest of the
 interleaved rounds), its ratio to the standard preset in the same run, the worst-depth
 relative PSF error and the reconstruction error, and marks the Pareto front.
-``--out`` writes ``accuracy_table.md``, ``accuracy.json`` and ``accuracy_pareto.png``.
+The volume-grid rows (``voxels_per_lenslet`` / ``volume_oversampling``) time the PSF and
+projector set-up on each grid and give the reconstructed two-point resolution instead of
+the PSF error (not comparable across grids); ``--quick`` leaves them out, ``--grid-only``
+runs just them and the standard preset. ``--out`` writes ``accuracy_table.md``, ``accuracy.json`` and ``accuracy_pareto.png``.
 Register with :func:`add_bench_parser`.
 """
 
@@ -37,6 +40,10 @@ def add_bench_parser(subparsers: argparse._SubParsersAction) -> argparse.Argumen
     bench.add_argument(
         "--quick", action="store_true",
         help="fewer settings, one round, no reference refinement check, 5 RL iterations (a smoke run)",
+    )  # fmt: skip
+    bench.add_argument(
+        "--grid-only", action="store_true",
+        help="only the standard preset and the volume-grid rows (time and two-point resolution per grid)",
     )  # fmt: skip
     bench.add_argument("--out", default=None, metavar="DIR", help="write the table, JSON and PNG plot here")
     bench.add_argument("--json", action="store_true", help="print JSON instead of the Markdown table")
@@ -69,6 +76,8 @@ def _outputs(out: Path, overwrite: bool) -> dict[str, Path]:
 def run_bench(args: argparse.Namespace) -> int:
     """Handler of ``bench``: run the sweep, print the table, write the files; 0 on success."""
     from lfm_studio.bench import format_table, resolve_case, run_case, shipped_cases, write_pareto_png
+    from lfm_studio.bench.grid import grid_settings
+    from lfm_studio.bench.knobs import KnobSetting, preset_options
     from lfm_studio.bench.metrics import ITERATIONS
     from lfm_studio.cli_progress import progress_bar
     from lfm_studio.engine.atomic_write import atomic_write
@@ -86,11 +95,14 @@ def run_bench(args: argparse.Namespace) -> int:
     repeats = args.repeats or (1 if args.quick else 2)
     results = []
     for case in cases:
+        only = args.grid_only
+        settings = [KnobSetting("preset", "standard", preset_options(case, "standard"))] if only else None
         with progress_bar(f"bench {case.name}") as progress:
             results.append(
                 run_case(
-                    case, quick=args.quick, repeats=repeats, check_reference=not args.quick,
-                    iterations=QUICK_ITERATIONS if args.quick else ITERATIONS, progress=progress,
+                    case, quick=args.quick, repeats=repeats, check_reference=not (args.quick or only),
+                    iterations=QUICK_ITERATIONS if args.quick else ITERATIONS, settings=settings,
+                    grid=grid_settings(case) if only else None, progress=progress,
                 )
             )  # fmt: skip
     table = format_table(results)

@@ -1,7 +1,8 @@
 """Run time against error for every accuracy knob (``lfm-studio bench``, ``benchmarks/accuracy.py``).
 
 Pieces: :mod:`cases` (designs, depths, crops), :mod:`knobs` (settings, reference,
-presets as points), :mod:`compute`, :mod:`metrics` (PSF and reconstruction error),
+presets as points), :mod:`grid` (volume-grid rows: time and two-point resolution),
+:mod:`compute`, :mod:`metrics` (PSF and reconstruction error),
 :mod:`timing` (interleaved rounds), :mod:`pareto`, :mod:`sweep`, :mod:`table`,
 :mod:`plot` (PNG; imports pyqtgraph lazily). Headless: nothing here imports Qt at import time.
 """

@@ -3,16 +3,21 @@
 One table per case, preceded by a ``### case`` heading and a line with the depths,
 the reference's time and its convergence check. Columns: knob, value, time (s, the
 fastest interleaved round), ratio to the standard preset measured in the same run,
-worst-depth relative PSF error, reconstruction error, ``*`` on the Pareto front, notes.
+worst-depth relative PSF error, reconstruction error, ``*`` on the Pareto front, notes,
+then the reconstructed two-point resolution (lateral, axial, um) of the volume-grid rows
+(blank on the others). A grid row's PSF and reconstruction errors read ``n/a (other grid)``.
+Tables written before the resolution columns existed (8 columns) are read too.
 """
 
 from __future__ import annotations
 
 import math
 
+from lfm_studio.bench.grid import GRID_KNOB_NAMES, NOT_COMPARABLE
 from lfm_studio.bench.sweep import CaseResult, Row
 
-COLUMNS = ("knob", "value", "time (s)", "time / standard", "PSF error", "recon error", "front", "note")
+LEGACY_COLUMNS = ("knob", "value", "time (s)", "time / standard", "PSF error", "recon error", "front", "note")
+COLUMNS = (*LEGACY_COLUMNS, "lateral res. (um)", "axial res. (um)")
 
 
 def _number(value: float, spec: str) -> str:
@@ -31,18 +36,21 @@ def format_case(result: CaseResult) -> str:
         + ".",
         "",
         "| " + " | ".join(COLUMNS) + " |",
-        "|" + "|".join(["---"] * 2 + ["---:"] * 4 + [":---:", "---"]) + "|",
+        "|" + "|".join(["---"] * 2 + ["---:"] * 4 + [":---:", "---"] + ["---:"] * 2) + "|",
     ]
     for r in result.rows:
+        grid = r.knob in GRID_KNOB_NAMES
         cells = (
             r.knob,
             r.value,
             _number(r.seconds, ".2f"),
             _number(r.ratio, ".2f"),
-            _number(r.psf_error, ".2e"),
-            _number(r.recon_error, ".2e"),
+            NOT_COMPARABLE if grid else _number(r.psf_error, ".2e"),
+            NOT_COMPARABLE if grid else _number(r.recon_error, ".2e"),
             "*" if r.front else "",
             r.note.replace("|", "/"),
+            _number(r.lateral_um, ".3g") if grid else "",
+            _number(r.axial_um, ".3g") if grid else "",
         )
         lines.append("| " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
@@ -54,7 +62,13 @@ def format_table(results: list[CaseResult]) -> str:
 
 
 def _float(text: str) -> float:
-    return float(text) if text.strip() else math.nan
+    """The number in a cell; blank, ``nan`` and ``n/a ...`` give the one ``math.nan`` object,
+    so rows read twice compare equal (dataclass equality compares fields by identity first)."""
+    text = text.strip()
+    if not text or text.startswith("n/a"):
+        return math.nan
+    value = float(text)
+    return math.nan if math.isnan(value) else value
 
 
 def parse_table(text: str) -> list[Row]:
@@ -64,20 +78,22 @@ def parse_table(text: str) -> list[Row]:
     """
     rows: list[Row] = []
     case = ""
-    header = "| " + " | ".join(COLUMNS) + " |"
+    headers = {"| " + " | ".join(c) + " |": len(c) for c in (COLUMNS, LEGACY_COLUMNS)}
+    width = len(COLUMNS)
     in_table = False
     for line in text.splitlines():
         stripped = line.strip()
         if stripped.startswith("### "):
             case = stripped[4:].rsplit(" (", 1)[0].strip()
             in_table = False
-        elif stripped == header:
-            in_table = True
+        elif stripped in headers:
+            in_table, width = True, headers[stripped]
         elif in_table and stripped.startswith("|") and not set(stripped) <= set("|-: "):
             cells = [c.strip() for c in stripped.strip("|").split("|")]
-            if len(cells) != len(COLUMNS):
-                raise ValueError(f"table row has {len(cells)} cells, expected {len(COLUMNS)}: {line!r}")
-            knob, value, seconds, ratio, psf, recon, front, note = cells
+            if len(cells) != width:
+                raise ValueError(f"table row has {len(cells)} cells, expected {width}: {line!r}")
+            knob, value, seconds, ratio, psf, recon, front, note = cells[:8]
+            lateral, axial = cells[8:] or ("", "")
             rows.append(
                 Row(
                     case,
@@ -89,6 +105,8 @@ def parse_table(text: str) -> list[Row]:
                     _float(recon),
                     front == "*",
                     note,
+                    _float(lateral),
+                    _float(axial),
                 )
             )
         elif not stripped.startswith("|"):

@@ -95,3 +95,22 @@ def test_log_ticks_label_one_two_five_or_decades():
     assert [label for _, label in major] == ["0.001", "0.01", "0.1", "1", "10", "100", "1000"]
     assert len(minor) == 12 and {label for _, label in minor} == {""}
     assert log_ticks(0.0, 1.0) == [[], []]
+
+
+def test_grid_rows_and_legacy_tables_round_trip():
+    result = _result()
+    result.rows.append(
+        Row("tiny", "voxels_per_lenslet", "7", 2.5, 1.4, math.nan, math.nan, False, "voxel 1", 2.25, math.inf)
+    )
+    text = format_table([result])
+    assert "| n/a (other grid) | n/a (other grid) |" in text and "| 2.25 | inf |" in text
+    rows = parse_table(text)
+    assert rows[3] == result.rows[3]  # NaN cells read back as the one math.nan object
+    assert all(math.isnan(r.lateral_um) and math.isnan(r.axial_um) for r in rows[:3])
+    # A table written before the resolution columns existed (8 columns) still reads.
+    legacy = "\n".join(
+        line.rsplit(" | ", 2)[0] + " |" if line.startswith("|") else line
+        for line in format_table([_result()]).splitlines()
+    )
+    old = parse_table(legacy)
+    assert [(r.knob, r.psf_error) for r in old] == [(r.knob, r.psf_error) for r in _result().rows]
