@@ -34,6 +34,12 @@ def add_calibrate_parser(subparsers: argparse._SubParsersAction) -> argparse.Arg
         "--design", required=True, help="preset name or .json design file (the nominal optics)"
     )
     parser.add_argument("--out", required=True, help="calibration file to write (.json)")
+    parser.add_argument(
+        "--design-out",
+        default=None,
+        help="also write the design to simulate the PSF with (.json): conventional LFM, the nominal optics "
+        "on the rectified frames' sensor; Fourier LFM, the lenslets at their measured centres",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace --out if it exists")
     parser.set_defaults(handler=run_calibrate)
     return parser
@@ -49,6 +55,21 @@ def _read_frame(option: str, path: str, pixel_size: float) -> torch.Tensor:
     return data.mean(dim=0) if data.ndim == 3 else data
 
 
+def _save_psf_design(args: argparse.Namespace, design, calibration) -> None:
+    """Write ``--design-out``: the design whose PSF matches what ``reconstruct --calibration`` feeds it."""
+    from lfm_studio.engine.calibration import fitted_design, rectified_design
+    from lfm_studio.engine.design import save_design
+
+    psf_design = (
+        rectified_design(design, calibration)
+        if calibration.grid is not None
+        else fitted_design(design, calibration)
+    )
+    save_design(psf_design, args.design_out, overwrite=args.overwrite)
+    ny, nx = psf_design.camera.pixel_count
+    print(f"wrote {args.design_out}: simulate the PSF with it (sensor {ny} x {nx} px)")
+
+
 def run_calibrate(args: argparse.Namespace) -> int:
     """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
     from lfm_studio.engine.calibration import calibrate, save_calibration
@@ -60,6 +81,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     out = check_output(args.out, overwrite=args.overwrite, inputs=inputs)
     if args.dark is not None:  # the dark frame is saved beside the calibration
         check_output(dark_frame_path(out), overwrite=args.overwrite, inputs=inputs, flag="--out (dark frame)")
+    if args.design_out is not None:
+        check_output(args.design_out, overwrite=args.overwrite, inputs=inputs, flag="--design-out")
     design = resolve_design(args.design)
     pixel = design.camera.pixel_pitch
     radiometry = _read_frame("--radiometry", args.radiometry, pixel)
@@ -67,6 +90,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
     with progress_bar(f"calibration ({design.kind})") as progress:
         calibration = calibrate(radiometry, design, dark=dark, progress=progress)
     save_calibration(calibration, out, overwrite=args.overwrite)
+    if args.design_out is not None:
+        _save_psf_design(args, design, calibration)
     summary = calibration.summary()
     if calibration.grid is not None:
         py, px = summary["pitch_yx_px"]
