@@ -69,21 +69,16 @@ def load_raw_calibration(args: argparse.Namespace):
 
 
 def calibrated_camera(args: argparse.Namespace, metadata: dict[str, Any] | None, calibration):
-    """The camera conversion for dark-subtracted frames: baseline 0; gain, QE and read noise from
-    ``--gain/--read-noise``, else the image's camera metadata, else the calibration's design camera."""
-    from lfm_studio.engine.calibration import nominal_design
-    from lfm_studio.engine.io.camera_counts import CameraCalibration, calibration_from_metadata
+    """The camera conversion for the dark-subtracted frames (baseline 0; see
+    :func:`lfm_studio.engine.calibration.raw_camera.dark_subtracted_camera`)."""
+    from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
 
-    recorded = calibration_from_metadata(metadata)
-    camera = nominal_design(calibration).camera
-    gain = args.gain if args.gain is not None else (recorded or camera).gain_adu_per_e
-    read_noise = args.read_noise if args.read_noise is not None else (recorded or camera).read_noise_e
-    return CameraCalibration(
-        baseline_adu=0.0,
-        gain_adu_per_e=float(gain),
-        quantum_efficiency=float((recorded or camera).quantum_efficiency),
+    return dark_subtracted_camera(
+        calibration,
+        metadata,
+        gain=args.gain,
+        read_noise=args.read_noise,
         source=f"calibration {args.calibration} (dark subtracted)",
-        read_noise_e=float(read_noise),
     )
 
 

@@ -2,15 +2,15 @@
 
 Beads of a 3-depth ``lfm_10x_na03`` volume (8 x 8 lenslets, 19 px per lenslet on the model's
 lattice) are seen through a raw camera with 19.37 x 19.31 px lenslets, a 1.5 deg rotation, an
-offset, vignetting, noise, a dark offset of 100 ADU and hot pixels (as in
-``tests/engine/calibration/test_end_to_end.py``, but through the command line and TIFF files).
+offset, vignetting, noise, a dark offset of 100 ADU and hot pixels
+(:func:`lfm_studio.engine.calibration.synthetic_scene.misaligned_bead_scene`, the scene of
+``tests/engine/calibration/test_end_to_end.py``), through the command line and TIFF files.
 References: the same beads imaged on the model's own lattice (aligned case), and the floors:
 an all-zero volume and a plain crop of the raw frame reconstructed without calibration.
 """
 
 from __future__ import annotations
 
-import math
 import re
 
 import numpy as np
@@ -19,30 +19,9 @@ import tifffile
 import torch
 
 from lfm_studio import cli
-from lfm_studio.engine.calibration import LensletLattice
-from lfm_studio.engine.calibration.rectify import unrectify
-from lfm_studio.engine.calibration.synthetic import expose, radial_vignetting
-from lfm_studio.engine.design import load_preset, resolve_design, save_design
+from lfm_studio.engine.calibration.synthetic_scene import BASELINE_ADU, misaligned_bead_scene
+from lfm_studio.engine.design import resolve_design, save_design
 from lfm_studio.engine.io import read_volume
-from lfm_studio.engine.phantoms import beads
-from lfm_studio.engine.simulation import imaging_setup, simulate_psf
-
-LENSLETS = 8
-RAW_SHAPE = (188, 192)
-BASELINE = 100.0
-
-
-def _camera(image: torch.Tensor, *, seed: int, hot_fraction: float, vignetting: torch.Tensor | float = 1.0):
-    frame, dark, _ = expose(
-        image.double() * vignetting,
-        baseline_adu=BASELINE,
-        read_noise_e=1.5,
-        gain_adu_per_e=1.0,
-        hot_fraction=hot_fraction,
-        hot_adu=3000.0,
-        seed=seed,
-    )
-    return frame, dark
 
 
 def _tiff(path, frame: torch.Tensor) -> str:
@@ -51,9 +30,8 @@ def _tiff(path, frame: torch.Tensor) -> str:
 
 
 def _pearson(a, b) -> float:
-    return float(
-        np.corrcoef(np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel())[0, 1]
-    )
+    a, b = np.asarray(a, dtype=np.float64).ravel(), np.asarray(b, dtype=np.float64).ravel()
+    return float(np.corrcoef(a, b)[0, 1])
 
 
 @pytest.fixture(scope="module")
@@ -61,51 +39,19 @@ def files(tmp_path_factory):
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     folder = tmp_path_factory.mktemp("reconstruct_calibrated")
-    base = load_preset("lfm_10x_na03")
-    depths = {"depth_range_um": (-20.0, 20.0), "depth_step_um": 20.0}
-    side = LENSLETS * 19 + 2
-    design = base.updated(camera={**base.camera.model_dump(), "pixel_count": (side, side)}, depths=depths)
-    setup = imaging_setup(simulate_psf(design))
-    projector = setup.projector
-    truth = beads(
-        setup.volume_shape, count=6, voxel_size=setup.voxel_size, seed=3, intensity=1.0, margin=0.0
-    ).data
-    image = projector.forward(truth.float()).clamp_min(0.0).double()
-    slab = torch.zeros(setup.volume_shape)
-    slab[setup.volume_shape[0] // 2] = 1.0
-    radiometry_model = projector.forward(slab).clamp_min(0.0).double()
-    scale = 2e6 / float(image.sum())
-
-    lattice = LensletLattice.from_geometry(
-        (19.37, 19.31), math.radians(1.5), ((RAW_SHAPE[0] - 1) / 2 + 2.3, (RAW_SHAPE[1] - 1) / 2 - 3.1)
-    )
-    block = (-(LENSLETS // 2), LENSLETS, -(LENSLETS // 2), LENSLETS)
-    vignetting = radial_vignetting(RAW_SHAPE, 0.2)
-    raw, _ = _camera(
-        unrectify(image, lattice, block, RAW_SHAPE) * scale, seed=2, hot_fraction=1e-3, vignetting=vignetting
-    )
-    radiometry_raw = unrectify(radiometry_model, lattice, block, RAW_SHAPE)
-    radiometry, dark = _camera(
-        radiometry_raw * (2000.0 / float(radiometry_raw.max())),
-        seed=3,
-        hot_fraction=1e-3,
-        vignetting=vignetting,
-    )
-    aligned, _ = _camera(image * scale, seed=1, hot_fraction=0.0)
-    top, left = ((r - s) // 2 for r, s in zip(RAW_SHAPE, image.shape, strict=True))
+    scene = misaligned_bead_scene()
     nominal = folder / "nominal.json"  # the instrument's nominal optics on its raw camera
-    save_design(design.updated(camera={**design.camera.model_dump(), "pixel_count": RAW_SHAPE}), nominal)
+    save_design(scene.nominal, nominal)
     yield {
         "folder": folder,
-        "truth": truth.numpy(),
+        "truth": scene.truth.numpy(),
         "nominal": str(nominal),
-        "raw": _tiff(folder / "raw.tif", raw),
-        "raw_series": _tiff(folder / "raw_series.tif", torch.stack((raw, raw))),
-        "crop": _tiff(folder / "crop.tif", raw[top : top + image.shape[0], left : left + image.shape[1]]),
-        "aligned": _tiff(folder / "aligned.tif", aligned),
-        "radiometry": _tiff(folder / "radiometry.tif", radiometry),
-        "dark": _tiff(folder / "dark.tif", dark),
-        "aligned_psf_shape": tuple(projector.image_shape),
+        "raw": _tiff(folder / "raw.tif", scene.raw),
+        "raw_series": _tiff(folder / "raw_series.tif", torch.stack((scene.raw, scene.raw))),
+        "crop": _tiff(folder / "crop.tif", scene.crop),
+        "aligned": _tiff(folder / "aligned.tif", scene.aligned),
+        "radiometry": _tiff(folder / "radiometry.tif", scene.radiometry),
+        "dark": _tiff(folder / "dark.tif", scene.dark),
     }
     torch.set_num_threads(threads)
 
@@ -145,8 +91,8 @@ def test_calibrated_raw_frame_reconstructs_like_the_aligned_one(files, calibrate
     calibration = ("--calibration", calibrated["calibration"])
     volume = _reconstruct(files["raw"], psf, tmp_path / "calibrated.tif", *calibration)
     assert volume.shape == truth.shape
-    aligned = _reconstruct(files["aligned"], psf, tmp_path / "aligned.tif", "--baseline", str(BASELINE))
-    crop = _reconstruct(files["crop"], psf, tmp_path / "crop.tif", "--baseline", str(BASELINE))
+    aligned = _reconstruct(files["aligned"], psf, tmp_path / "aligned.tif", "--baseline", str(BASELINE_ADU))
+    crop = _reconstruct(files["crop"], psf, tmp_path / "crop.tif", "--baseline", str(BASELINE_ADU))
     scores = {
         name: _pearson(v, truth) for name, v in (("calibrated", volume), ("aligned", aligned), ("crop", crop))
     }
