@@ -1,10 +1,13 @@
-"""``lfm-studio calibrate --radiometry R.tif [--dark D.tif] --design DESIGN --out calib.json``.
+"""``lfm-studio calibrate --radiometry R.tif [--dark D.tif] --design DESIGN --out calib.json [--design-out D.json]``.
 
 Measures the lenslet grid (conventional LFM) or the sub-image centres (Fourier LFM), the
 dark level, defective pixels and the flat field from a radiometry frame, and writes a
 versioned JSON calibration that reconstruction accepts beside a raw frame (with ``--dark``,
 the dark frame is stored next to it as ``<out stem>.dark.npz``). A TIFF stack
-of several exposures is averaged into one frame. Register with :func:`add_calibrate_parser`.
+of several exposures is averaged into one frame. ``--design-out`` also writes the design to
+simulate the PSF with for ``reconstruct --calibration`` (conventional:
+:func:`~lfm_studio.engine.calibration.rectified_design`; Fourier:
+:func:`~lfm_studio.engine.calibration.fitted_design`). Register with :func:`add_calibrate_parser`.
 """
 
 from __future__ import annotations
