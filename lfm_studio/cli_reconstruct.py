@@ -9,7 +9,10 @@ with the camera's noise floor ``c`` modelled as background
 (``lfm-studio image`` writes it), from ``--baseline/--gain/--read-noise``, or with a
 baseline estimated from the darkest pixels and a warning; the volume is then in photons
 per voxel, the unit of ``image --truth``. A volume that comes out all zero, constant or
-NaN/Inf is refused (exit 5) and not written. The file is written once, atomically, after
+NaN/Inf is refused (exit 5) and not written. With ``--calibration`` (from ``lfm-studio
+calibrate``) a raw camera frame is first corrected and rectified onto the projector's lattice
+(:mod:`lfm_studio.cli_raw_frames`); the dark level is then the calibration's, not the camera's
+baseline. The file is written once, atomically, after
 the last frame: a failed or interrupted run leaves no partial output. Register it with
 :func:`add_reconstruct_parsers`; its quality is scored by ``lfm-studio metrics``
 (:mod:`lfm_studio.cli_metrics`).
@@ -24,6 +27,12 @@ import sys
 import torch
 
 from lfm_studio.cli_progress import progress_bar
+from lfm_studio.cli_raw_frames import (
+    add_raw_frame_arguments,
+    calibrated_camera,
+    load_raw_calibration,
+    rectified_image,
+)
 from lfm_studio.cli_simulate import allow_negative_values, parse_depths, resolve_device
 from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
 from lfm_studio.engine.simulation import depth_grid
@@ -64,6 +73,8 @@ def _read_psf(args: argparse.Namespace, device: str):
 def _read_frames(args: argparse.Namespace, psf_pixel: float, device: str):
     from lfm_studio.engine.io import MissingMetadataError, read_image
 
+    if args.calibration is not None:  # rectified onto the PSF's lattice: the PSF's pixels
+        return read_image(args.image, pixel_size=psf_pixel, dtype=torch.float64, device="cpu")
     try:
         return read_image(args.image, dtype=getattr(torch, args.dtype), device=device)
     except MissingMetadataError:
@@ -83,7 +94,11 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
         return prepare_measured_psf(
             stack, sensor_shape=sensor, pixel_size=image.pixel_size, energy=args.psf_energy
         )
-    if stack.data.ndim == 3 and not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
+    if (
+        stack.data.ndim == 3
+        and args.calibration is None
+        and not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6)
+    ):
         raise ValueError(
             f"{args.image} has {image.pixel_size * 1e6:g} um pixels but the PSF stack {args.psf} has "
             f"{stack.pixel_size * 1e6:g} um pixels. Fix: pass --measured to resample the PSF to the image, "
@@ -104,14 +119,17 @@ def _reconstruct_frame(
     )  # fmt: skip
 
 
-def _photons(args: argparse.Namespace, image):
+def _photons(args: argparse.Namespace, image, raw_calibration=None):
     """The frames in photons, the noise floor they carry (photons per pixel) and the calibration used
-    (warnings printed for what was assumed)."""
+    (warnings printed for what was assumed); ``raw_calibration``: the frames are dark-subtracted."""
     from lfm_studio.engine.io import counts_to_photons, resolve_calibration
 
-    calibration, notes = resolve_calibration(
-        image.metadata, image.data, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
-    )
+    if raw_calibration is not None:
+        calibration, notes = calibrated_camera(args, image.metadata, raw_calibration), []
+    else:
+        calibration, notes = resolve_calibration(
+            image.metadata, image.data, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+        )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
     photons, floor = counts_to_photons(image.data, calibration, name=str(args.image))
@@ -124,7 +142,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     from lfm_studio.engine.reconstruct import check_reconstruction
     from lfm_studio.engine.simulation import imaging_setup
 
-    check_output(args.out, overwrite=args.overwrite, inputs=[args.psf, args.image])
+    inputs = [args.psf, args.image] + ([] if args.calibration is None else [args.calibration])
+    check_output(args.out, overwrite=args.overwrite, inputs=inputs)
     if args.iterations < 1:
         raise ValueError(f"--iterations must be >= 1; got {args.iterations}.")
     if args.background < 0 or not math.isfinite(args.background):
@@ -132,6 +151,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"--background must be a finite number >= 0 (photons per pixel); got {args.background}."
         )
     device = resolve_device(args.device)
+    raw_calibration = load_raw_calibration(args)
     stack = _read_psf(args, device)
     image = _read_frames(args, stack.pixel_size, device)
     stack = _prepare_stack(args, stack, image)
@@ -142,13 +162,15 @@ def run_reconstruct(args: argparse.Namespace) -> int:
             f"--method {args.method} needs a laterally shift-invariant (Fourier LFM) PSF stack; {args.psf} is a "
             "conventional-LFM pattern stack. Fix: use --method rl or rl-accelerated."
         )
-    if tuple(image.data.shape[-2:]) != tuple(setup.projector.image_shape):
+    if raw_calibration is not None:
+        image = rectified_image(args, image, raw_calibration, tuple(setup.projector.image_shape), device)
+    elif tuple(image.data.shape[-2:]) != tuple(setup.projector.image_shape):
         raise ValueError(
             f"{args.image} has frames of {tuple(image.data.shape[-2:])} pixels but the PSF stack {args.psf} "
             f"images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, "
             "or --measured to crop/resample a measured one."
         )
-    photons, floor, calibration = _photons(args, image)
+    photons, floor, calibration = _photons(args, image, raw_calibration)
     frames = photons if photons.ndim == 3 else photons[None]
     iterative = args.method in ITERATIVE
     count, steps = frames.shape[0], args.iterations if iterative else 1
@@ -182,6 +204,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         "measured_psf": bool(args.measured),
         "units": calibration.volume_units,
         "camera": calibration.to_dict(),
+        "calibration": None if args.calibration is None else str(args.calibration),
     }
     write_volume(
         args.out,
@@ -270,6 +293,7 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="lateral volume size in um (default: the design's, else a quarter of the sensor)",
     )
+    add_raw_frame_arguments(rec)
     rec.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
     rec.add_argument("--dtype", choices=("float32", "float64"), default="float32")
     rec.add_argument("--overwrite", action="store_true", help="replace an existing output file")

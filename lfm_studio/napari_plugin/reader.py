@@ -1,8 +1,9 @@
 """napari reader: our TIFFs (PSF stacks, light-field images, volumes) and design files.
 
 :func:`get_reader` claims a path only when it is ours: a TIFF whose ImageJ ``Info``
-property holds the lfm_studio JSON header, or a JSON design file (see
-:mod:`~lfm_studio.napari_plugin.design_reader`). Any other file gets ``None``, so napari
+property holds the lfm_studio JSON header, a JSON design file (see
+:mod:`~lfm_studio.napari_plugin.design_reader`) or a JSON calibration file (its fitted lenslet
+grid as a Points overlay, :mod:`~lfm_studio.napari_plugin.calibration_reader`). Any other file gets ``None``, so napari
 asks its other readers. A file we claim but cannot read (e.g. a newer schema) gives an
 error notification with the engine's message and no layer.
 """
@@ -18,7 +19,7 @@ import tifffile
 
 from lfm_studio.engine.io import read_image, read_psf_stack, read_volume
 from lfm_studio.engine.io.metadata import FORMAT_NAME
-from lfm_studio.napari_plugin import design_reader
+from lfm_studio.napari_plugin import calibration_reader, design_reader
 from lfm_studio.napari_plugin.layer_data import (
     LayerData,
     light_field_layer_data,
@@ -90,6 +91,8 @@ def get_reader(path: Any) -> ReaderFunction | None:
         return None
     if source.suffix.lower() in TIFF_SUFFIXES:
         return read_tiff if tiff_kind(source) is not None else None
+    if calibration_reader.is_calibration_file(source):
+        return calibration_reader.read_calibration
     if design_reader.is_design_file(source):
         return design_reader.read_design
     return None

@@ -11,17 +11,36 @@ naming both layers and values); the reconstruction then runs on a napari
 layer: the volume in object space (voxel size from the PSF's magnification and depth
 step, in um), its settings in the layer metadata. Cancel or failure adds nothing and
 leaves every layer as it was.
+
+A raw camera frame (the lenslet grid at some offset, rotation and non-integer pitch) is
+reconstructed with an optional calibration file from ``lfm-studio calibrate``: the frame is
+dark-subtracted, defect-corrected, flat-fielded and rectified onto the PSF's lattice first,
+and the camera baseline is then 0 (the dark level is the calibration's). The field defaults
+to the calibration whose grid overlay was opened last (the lfm-studio reader).
 """
 
 from __future__ import annotations
 
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 import napari
 from napari.layers import Image, Layer
-from qtpy.QtWidgets import QComboBox, QDoubleSpinBox, QFormLayout, QSpinBox, QVBoxLayout, QWidget
+from qtpy.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLineEdit,
+    QPushButton,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
 
+from lfm_studio.engine.calibration import CalibrationFileError, load_calibration
 from lfm_studio.napari_plugin import reconstruction
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.layer_data import (
@@ -84,10 +103,22 @@ class ReconstructWidget(QWidget):
         self.snr.setDecimals(3)
         self.snr.setValue(reconstruction.DEFAULT_SNR)
         self.snr.setToolTip("Wiener: power signal-to-noise ratio; Tikhonov: mu = 1 / SNR.")
+        self.calibration = QLineEdit()
+        self.calibration.setPlaceholderText("none: the image is already on the PSF's lattice")
+        self.calibration.setToolTip(
+            "Calibration JSON from 'lfm-studio calibrate' for a raw camera frame: dark frame, hot pixels, "
+            "flat field and rectification onto the PSF's lattice are applied before reconstructing."
+        )
+        browse = QPushButton("Browse...")
+        browse.clicked.connect(self._browse_calibration)
+        calibration_row = QHBoxLayout()
+        calibration_row.addWidget(self.calibration, 1)
+        calibration_row.addWidget(browse)
         self.controls = TaskControls("Reconstruct")
         form = QFormLayout()
         form.addRow("Light-field image", self.image_picker)
         form.addRow("PSF stack", self.psf_picker)
+        form.addRow("Calibration (raw frame)", calibration_row)
         form.addRow("Method", self.method)
         form.addRow("Iterations", self.iterations)
         form.addRow("Background", self.background)
@@ -101,6 +132,9 @@ class ReconstructWidget(QWidget):
         self._task: BackgroundTask | None = None
         self._request: reconstruction.Request | None = None
         self._on_method()
+        napari_viewer.layers.events.inserted.connect(self._on_layer_inserted)
+        for layer in napari_viewer.layers:
+            self._on_layer_inserted(layer=layer)
 
     # ----- the contract (buttons call these; so can tests and scripts) -----
 
@@ -115,6 +149,10 @@ class ReconstructWidget(QWidget):
         if index < 0:
             raise ValueError(f"method must be one of {', '.join(reconstruction.METHODS)}; got {method!r}.")
         self.method.setCurrentIndex(index)
+
+    def set_calibration(self, path: str | Path | None) -> None:
+        """Reconstruct the image as a raw frame with the calibration file ``path`` (None: no calibration)."""
+        self.calibration.setText("" if path is None else str(path))
 
     def settings(self) -> reconstruction.Settings:
         """The settings shown (raises ``ValueError`` for invalid ones)."""
@@ -164,9 +202,44 @@ class ReconstructWidget(QWidget):
         image = image_from_layer(
             image_layer.data, image_layer.metadata, image_layer.scale, name=image_layer.name
         )
+        calibration, calibration_name = self._calibration()
         return reconstruction.prepare(
-            stack, image, self.settings(), image_name=image_layer.name, psf_name=psf_layer.name
+            stack,
+            image,
+            self.settings(),
+            image_name=image_layer.name,
+            psf_name=psf_layer.name,
+            calibration=calibration,
+            calibration_name=calibration_name,
         )
+
+    def _calibration(self) -> tuple[Any, str | None]:
+        """The calibration of the path field (None, None when empty); a bad file is a ValueError."""
+        text = self.calibration.text().strip()
+        if not text:
+            return None, None
+        path = Path(text).expanduser()
+        if not path.is_file():
+            raise ValueError(
+                f"Calibration file {text!r} does not exist. Fix: give the .json written by "
+                "'lfm-studio calibrate', or clear the field for an image already on the PSF's lattice."
+            )
+        try:
+            return load_calibration(path), path.name
+        except (CalibrationFileError, OSError, KeyError, TypeError) as error:
+            raise ValueError(f"Calibration file {path.name} cannot be used: {error}") from error
+
+    def _browse_calibration(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Calibration file", "", "Calibration (*.json)")
+        if path:
+            self.set_calibration(path)
+
+    def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
+        """A calibration overlay opened by the reader fills the calibration field."""
+        layer = event.value if layer is None else layer
+        metadata = getattr(layer, "metadata", None) or {}
+        if metadata.get("kind") == "calibration" and metadata.get("source"):
+            self.set_calibration(metadata["source"])
 
     def _on_ended(self, outcome: Outcome) -> None:
         request, self._task, self._request = self._request, None, None

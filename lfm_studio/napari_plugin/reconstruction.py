@@ -6,7 +6,11 @@ method suits the PSF kind; each refusal names the layers, the values and a fix.
 :func:`run` turns camera counts into photons (the image's camera metadata, the
 settings' baseline/gain, or an estimated baseline with a note), builds the projector and
 reconstructs, reporting progress and stopping at the next iteration once ``cancel`` is
-set (the engine's checkpoints). A result that is all zero, constant or NaN/Inf is
+set (the engine's checkpoints). With a calibration (``lfm-studio calibrate``), the raw
+frame is dark-subtracted, defect-corrected, flat-fielded and rectified onto the PSF's lattice
+first (:func:`~lfm_studio.engine.calibration.rectify_frame`), and the camera conversion then
+uses a baseline of 0 (:mod:`~lfm_studio.engine.calibration.raw_camera`): the dark level is
+subtracted once. A result that is all zero, constant or NaN/Inf is
 refused (:func:`~lfm_studio.engine.reconstruct.check_reconstruction`). The method
 choices and their options are those of ``lfm-studio reconstruct``.
 """
@@ -19,6 +23,8 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine import reconstruct
+from lfm_studio.engine.calibration import Calibration, rectify_frame
+from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
 from lfm_studio.engine.io import LightFieldImage, Volume, counts_to_photons, resolve_calibration
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
@@ -66,25 +72,63 @@ class Settings:
 
 @dataclass(frozen=True)
 class Request:
-    """A checked reconstruction: PSF stack, one camera frame, settings and the layer names (for messages)."""
+    """A checked reconstruction: PSF stack, one camera frame, settings, the layer names (for messages)
+    and an optional calibration of the raw frame (with its file name)."""
 
     stack: PSFStack
     image: LightFieldImage
     settings: Settings
     image_name: str
     psf_name: str
+    calibration: Calibration | None = None
+    calibration_name: str | None = None
+
+
+def _check_raw_frame(
+    image: LightFieldImage,
+    settings: Settings,
+    calibration: Calibration,
+    image_name: str,
+    calibration_name: str,
+) -> None:
+    """A raw frame that ``calibration`` can correct: the radiometry frame's shape, no second baseline."""
+    if tuple(image.data.shape) != tuple(calibration.frame_shape):
+        raise ValueError(
+            f"The image layer {image_name!r} has {tuple(image.data.shape)} pixels but the calibration "
+            f"{calibration_name!r} was measured on {tuple(calibration.frame_shape)}-pixel frames. Fix: pick the "
+            "raw camera frame recorded with the same camera region (ROI) and binning, or calibrate again."
+        )
+    if settings.baseline is not None:
+        raise ValueError(
+            f"a baseline of {settings.baseline} ADU with the calibration {calibration_name!r}: the calibration "
+            "subtracts its dark frame, a second baseline would subtract the dark level twice. Fix: no baseline."
+        )
 
 
 def prepare(
-    stack: PSFStack, image: LightFieldImage, settings: Settings, *, image_name: str, psf_name: str
+    stack: PSFStack,
+    image: LightFieldImage,
+    settings: Settings,
+    *,
+    image_name: str,
+    psf_name: str,
+    calibration: Calibration | None = None,
+    calibration_name: str | None = None,
 ) -> Request:
-    """Check that ``image`` can be reconstructed with ``stack`` and ``settings``; raise ``ValueError`` if not."""
+    """Check that ``image`` can be reconstructed with ``stack`` and ``settings`` (a raw frame: after
+    ``calibration``); raise ``ValueError`` if not."""
     if image.data.ndim != 2:
         raise ValueError(
             f"The image layer {image_name!r} has shape {tuple(image.data.shape)}; the reconstruct widget takes "
             "one camera frame (Y, X). Fix: pick a 2-D layer, or reconstruct time series with "
             "'lfm-studio reconstruct'."
         )
+    if (
+        calibration is not None
+    ):  # rectified onto the PSF's lattice: its pixel size and shape are checked in run
+        name = calibration_name or "calibration"
+        _check_raw_frame(image, settings, calibration, image_name, name)
+        return Request(stack, image, settings, image_name, psf_name, calibration, name)
     if not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
         raise ValueError(
             f"PSF pixel size does not match the image: the image layer {image_name!r} has "
@@ -128,19 +172,35 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
     the camera calibration used and its ``notes`` (what was estimated) in its metadata."""
     checkpoint(cancel, progress, 0, 1, "building the projector")
     setup = imaging_setup(request.stack)
-    if tuple(request.image.data.shape) != tuple(setup.projector.image_shape):
-        raise ValueError(
-            f"The image layer {request.image_name!r} has {tuple(request.image.data.shape)} pixels but the PSF "
-            f"layer {request.psf_name!r} images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF "
-            "simulated for this camera."
-        )
     s = request.settings
-    calibration, notes = resolve_calibration(
-        request.image.metadata, request.image.data, baseline=s.baseline, gain=s.gain
-    )
-    photons, floor = counts_to_photons(
-        request.image.data, calibration, name=f"image layer {request.image_name!r}"
-    )
+    frame, what = request.image.data, "has"
+    if request.calibration is not None:
+        checkpoint(cancel, progress, 0, 1, "rectifying the raw frame")
+        frame = rectify_frame(frame.double().cpu(), request.calibration).to(request.image.data.dtype)
+        what = f"rectified with {request.calibration_name!r} has"
+    if tuple(frame.shape) != tuple(setup.projector.image_shape):
+        raise ValueError(
+            f"The image layer {request.image_name!r} {what} {tuple(frame.shape)} pixels but the PSF "
+            f"layer {request.psf_name!r} images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF "
+            "simulated for this camera"
+            + (
+                " (for a raw frame: 'lfm-studio calibrate ... --design-out rectified.json', then Simulate PSF "
+                "from rectified.json)."
+                if request.calibration is not None
+                else "."
+            )
+        )
+    if request.calibration is not None:
+        source = f"calibration {request.calibration_name} (dark subtracted)"
+        calibration = dark_subtracted_camera(
+            request.calibration, request.image.metadata, gain=s.gain, source=source
+        )
+        notes: list[str] = []
+    else:
+        calibration, notes = resolve_calibration(
+            request.image.metadata, frame, baseline=s.baseline, gain=s.gain
+        )
+    photons, floor = counts_to_photons(frame, calibration, name=f"image layer {request.image_name!r}")
     checkpoint(cancel, progress, 0, 1, METHODS[s.method])
     volume = _solve(request, setup.projector, photons, floor, progress, cancel).detach().cpu()
     reconstruct.check_reconstruction(
@@ -154,6 +214,7 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
         "snr": None if s.method in ITERATIVE else s.snr,
         "image": request.image_name,
         "psf": request.psf_name,
+        "calibration": request.calibration_name,
         "units": calibration.volume_units,
         "camera": calibration.to_dict(),
         "notes": notes,

@@ -15,7 +15,7 @@ from lfm_studio import cli
 from lfm_studio.cli_errors import OUTPUT_REFUSED
 from lfm_studio.engine.calibration import LensletLattice, load_calibration
 from lfm_studio.engine.calibration.synthetic import conventional_design_for, fourier_frames, synthetic_frames
-from lfm_studio.engine.design import load_preset, save_design
+from lfm_studio.engine.design import load_preset, resolve_design, save_design
 
 SHAPE = (256, 288)
 
@@ -121,7 +121,14 @@ def test_calibrate_a_fourier_lfm(tmp_path, capsys):
         "--dark",
         _tiff(tmp_path / "d.tif", dark),
     ]
-    assert cli.main([*argv, "--design", str(tmp_path / "flfm.json"), "--out", str(out)]) == 0
+    fitted = tmp_path / "fitted.json"
+    argv += ["--design", str(tmp_path / "flfm.json"), "--design-out", str(fitted)]
+    assert cli.main([*argv, "--out", str(out)]) == 0
     assert "9 sub-images (0 flagged)" in capsys.readouterr().out
     fit = load_calibration(out).sub_images
     assert float((fit.measured - truth).norm(dim=1).pow(2).mean().sqrt()) <= 0.1
+    # --design-out: each lenslet at its measured sub-image centre, (x, y) um from the axis pixel (Y//2, X//2).
+    pixel_um = design.camera.pixel_pitch_um
+    centres = torch.tensor([lens.center_um for lens in resolve_design(str(fitted)).mla.lenslets])
+    expected = torch.stack(((truth[:, 1] - shape[1] // 2), (truth[:, 0] - shape[0] // 2)), dim=1) * pixel_um
+    assert float((centres.double() - expected).norm(dim=1).max()) <= 0.2 * pixel_um

@@ -25,7 +25,7 @@ from lfm_studio.engine.calibration.calibration_io import (
     load_calibration,
     save_calibration,
 )
-from lfm_studio.engine.calibration.fitted_design import fitted_design, nominal_design
+from lfm_studio.engine.calibration.fitted_design import fitted_design, nominal_design, rectified_design
 from lfm_studio.engine.calibration.grid_fit import LatticeFit
 from lfm_studio.engine.calibration.grid_fourier import NoGridError
 from lfm_studio.engine.calibration.lattice import LensletLattice
@@ -51,6 +51,7 @@ __all__ = [
     "grid_overlay",
     "load_calibration",
     "nominal_design",
+    "rectified_design",
     "rectify_frame",
     "save_calibration",
 ]

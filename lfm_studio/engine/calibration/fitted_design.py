@@ -97,3 +97,47 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
     return design.updated(
         name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)
     )
+
+
+def rectified_design(
+    design: Design | None, calibration: Calibration, *, lenslets: tuple[int, int] | None = None
+) -> Design:
+    """The design whose projector images exactly what :func:`rectify_frame` makes of a raw frame.
+
+    Conventional LFM only: ``design`` (default: the calibration's nominal one) on a sensor just
+    large enough for the rectified block of ``ni x nj`` lenslets (the calibration's block, or
+    ``lenslets=(ny, nx)``), so that a PSF simulated from it (``lfm-studio simulate``) has the
+    rectified frame's shape ``(ni n, nj n)``, ``n`` = ``pixels_per_lenslet``. The measured
+    pitch, rotation and offset are removed by rectification (recorded in ``assumed``).
+    """
+    design = nominal_design(calibration) if design is None else design
+    if calibration.grid is None or calibration.block is None:
+        raise ValueError(
+            "rectified_design needs a conventional calibration; a Fourier LFM's raw frame is not "
+            "rectified. Fix: use fitted_design(design, calibration) for a Fourier LFM."
+        )
+    if design.kind != "conventional":
+        raise ValueError(
+            f"the design is a {design.kind} LFM but the calibration was made for a conventional one. "
+            "Fix: use the design the calibration was made with."
+        )
+    ni, nj = (calibration.block[1], calibration.block[3]) if lenslets is None else lenslets
+    ratio = design.mla.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
+    # The projector images int(count / ratio) lenslets: half a lenslet of margin keeps rounding away.
+    count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
+    shape = design.mla.shape
+    mla = design.mla.model_copy(
+        update={"shape": (max(shape[0], ni), max(shape[1], nj)), "offset_um": (0.0, 0.0)}
+    )
+    camera = design.camera.model_copy(update={"pixel_count": count})
+    lattice = calibration.grid.lattice
+    note = (
+        f"rectified: {ni} x {nj} lenslets of {calibration.pixels_per_lenslet} px from a raw lattice of "
+        f"{lattice.pitch[0]:.4f} x {lattice.pitch[1]:.4f} px, rotation {math.degrees(lattice.rotation):.4f} deg."
+    )
+    return design.updated(
+        name=f"{design.name} (rectified)",
+        mla=type(design.mla).model_validate(mla.model_dump()),
+        camera=type(design.camera).model_validate(camera.model_dump()),
+        assumed=(*design.assumed, note),
+    )
