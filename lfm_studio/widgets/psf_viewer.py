@@ -387,6 +387,8 @@ def _short_note(mark: str | None) -> str:
     """The canvas read-out's short form of a stale mark (the banner above has the whole text)."""
     if not mark:
         return ""
+    if mark.startswith("quick preview"):  # the current design, coarse: not stale
+        return "PREVIEW (full PSF computing)" if "recomputing" in mark else "PREVIEW"
     for word in ("failed", "cancelled", "recomputing"):
         if word in mark:
             return f"STALE ({word})"

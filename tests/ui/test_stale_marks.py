@@ -182,3 +182,15 @@ def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
             assert window.close()
         QApplication.sendPostedEvents(None, 0)
         collect_widgets()
+
+
+def test_the_canvas_calls_a_preview_of_the_current_design_a_preview_not_stale():
+    from lfm_studio.widgets.psf_viewer import _short_note
+
+    assert (
+        _short_note("quick preview of this design; full PSF: recomputing…") == "PREVIEW (full PSF computing)"
+    )
+    assert _short_note("quick preview of this design; full PSF: not computed yet") == "PREVIEW"
+    assert _short_note("stale: shows the previous design; recomputing…") == "STALE (recomputing)"
+    assert _short_note("stale: shows the previous design; PSF failed: boom") == "STALE (failed)"
+    assert _short_note(None) == ""
