@@ -8,9 +8,12 @@ physical scale; our JSON header goes into the ImageJ ``Info`` property.
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
 import os
 import struct
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -117,15 +120,45 @@ def _unreadable(source: Path, error: BaseException) -> InputFileError:
     )
 
 
+@contextlib.contextmanager
+def _tifffile_log_held() -> Iterator[None]:
+    """Hold tifffile's log records while a file is read: dropped when we refuse the file with our own
+    error (which says more, e.g. "ImageJ series metadata invalid" before "truncated"), passed on when
+    the read succeeds."""
+    held: list[logging.LogRecord] = []
+    logger = logging.getLogger("tifffile")
+
+    class _Hold(logging.Handler):
+        def emit(self, record: logging.LogRecord) -> None:
+            held.append(record)
+
+    handler, propagate = _Hold(), logger.propagate
+    logger.addHandler(handler)
+    logger.propagate = False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+    for record in held:  # only reached when the read succeeded
+        logger.handle(record)
+
+
 def read_hyperstack(path: str | os.PathLike) -> RawTiff:
     """Read the first image series of any TIFF, with its ImageJ Info and calibration.
 
     A file that tifffile cannot parse or whose data ends early raises :class:`InputFileError`
-    naming it (not tifffile's "failed to read N bytes").
+    naming it (not tifffile's "failed to read N bytes"), and tifffile's own warnings about it
+    are not printed beside that error.
     """
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(f"No such TIFF file: {source}")
+    with _tifffile_log_held():
+        return _read_series(source)
+
+
+def _read_series(source: Path) -> RawTiff:
     try:
         tif = tifffile.TiffFile(source)
     except _UNREADABLE as error:
