@@ -161,7 +161,9 @@ class CalibrateWidget(QWidget):
         if self.design is None:
             problem = "no design chosen. Fix: pick a preset or a design file."
         elif radiometry is None:
-            problem = "no radiometry image. Fix: open the radiometry frame (a uniform slide) as a 2D image layer."
+            problem = (
+                "no radiometry image. Fix: open the radiometry frame (a uniform slide) as a 2D image layer."
+            )
         elif self.use_dark.isChecked() and dark is None:
             problem = "no dark image layer. Fix: open the dark frame, or untick 'subtract'."
         if problem is not None:
@@ -233,7 +235,9 @@ class CalibrateWidget(QWidget):
         overwrite = False
         if existing:
             names = ", ".join(p.name for p in existing)
-            answer = QMessageBox.question(self, "Replace calibration?", f"{names} already exists. Replace it?")
+            answer = QMessageBox.question(
+                self, "Replace calibration?", f"{names} already exists. Replace it?"
+            )
             if answer != QMessageBox.StandardButton.Yes:
                 return
             overwrite = True
