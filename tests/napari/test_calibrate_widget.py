@@ -2,7 +2,8 @@
 
 Frames: :func:`lfm_studio.engine.calibration.synthetic.synthetic_frames` (disks behind a
 15.43 x 15.36 px lattice rotated 0.7 deg, off centre, vignetting, noise, dark offset, hot
-pixels), calibrated against :func:`conventional_design_for` with the nominal 15.4 px pitch.
+pixels), calibrated against :func:`conventional_design_for` with the nominal 15.4 px pitch. The
+lenslet at index (0, 0) is covered (its disk replaced by the dark frame), so exactly one is flagged.
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from tests.napari.conftest import PLUGIN
 
 SHAPE = (200, 216)
 PITCH = (15.43, 15.36)
+COVERED = (slice(93, 110), slice(98, 116))  # the disk of lenslet (0, 0), centred at (101.3, 106.8) px
 
 
 @pytest.fixture(scope="module")
@@ -38,7 +40,9 @@ def design():
 @pytest.fixture
 def widget_with_frames(frames, design, make_napari_viewer):
     viewer = make_napari_viewer()
-    viewer.add_image(frames.radiometry.numpy(), name="radiometry")
+    radiometry = frames.radiometry.clone()
+    radiometry[COVERED] = frames.dark[COVERED]
+    viewer.add_image(radiometry.numpy(), name="radiometry", scale=(0.5, 0.5), translate=(3.0, -2.0))
     viewer.add_image(frames.dark.numpy(), name="dark")
     _, widget = viewer.window.add_plugin_dock_widget(PLUGIN, "Calibrate")
     widget.radiometry_picker.set_layer(viewer.layers["radiometry"])
@@ -73,8 +77,14 @@ def test_calibrates_a_misaligned_frame_into_the_fitted_grid_overlay(frames, widg
     np.testing.assert_allclose(
         grid.features["residual_px"], np.linalg.norm(measured.data - grid.data, axis=1), atol=1e-6
     )
+    # The overlay lies over the radiometry layer (its scale and translate).
+    for layer in (grid, measured):
+        np.testing.assert_allclose(layer.scale, [0.5, 0.5])
+        np.testing.assert_allclose(layer.translate, [3.0, -2.0])
+    # The covered lenslet, and only it, is flagged "dim".
     used = grid.features["used"].to_numpy(dtype=bool)
-    assert used.sum() > 0 and (grid.features["flags"][~used] != "").all()
+    assert ij[torch.from_numpy(~used)].tolist() == [[0.0, 0.0]]
+    assert list(grid.features["flags"][~used]) == ["dim"]
     # The summary line: the pitch within 0.01 px of the truth, the rotation, the flagged count.
     line = widget.summary.text()
     found = re.search(
@@ -87,7 +97,7 @@ def test_calibrates_a_misaligned_frame_into_the_fitted_grid_overlay(frames, widg
     assert abs(py - PITCH[0]) < 0.01 and abs(px - PITCH[1]) < 0.01, line
     assert abs(abs(rotation) - 0.7) < 0.05, line
     assert 0 < rms < 0.1, line
-    assert int(found.group(5)) == int((~used).sum()) and int(found.group(6)) == len(grid.data)
+    assert int(found.group(5)) == 1 and int(found.group(6)) == len(grid.data)
     assert widget.save_button.isEnabled()
 
 
