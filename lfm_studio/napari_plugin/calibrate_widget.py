@@ -27,7 +27,6 @@ from napari.layers import Layer
 from qtpy.QtWidgets import (
     QApplication,
     QCheckBox,
-    QComboBox,
     QFileDialog,
     QFormLayout,
     QHBoxLayout,
@@ -40,11 +39,12 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.calibration import Calibration, calibrate, save_calibration
 from lfm_studio.engine.calibration.calibration_io import dark_frame_path
-from lfm_studio.engine.design import Design, list_presets, load_design, load_preset
+from lfm_studio.engine.design import Design
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.calibration_reader import overlay_layer_data
+from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_picker import LayerPicker, unwrapped
-from lfm_studio.napari_plugin.notify import design_or_report, report_error, report_info
+from lfm_studio.napari_plugin.notify import report_error, report_info
 from lfm_studio.napari_plugin.reconstruct_widget import ReconstructWidget, is_camera_image
 from lfm_studio.napari_plugin.task_controls import TaskControls
 
@@ -83,9 +83,8 @@ class CalibrateWidget(QWidget):
         self.radiometry_picker = LayerPicker(napari_viewer, is_camera_image)
         self.use_dark = QCheckBox("subtract")
         self.dark_picker = LayerPicker(napari_viewer, is_camera_image)
-        self.preset = QComboBox()
-        self.preset.addItems(list_presets())
-        self.browse = QPushButton("Design file...")
+        self.source = DesignSource(self.set_design)
+        self.preset, self.browse = self.source.preset, self.source.file_button
         self.design_label = QLabel("")
         self.design_label.setWordWrap(True)
         self.controls = TaskControls("Calibrate")
@@ -96,13 +95,10 @@ class CalibrateWidget(QWidget):
         dark = QHBoxLayout()
         dark.addWidget(self.use_dark)
         dark.addWidget(self.dark_picker, 1)
-        source = QHBoxLayout()
-        source.addWidget(self.preset, 1)
-        source.addWidget(self.browse)
         form = QFormLayout()
         form.addRow("Radiometry", self.radiometry_picker)
         form.addRow("Dark frame", dark)
-        form.addRow("Design", source)
+        form.addRow("Design", self.source)
         form.addRow("", self.design_label)
         layout = QVBoxLayout(self)
         layout.addLayout(form)
@@ -112,15 +108,12 @@ class CalibrateWidget(QWidget):
         layout.addStretch(1)
         self.use_dark.toggled.connect(self.dark_picker.setEnabled)
         self.dark_picker.setEnabled(False)
-        self.preset.currentTextChanged.connect(self.set_preset)
-        self.browse.clicked.connect(self._browse_design)
         self.controls.runClicked.connect(self.start)
         self.save_button.clicked.connect(self._save_clicked)
         self._task: BackgroundTask | None = None
         self._placement: dict[str, Any] = {}
         self._name = ""
-        if self.preset.count():
-            self.set_preset(self.preset.currentText())
+        self.source.choose_first()
 
     # ----- the contract (buttons call these; so can tests and scripts) -----
 
@@ -139,11 +132,11 @@ class CalibrateWidget(QWidget):
 
     def set_preset(self, name: str) -> bool:
         """Use the bundled preset ``name``; False (with an error notification) if it cannot be read."""
-        return self._load(load_preset, name, f"preset {name}")
+        return self.source.set_preset(name)
 
     def load_design_file(self, path: str | Path) -> bool:
         """Use the design file ``path``; False (with an error notification) if it cannot be read."""
-        return self._load(load_design, Path(path), Path(path).name)
+        return self.source.load_design_file(path)
 
     def set_dark(self, layer: Any | None) -> None:
         """Subtract the dark image ``layer`` (None: no dark frame, the design's camera baseline is used)."""
@@ -209,17 +202,6 @@ class CalibrateWidget(QWidget):
         return saved
 
     # ----- internals -----
-
-    def _load(self, loader: Any, argument: Any, label: str) -> bool:
-        design = design_or_report(loader, argument, f"Cannot use {label}")
-        if design is not None:
-            self.set_design(design, label)
-        return design is not None
-
-    def _browse_design(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open a design file", "", "Design files (*.json)")
-        if path:
-            self.load_design_file(path)
 
     def _save_clicked(self) -> None:
         path, _ = QFileDialog.getSaveFileName(

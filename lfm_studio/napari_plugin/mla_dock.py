@@ -19,14 +19,14 @@ from typing import Any
 
 import napari
 from napari.layers import Layer
-from qtpy.QtWidgets import QComboBox, QFileDialog, QHBoxLayout, QLabel, QPushButton, QVBoxLayout, QWidget
+from qtpy.QtWidgets import QFileDialog, QLabel, QPushButton, QVBoxLayout, QWidget
 
-from lfm_studio.engine.design import Design, MLASpec, list_presets, load_design, load_preset, save_design
+from lfm_studio.engine.design import Design, MLASpec, save_design
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_data import LayerError, design_of, kind_of, psf_layer_data
 from lfm_studio.napari_plugin.layer_picker import same_layer, unwrapped
 from lfm_studio.napari_plugin.notify import (
-    design_or_report,
     design_warnings_collected,
     report_error,
     report_info,
@@ -43,36 +43,29 @@ class MLADock(QWidget):
         super().__init__(parent)
         self.viewer = napari_viewer
         self.design: Design | None = None
-        self.preset = QComboBox()
-        self.preset.addItems(list_presets())
+        self.source = DesignSource(self._design_chosen, refusal="edit", file_button="Open...")
+        self.preset, self.open_file = self.source.preset, self.source.file_button
         self.from_layer = QPushButton("From PSF layer")
         self.from_layer.setToolTip("Edit the design recorded in the selected PSF layer.")
-        self.open_file = QPushButton("Open...")
         self.editor = MLAEditor()
         self.status = QLabel("")
         self.status.setWordWrap(True)
         self.save_button = QPushButton("Save design...")
         self.controls = TaskControls("Recompute PSF")
-        source = QHBoxLayout()
-        source.addWidget(self.preset, 1)
-        source.addWidget(self.from_layer)
-        source.addWidget(self.open_file)
+        self.source.row.insertWidget(1, self.from_layer)  # preset | From PSF layer | Open...
         layout = QVBoxLayout(self)
-        layout.addLayout(source)
+        layout.addWidget(self.source)
         layout.addWidget(self.editor, 1)
         layout.addWidget(self.status)
         layout.addWidget(self.save_button)
         layout.addWidget(self.controls)
-        self.preset.currentTextChanged.connect(self.set_preset)
         self.from_layer.clicked.connect(self.use_selected_layer)
-        self.open_file.clicked.connect(self._open)
         self.save_button.clicked.connect(self._save_dialog)
         self.editor.lensletsCommitted.connect(self._on_committed)
         self.controls.runClicked.connect(self.recompute)
         self._layer: weakref.ReferenceType[Any] | None = None  # the PSF layer the design came from
         self._task: BackgroundTask | None = None
-        if self.preset.count():
-            self.set_preset(self.preset.currentText())
+        self.source.choose_first()
 
     # ----- choosing the design -----
 
@@ -103,11 +96,11 @@ class MLADock(QWidget):
 
     def set_preset(self, name: str) -> bool:
         """Edit the bundled preset ``name``."""
-        return self._load(load_preset, name, f"preset {name}")
+        return self.source.set_preset(name)
 
     def load_design_file(self, path: str | Path) -> bool:
         """Edit the design in file ``path``."""
-        return self._load(load_design, Path(path), Path(path).name)
+        return self.source.load_design_file(path)
 
     def use_selected_layer(self) -> bool:
         """Edit the design of the selected PSF layer; False (with an error notification) if there is none."""
@@ -157,16 +150,8 @@ class MLADock(QWidget):
 
     # ----- internals -----
 
-    def _load(self, loader: Any, argument: Any, label: str) -> bool:
-        design = design_or_report(loader, argument, f"Cannot edit {label}")
-        if design is not None:
-            self.set_design(design)
-        return design is not None
-
-    def _open(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open a design file", "", "Design files (*.json)")
-        if path:
-            self.load_design_file(path)
+    def _design_chosen(self, design: Design, label: str) -> None:
+        self.set_design(design)
 
     def _save_dialog(self) -> None:
         path, _ = QFileDialog.getSaveFileName(self, "Save the design", "", "Design files (*.json)")

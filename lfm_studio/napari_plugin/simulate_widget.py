@@ -19,20 +19,18 @@ from qtpy.QtWidgets import (
     QCheckBox,
     QComboBox,
     QDoubleSpinBox,
-    QFileDialog,
     QFormLayout,
     QHBoxLayout,
     QLabel,
-    QPushButton,
     QVBoxLayout,
     QWidget,
 )
 
-from lfm_studio.engine.design import AccuracySpec, Design, list_presets, load_design, load_preset
+from lfm_studio.engine.design import AccuracySpec, Design
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_data import psf_layer_data
 from lfm_studio.napari_plugin.notify import (
-    design_or_report,
     design_warnings_collected,
     report_error,
     report_info,
@@ -68,9 +66,8 @@ class SimulateWidget(QWidget):
         super().__init__(parent)
         self.viewer = napari_viewer
         self.design: Design | None = None
-        self.preset = QComboBox()
-        self.preset.addItems(list_presets())
-        self.browse = QPushButton("Design file...")
+        self.source = DesignSource(self.set_design)
+        self.preset, self.browse = self.source.preset, self.source.file_button
         self.summary = QLabel("")
         self.summary.setWordWrap(True)
         self.custom_depths = QCheckBox("other depths")
@@ -79,14 +76,11 @@ class SimulateWidget(QWidget):
         self.accuracy = QComboBox()
         self.accuracy.addItems(ACCURACIES)
         self.controls = TaskControls("Simulate")
-        source = QHBoxLayout()
-        source.addWidget(self.preset, 1)
-        source.addWidget(self.browse)
         depths = QHBoxLayout()
         for box in (self.depth_start, self.depth_stop, self.depth_step):
             depths.addWidget(box)
         form = QFormLayout()
-        form.addRow("Design", source)
+        form.addRow("Design", self.source)
         form.addRow("", self.summary)
         form.addRow("Depths", self.custom_depths)
         form.addRow("start, stop, step", depths)
@@ -95,15 +89,12 @@ class SimulateWidget(QWidget):
         layout.addLayout(form)
         layout.addWidget(self.controls)
         layout.addStretch(1)
-        self.preset.currentTextChanged.connect(self.set_preset)
-        self.browse.clicked.connect(self._browse)
         self.custom_depths.toggled.connect(self._on_custom_depths)
         self.controls.runClicked.connect(self.start)
         self._task: BackgroundTask | None = None
         self._name = ""
         self._on_custom_depths(False)
-        if self.preset.count():
-            self.set_preset(self.preset.currentText())
+        self.source.choose_first()
 
     # ----- the contract -----
 
@@ -124,12 +115,12 @@ class SimulateWidget(QWidget):
             box.setValue(value)
 
     def set_preset(self, name: str) -> bool:
-        """Use the bundled preset ``name``."""
-        return self._load(load_preset, name, f"preset {name}")
+        """Use the bundled preset ``name``; False (with an error notification) if it cannot be read."""
+        return self.source.set_preset(name)
 
     def load_design_file(self, path: str | Path) -> bool:
         """Use the design file ``path``; False (with an error notification) if it cannot be read."""
-        return self._load(load_design, Path(path), Path(path).name)
+        return self.source.load_design_file(path)
 
     def set_depths_um(self, start: float, stop: float, step: float) -> None:
         """Simulate at ``start:stop:step`` um instead of the design's depths."""
@@ -184,17 +175,6 @@ class SimulateWidget(QWidget):
         self.controls.cancel()
 
     # ----- internals -----
-
-    def _load(self, loader: Any, argument: Any, label: str) -> bool:
-        design = design_or_report(loader, argument, f"Cannot use {label}")
-        if design is not None:
-            self.set_design(design, label)
-        return design is not None
-
-    def _browse(self) -> None:
-        path, _ = QFileDialog.getOpenFileName(self, "Open a design file", "", "Design files (*.json)")
-        if path:
-            self.load_design_file(path)
 
     def _on_custom_depths(self, checked: bool) -> None:
         for box in (self.depth_start, self.depth_stop, self.depth_step):
