@@ -13,7 +13,6 @@ simulate the PSF with for ``reconstruct --calibration`` (conventional:
 from __future__ import annotations
 
 import argparse
-import math
 from pathlib import Path
 
 import torch
@@ -110,4 +109,4 @@ def run_calibrate(args: argparse.Namespace) -> int:
         )
     level = calibration.dark_level
     print(f"dark level {level:.6g} ADU, {summary['defect_pixels']} defective pixels; wrote {out}")
-    return 0 if math.isfinite(level) else 2
+    return 0

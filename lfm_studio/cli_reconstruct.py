@@ -174,24 +174,20 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     frames = photons if photons.ndim == 3 else photons[None]
     iterative = args.method in ITERATIVE
     count, steps = frames.shape[0], args.iterations if iterative else 1
-    volumes = []
-    try:
-        with progress_bar(f"{args.method} ({count} frame{'s' if count > 1 else ''})") as progress:
-            for t, frame in enumerate(frames):
+    volumes = []  # Ctrl+C: cli.main exits 130; nothing is written before the last frame
+    with progress_bar(f"{args.method} ({count} frame{'s' if count > 1 else ''})") as progress:
+        for t, frame in enumerate(frames):
 
-                def report(done: int, total: int, message: str, t: int = t) -> None:
-                    progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
+            def report(done: int, total: int, message: str, t: int = t) -> None:
+                progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
 
-                report(0, steps, "starting")
-                volume = _reconstruct_frame(args, setup.projector, frame, floor, report).detach().cpu()
-                what = f"the {args.method} reconstruction of {args.image}" + (
-                    f" (frame {t})" if count > 1 else ""
-                )
-                volumes.append(check_reconstruction(volume, what=what))
-                report(steps, steps, "done")
-    except KeyboardInterrupt:
-        print(f"lfm-studio reconstruct: interrupted; {args.out} was not written.", file=sys.stderr)
-        return 130
+            report(0, steps, "starting")
+            volume = _reconstruct_frame(args, setup.projector, frame, floor, report).detach().cpu()
+            what = f"the {args.method} reconstruction of {args.image}" + (
+                f" (frame {t})" if count > 1 else ""
+            )
+            volumes.append(check_reconstruction(volume, what=what))
+            report(steps, steps, "done")
     volume = torch.stack(volumes) if image.data.ndim == 3 else volumes[0]
     metadata = {
         "method": args.method,

@@ -19,7 +19,8 @@ import json
 import sys
 import time
 
-from lfm_studio.engine.design import DesignError, resolve_design
+from lfm_studio.cli_simulate import allow_negative_values, resolve_device
+from lfm_studio.engine.design import resolve_design
 from lfm_studio.engine.design_metrics.reconstructed import ResolutionReport, reconstructed_resolution
 from lfm_studio.engine.design_metrics.table import align
 
@@ -39,14 +40,16 @@ def _depth_list(text: str) -> tuple[float, ...]:
 
 def add_resolution_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
     """Add the ``resolution`` sub-command to ``subparsers``; returns it."""
-    p = subparsers.add_parser(
-        "resolution",
-        help="reconstructed two-point resolution (plain RL), lateral and axial, per depth",
-        description=(
-            "Image two equal point emitters through the design at growing separations, reconstruct "
-            "with plain Richardson-Lucy and report the smallest separation with a dip below the "
-            "Rayleigh-like 0.735, lateral and axial, per depth."
-        ),
+    p = allow_negative_values(
+        subparsers.add_parser(
+            "resolution",
+            help="reconstructed two-point resolution (plain RL), lateral and axial, per depth",
+            description=(
+                "Image two equal point emitters through the design at growing separations, reconstruct "
+                "with plain Richardson-Lucy and report the smallest separation with a dip below the "
+                "Rayleigh-like 0.735, lateral and axial, per depth."
+            ),
+        )
     )
     p.add_argument("design", help="preset name (e.g. xlfm_cong2017) or path to a .json design file")
     p.add_argument(
@@ -65,7 +68,7 @@ def add_resolution_parser(subparsers: argparse._SubParsersAction) -> argparse.Ar
     p.add_argument("--voxels-per-lenslet", type=int, default=None, help="conventional LFM volume grid (odd)")
     p.add_argument("--volume-oversampling", type=int, default=None, help="Fourier LFM voxels per pixel (odd)")
     p.add_argument("--seed", type=int, default=0, help="shot-noise seed")
-    p.add_argument("--device", default="cpu", help="torch device, e.g. cpu or cuda (default cpu)")
+    p.add_argument("--device", choices=("cpu", "cuda"), default="cpu", help="torch device (default cpu)")
     p.add_argument("--json", action="store_true", help="print JSON (lengths in um) instead of a table")
     p.set_defaults(handler=run_resolution)
     return p
@@ -96,22 +99,19 @@ def format_resolution_table(report: ResolutionReport) -> str:
 
 
 def run_resolution(args: argparse.Namespace) -> int:
-    """Handler of ``resolution``: print the report; 0 on success, 2 for a bad design or option."""
-    try:
-        design = resolve_design(args.design)
-        overrides = {
-            key: value
-            for key, value in (
-                ("voxels_per_lenslet", args.voxels_per_lenslet),
-                ("volume_oversampling", args.volume_oversampling),
-            )
-            if value is not None
-        }
-        if overrides:
-            design = design.updated(accuracy={**design.accuracy.model_dump(), **overrides})
-    except (DesignError, OSError, ValueError) as error:  # (pydantic's ValidationError is a ValueError)
-        print(f"lfm-studio resolution: {error}", file=sys.stderr)
-        return 2
+    """Handler of ``resolution``: print the report (refusals raise; ``cli.main`` prints them and
+    picks the exit code)."""
+    design = resolve_design(args.design)
+    overrides = {
+        key: value
+        for key, value in (
+            ("voxels_per_lenslet", args.voxels_per_lenslet),
+            ("volume_oversampling", args.volume_oversampling),
+        )
+        if value is not None
+    }
+    if overrides:
+        design = design.updated(accuracy={**design.accuracy.model_dump(), **overrides})
     start = time.perf_counter()
     report = reconstructed_resolution(
         design,
@@ -123,7 +123,7 @@ def run_resolution(args: argparse.Namespace) -> int:
         max_lateral=args.max_lateral * 1e-6,
         max_axial=args.max_axial * 1e-6,
         seed=args.seed,
-        device=args.device,
+        device=resolve_device(args.device),
     )
     print(f"lfm-studio resolution: {time.perf_counter() - start:.1f} s", file=sys.stderr)
     print(json.dumps(report.to_dict(), indent=2) if args.json else format_resolution_table(report))

@@ -20,11 +20,14 @@ import torch
 from lfm_studio.cli_progress import progress_bar
 
 #: A value that starts with '-' but is a number or a START:STOP:STEP range, not an option.
-NEGATIVE_VALUE = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(:[-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$")
+NEGATIVE_VALUE = re.compile(
+    r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?([:,][-+]?(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?)*$"
+)
 
 
 def allow_negative_values(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
-    """Let ``parser`` take ``--depths -40:40:10`` (a space, then a leading '-') as well as ``--depths=-40:40:10``.
+    """Let ``parser`` take ``--depths -40:40:10`` or ``--depths -10,20`` (a space, then a leading '-') as
+    well as ``--depths=-40:40:10``.
 
     argparse reads a token that starts with '-' as an option unless it looks like a
     negative number; a range such as ``-40:40:10`` does not, so argparse said "expected

@@ -8,8 +8,8 @@ the heap top above its trim threshold), so every depth touches fresh pages: meas
 the busy 2-core machine (``benchmarks/projector_versions.py``). The cost: up to
 ``TRIM_THRESHOLD`` bytes of freed heap stay mapped to the process.
 
-Process-wide: the CLI calls it at start-up (``lfm_studio.cli.main``) and so should other
-entry points (the studio, benchmarks); the engine never calls it on import.
+Process-wide: ``lfm_studio.cli.main`` calls it at start-up for every command (``gui`` included),
+and the benchmarks do; the engine never calls it on import.
 """
 
 from __future__ import annotations

@@ -11,9 +11,10 @@ Measured on the 2-core development machine (PLATFORM.md, docs/benchmarks.md):
 
 The policy:
 
-- heavy engine work (the CLI, the studio's workers): the cores that are idle when the work
-  starts (:func:`idle_cores`: the process's cores minus the load average; both cores on a
+- heavy engine work (every ``lfm-studio`` command, ``gui`` included): the cores that are idle
+  when the command starts (:func:`idle_cores`: the process's cores minus the load average; both cores on a
   quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
+- the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
 - tests: a fixed count, whatever the load (``scripts/test.sh`` exports
   ``LFM_STUDIO_THREADS=2`` unless set), so that in-process CLI calls never change the thread

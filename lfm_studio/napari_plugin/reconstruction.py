@@ -123,9 +123,13 @@ def prepare(
             "one camera frame (Y, X). Fix: pick a 2-D layer, or reconstruct time series with "
             "'lfm-studio reconstruct'."
         )
-    if (
-        calibration is not None
-    ):  # rectified onto the PSF's lattice: its pixel size and shape are checked in run
+    conventional = stack.data.ndim == 5
+    if settings.method not in ITERATIVE and conventional:
+        raise ValueError(
+            f"{METHODS[settings.method]} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
+            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose Richardson-Lucy."
+        )
+    if calibration is not None:  # a raw frame: its rectified shape is checked against the PSF in run
         name = calibration_name or "calibration"
         _check_raw_frame(image, settings, calibration, image_name, name)
         return Request(stack, image, settings, image_name, psf_name, calibration, name)
@@ -135,12 +139,6 @@ def prepare(
             f"{image.pixel_size / um:g} um pixels but the PSF layer {psf_name!r} was computed for "
             f"{stack.pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
             "simulate one with the camera's pixel pitch (Simulate PSF)."
-        )
-    conventional = stack.data.ndim == 5
-    if settings.method not in ITERATIVE and conventional:
-        raise ValueError(
-            f"{METHODS[settings.method]} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
-            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose Richardson-Lucy."
         )
     if not conventional and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
         raise ValueError(

@@ -10,6 +10,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from lfm_studio.engine.threads import available_cores
+
 DEFAULT_PRESET = "xlfm_cong2017"
 
 
@@ -72,11 +74,11 @@ def _open(name_or_path: str | None):
 
 
 def _leave_a_core_for_the_gui() -> None:
-    """Background PSF jobs use every core but one, so the window stays responsive (on the
+    """Background PSF jobs use the thread policy's count (``lfm-studio --threads``) less one core, so the window stays responsive (on the
     2-core machines this was measured on, 2 torch threads plus the GUI stalled it for seconds)."""
     import torch
 
-    cores = os.cpu_count() or 1
+    cores = available_cores()  # the process's CPU affinity, as the engine's thread policy counts
     torch.set_num_threads(max(1, min(torch.get_num_threads(), cores - 1)))
 
 

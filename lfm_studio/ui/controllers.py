@@ -351,7 +351,10 @@ class ViewerBinding(QObject):
     def _on_image(self, result: ImageResult | None) -> None:
         if result is not None:
             if hasattr(self.viewer, "show_volume"):  # the phantom, beside the reconstruction (sample space)
-                self.viewer.show_volume(result.ground_truth, result.voxel_size, name="phantom")
+                self._show(
+                    result.truth_display,
+                    partial(self.viewer.show_volume, result.ground_truth, result.voxel_size, name="phantom"),
+                )
             show = partial(self.viewer.show_image, result.counts, result.pixel_size, name="light field")
             self._show(result.display, show)
 

@@ -233,6 +233,7 @@ def simulate_image(
     return ImageResult(
         counts, expected.detach().cpu(), volume.detach().cpu(), tuple(setup.voxel_size),
         stack.pixel_size, setup, info, display=image_display(counts, stack.pixel_size, "light field"),
+        truth_display=volume_display(volume.detach().cpu(), tuple(setup.voxel_size), "phantom"),
     )  # fmt: skip
 
 
@@ -271,11 +272,11 @@ def reconstruct(
 ) -> ReconstructionResult:
     """Accelerated Richardson-Lucy (accelerated_rl_options) of the image, scored against the phantom.
 
-    After each iteration: NCC with the truth and PSNR after least-squares scale matching
-    (handed over with ``ctx.partial`` as ``(ncc per iteration, relative change per iteration)``).
+    After each iteration: NCC with the truth (handed over with ``ctx.partial`` as
+    ``(ncc per iteration, relative change per iteration)``).
     At the end: the scorecard (NCC, bead F1, PSNR, SSIM, each beside the all-zero volume's score).
     """
-    from lfm_studio.engine.metrics import match_scale, ncc, psnr, scorecard
+    from lfm_studio.engine.metrics import ncc, scorecard
     from lfm_studio.engine.reconstruct import (
         accelerated_rl_options,
         check_reconstruction,
@@ -287,7 +288,6 @@ def reconstruct(
     truth = image.ground_truth
     total = settings.iterations
     nccs: list[float] = []
-    psnrs: list[float] = []
     changes: list[float] = []
     estimate = None
     iterates = richardson_lucy_iterates(
@@ -298,7 +298,6 @@ def reconstruct(
         estimate = it.estimate.detach().cpu()
         changes.append(float(it.relative_change))
         nccs.append(float(ncc(truth, estimate)))
-        psnrs.append(float(psnr(truth, match_scale(estimate, truth))))
         ctx.partial((tuple(nccs), tuple(changes)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
@@ -313,7 +312,6 @@ def reconstruct(
         estimate,
         image.voxel_size,
         len(changes),
-        tuple(psnrs),
         tuple(changes),
         float(card.report.psnr),
         float(card.report.ssim),

@@ -79,6 +79,7 @@ class ImageResult:
     setup : the :class:`~lfm_studio.engine.simulation.ImagingSetup` (reused by the reconstruction).
     info : phantom description (kind, seed, object count, photons).
     display : ``counts`` prepared for the viewer on the worker thread (``image_display``), or None.
+    truth_display : ``ground_truth`` prepared likewise (``volume_display``, layer "phantom"), or None.
     """
 
     counts: torch.Tensor
@@ -89,6 +90,7 @@ class ImageResult:
     setup: Any
     info: dict[str, Any] = field(default_factory=dict)
     display: Any = None
+    truth_display: Any = None
 
 
 @dataclass(frozen=True)
@@ -100,7 +102,6 @@ class ReconstructionResult:
     volume : (Z, Y, X) estimate.
     voxel_size : (dz, dy, dx) metres.
     iterations : iterations run.
-    psnr_curve : PSNR (dB, after least-squares scale matching) after each iteration.
     change_curve : relative change ``|x_k - x_{k-1}| / |x_{k-1}|`` after each iteration.
     psnr, ssim : final PSNR (dB) and SSIM after scale matching (None when they cannot be computed).
     display : ``volume`` prepared for the viewer on the worker thread (``volume_display``), or None.
@@ -113,7 +114,6 @@ class ReconstructionResult:
     volume: torch.Tensor
     voxel_size: tuple[float, float, float]
     iterations: int
-    psnr_curve: tuple[float, ...] = ()
     change_curve: tuple[float, ...] = ()
     psnr: float | None = None
     ssim: float | None = None

@@ -114,11 +114,14 @@ class StaleMarks(QObject):
         self.viewer = viewer if hasattr(viewer, "set_stale_marks") else None
         self.profiles, self.convergence, self.requirements = profiles, convergence, requirements
         self._signals = (
-            state.stale_changed, state.job_changed, state.psf_changed, state.preview_changed,
+            state.stale_changed, state.psf_changed, state.preview_changed,
             state.image_changed, state.reconstruction_changed, state.metrics_changed,
         )  # fmt: skip
         for signal in self._signals:
             signal.connect(self.refresh)
+        # job_changed fires on every progress tick: restyle the views only when a mark changed.
+        state.job_changed.connect(self._on_job_changed)
+        self._shown: tuple[dict[str, str], str | None] | None = None
         self.refresh()
 
     def marks(self) -> dict[str, str]:
@@ -126,9 +129,14 @@ class StaleMarks(QObject):
         found = {stage: stage_mark(self.state, stage) for stage in STAGE_LABELS}
         return {stage: mark for stage, mark in found.items() if mark}
 
+    def _on_job_changed(self, *_: Any) -> None:
+        if (self.marks(), metrics_mark(self.state)) != self._shown:
+            self.refresh()
+
     def refresh(self, *_: Any) -> None:
         """Recompute the marks and hand them to the views."""
         marks = self.marks()
+        self._shown = (marks, metrics_mark(self.state))
         if self.viewer is not None:
             self.viewer.set_stale_marks(
                 {layer: marks[stage] for layer, stage in LAYER_STAGES.items() if stage in marks}
@@ -143,3 +151,4 @@ class StaleMarks(QObject):
     def disconnect_state(self) -> None:
         for signal in self._signals:
             signal.disconnect(self.refresh)
+        self.state.job_changed.disconnect(self._on_job_changed)

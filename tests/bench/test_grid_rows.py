@@ -40,6 +40,7 @@ def test_grid_only_rows_round_trip_and_finer_grid_resolves_no_worse(tiny_design,
     assert coarse.lateral_um >= 2 * voxel * (1 - 1e-2) and fine.lateral_um >= 2 * voxel / 3 * (1 - 1e-2)
     # The number is the first resolved separation on each grid, so in general a finer grid can
     # land up to one fine voxel above a coarse one; on this noise-free case it is not above at all.
+    assert all(math.isfinite(v) for v in (coarse.lateral_um, coarse.axial_um, fine.lateral_um, fine.axial_um))
     assert fine.lateral_um <= coarse.lateral_um and fine.axial_um <= coarse.axial_um
     # The written table reads back as printed; the JSON holds the same rows unrounded.
     assert parse_table((out / "accuracy_table.md").read_text()) == rows
@@ -65,7 +66,10 @@ def test_finer_conventional_grid_resolves_no_worse():
     assert coarse.voxel_um == pytest.approx(fine.voxel_um * 5 / 3, rel=1e-9)  # pitch / (M n)
     assert coarse.lateral_um >= 2 * coarse.voxel_um * (1 - 1e-9) and math.isfinite(coarse.lateral_um)
     assert fine.lateral_um >= 2 * fine.voxel_um * (1 - 1e-9)
-    assert fine.lateral_um <= coarse.lateral_um and fine.axial_um <= coarse.axial_um
+    assert fine.lateral_um <= coarse.lateral_um
+    # Axial may be inf on both grids (10x/0.3 resolved nothing up to 30 um in docs/benchmarks.md),
+    # so only "not worse" is asserted there; the lateral number above is finite.
+    assert fine.axial_um <= coarse.axial_um
 
 
 def test_quick_sweeps_have_no_grid_rows():

@@ -36,3 +36,13 @@ def test_a_malformed_range_names_the_option(capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args([*RANGE_OPTIONS[0], "--depths", "-40:40"])
     assert "--depths must be START:STOP:STEP in um" in capsys.readouterr().err
+
+
+def test_resolution_takes_a_negative_first_depth_after_a_space():
+    from lfm_studio.cli import build_parser
+
+    for argv in (
+        ["resolution", "xlfm_cong2017", "--depths", "-10,20"],
+        ["resolution", "xlfm_cong2017", "--depths=-10,20"],
+    ):
+        assert build_parser().parse_args(argv).depths == pytest.approx((-10e-6, 20e-6))

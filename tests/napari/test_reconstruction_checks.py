@@ -121,3 +121,13 @@ def test_run_refuses_an_all_zero_result(monkeypatch):
             lambda *a: None,
             None,
         )
+
+
+def test_a_raw_frame_with_a_calibration_is_refused_for_wiener_on_a_conventional_stack():
+    # The calibration path used to return before this check and rectify the frame first.
+    image = LightFieldImage(torch.ones(16, 16), 6.5 * um)
+    with pytest.raises(ValueError, match="Fourier LFM"):
+        prepare(
+            _stack(2, 2, 3, 8, 8), image, Settings(method="wiener"), image_name="frame", psf_name="psf",
+            calibration=object(), calibration_name="calib.json",
+        )  # fmt: skip

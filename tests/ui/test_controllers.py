@@ -221,7 +221,7 @@ def test_image_then_reconstruction_with_quality(qtbot, studio):
     controller.request_reconstruction()
     qtbot.waitUntil(lambda: state.reconstruction is not None, timeout=TIMEOUT_MS)
     result = state.reconstruction
-    assert result.iterations == 2 and len(result.psnr_curve) == 2 and len(state.convergence[0]) == 2
+    assert result.iterations == 2 and len(result.ncc_curve) == 2 and len(state.convergence[0]) == 2
     assert result.psnr is not None and result.psnr > 0 and 0 < result.ssim <= 1
     assert viewer.calls[-1][:2] == ("show_volume", "reconstruction")
     # A seed change: image and reconstruction recompute (auto update), the PSF does not.

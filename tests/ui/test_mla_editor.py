@@ -436,7 +436,7 @@ def test_unknown_sub_image_size_shows_centres_only(editor):
 def test_sub_image_overlaps_match_a_brute_force_search():
     import random
 
-    from lfm_studio.widgets.mla_editor_checks import disc_overlaps
+    from lfm_studio.engine.design.geometry import disc_overlaps  # what the editor's sensor check calls
 
     rng = random.Random(3)
     centers = [

@@ -58,7 +58,7 @@ def test_the_studio_reconstruction_of_a_noisy_image_is_not_empty(psf):
 def test_reconstruction_is_scored_with_ncc_and_f1_beside_the_zero_floor(reconstructed):
     image, result, partials = reconstructed
     truth = image.ground_truth
-    assert result.iterations == 6 and len(result.ncc_curve) == len(result.psnr_curve) == 6
+    assert result.iterations == 6 and len(result.ncc_curve) == len(result.change_curve) == 6
     assert partials[-1] == (result.ncc_curve, result.change_curve)  # the live convergence curve is NCC
     assert result.ncc_curve[-1] == pytest.approx(float(ncc(truth, result.volume)), abs=1e-9)
     assert result.ncc == pytest.approx(result.ncc_curve[-1], abs=1e-12)

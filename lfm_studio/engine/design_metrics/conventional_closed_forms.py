@@ -38,9 +38,14 @@ import math
 
 from lfm_studio.engine import units
 from lfm_studio.engine.design import Design, RegularMLASpec
-from lfm_studio.engine.design_metrics.closed_forms import ClosedFormMetrics, criterion_factor, tightest_limit
+from lfm_studio.engine.design_metrics.closed_forms import (
+    LATERAL_CRITERIA,
+    ClosedFormMetrics,
+    criterion_factor,
+    tightest_limit,
+)
 
-SPARROW = 0.47
+SPARROW = LATERAL_CRITERIA["sparrow"]
 """Sparrow factor used by Levoy 2006: two points resolve at ``0.47 lambda / NA``."""
 
 

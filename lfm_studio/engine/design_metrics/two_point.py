@@ -61,8 +61,6 @@ def _local_maxima(f: torch.Tensor) -> torch.Tensor:
     sample; an end sample counts when it is above its neighbour: a maximum cut by the range)."""
     rising = torch.cat([torch.tensor([True]), f[1:] >= f[:-1]])
     falling = torch.cat([f[:-1] > f[1:], torch.tensor([True])])
-    if f.numel() > 1:
-        rising[0] = bool(f[0] > f[1])
     return torch.nonzero(rising & falling).flatten()
 
 

@@ -161,6 +161,11 @@ def read_hyperstack(path: str | os.PathLike) -> RawTiff:
 def _read_series(source: Path) -> RawTiff:
     try:
         tif = tifffile.TiffFile(source)
+    except PermissionError as error:  # an OSError, but not a damaged file: say so
+        raise InputFileError(
+            f"{source} is not readable (permission denied). Fix: change its permissions or copy it somewhere "
+            "you can read."
+        ) from error
     except _UNREADABLE as error:
         raise _unreadable(source, error) from error
     with tif:

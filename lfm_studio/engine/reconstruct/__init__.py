@@ -14,7 +14,7 @@ Example::
                                        iterations=50, rtol=1e-3, progress=report, cancel=event):
         show(it.index, it.estimate, it.relative_change)
 
-    fastest = accelerated_rl_options(setup.projector)            # geometric + Wiener-Butterworth
+    fastest = accelerated_rl_options(setup.projector)            # geometric extrapolation, likelihood safeguard
     volume = richardson_lucy(setup.projector, image, iterations=10, **fastest)
 
     bp = wiener_butterworth_backprojector(setup.projector)      # Guo et al. 2020
