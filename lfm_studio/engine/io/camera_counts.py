@@ -214,8 +214,9 @@ def resolve_calibration(
             )
     source = "estimated" if notes else "--baseline/--gain"
     calibration = CameraCalibration(
-        float(baseline), float(gain), qe, source=source, gain_known=gain_known, read_noise_e=float(read_noise)
-    )
+        float(baseline), float(gain), qe, source=source, gain_known=gain_known, read_noise_e=float(read_noise),
+        quantized=recorded.quantized if recorded is not None else True,  # a noise-free image stays unrounded
+    )  # fmt: skip
     return calibration, notes
 
 

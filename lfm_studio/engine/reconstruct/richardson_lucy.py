@@ -323,7 +323,7 @@ def _iterate(
         point = extrapolation.predict(x) if extrapolation else x
         predicted = known if point is x else None
         if extrapolation:
-            point, predicted = _safeguarded(problem, extrapolation, x, point, predicted)
+            point, predicted = _safeguarded(problem, extrapolation, x, point, predicted, known)
         update = problem.step(point, tv_weight, predicted)
         if extrapolation:
             extrapolation.record(x, point, update)
@@ -344,15 +344,17 @@ def _safeguarded(
     x: torch.Tensor,
     point: torch.Tensor,
     predicted: torch.Tensor | None,
+    known: torch.Tensor | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The point this step starts from and its ``A point + b``: the extrapolated ``point`` unless
     its Poisson NLL is worse than the last starting point's, then ``x`` (likelihood safeguard,
-    :mod:`.accelerated`; costs one extra forward projection when it rejects)."""
+    :mod:`.accelerated`; costs one extra forward projection when it rejects, none when ``known``,
+    ``A x + b`` already computed for the NLL track, is given)."""
     if predicted is None:
         predicted = problem.predicted(point)
     nll = problem.working_nll(predicted)
     if point is not x and not extrapolation.accept(nll, problem.nll_slack):
-        point, predicted = x, problem.predicted(x)
+        point, predicted = x, known if known is not None else problem.predicted(x)
         nll = problem.working_nll(predicted)
     extrapolation.started_at(nll)
     return point, predicted
