@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from lfm_studio.cli_bench import add_bench_parser
+from lfm_studio.cli.bench import add_bench_parser
 
 
 def main(argv: list[str] | None = None) -> int:

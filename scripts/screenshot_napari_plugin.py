@@ -48,7 +48,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=20)
     args = parser.parse_args()
 
-    from lfm_studio.widgets.napari_embed import prepare_qt_app
+    from lfm_studio.widgets.viewer.napari_embed import prepare_qt_app
 
     app = prepare_qt_app()
     import napari

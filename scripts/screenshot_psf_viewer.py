@@ -14,7 +14,7 @@ import argparse
 
 from qt_events import settle  # scripts/, on sys.path when run as a script
 
-from lfm_studio.widgets.napari_embed import flush_deletions, prepare_qt_app
+from lfm_studio.widgets.viewer.napari_embed import flush_deletions, prepare_qt_app
 
 
 def main() -> None:

@@ -44,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     from lfm_studio.ui import pipeline
     from lfm_studio.ui.app import build_studio
     from lfm_studio.ui.edits import apply_changes
-    from lfm_studio.widgets.napari_embed import prepare_qt_app
+    from lfm_studio.widgets.viewer.napari_embed import prepare_qt_app
     from tests.ui.standins import small_fourier_design
 
     app = prepare_qt_app()

@@ -15,11 +15,11 @@ import sys
 import pytest
 
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
-from lfm_studio.widgets import mla_editor_model as model
-from lfm_studio.widgets.mla_editor_checks import mla_issues, sensor_layout, summary
-from lfm_studio.widgets.mla_editor_presets import PresetParams, build_preset, estimate_params
-from lfm_studio.widgets.mla_editor_session import EditSession, status_line
-from lfm_studio.widgets.mla_editor_symmetry import Symmetry
+from lfm_studio.widgets.mla_editor import model as model
+from lfm_studio.widgets.mla_editor.checks import mla_issues, sensor_layout, summary
+from lfm_studio.widgets.mla_editor.presets import PresetParams, build_preset, estimate_params
+from lfm_studio.widgets.mla_editor.session import EditSession, status_line
+from lfm_studio.widgets.mla_editor.symmetry import Symmetry
 
 
 def lens(x: float, y: float, d: float = 100.0, f: float = 3.0) -> LensletSpec:
@@ -33,8 +33,8 @@ def centers(lenslets) -> list[tuple[float, float]]:
 def test_model_modules_import_without_qt():
     probe = (
         "import sys\n"
-        "import lfm_studio.widgets.mla_editor_model, lfm_studio.widgets.mla_editor_session\n"
-        "import lfm_studio.widgets.mla_editor_checks, lfm_studio.widgets.mla_editor_presets\n"
+        "import lfm_studio.widgets.mla_editor.model, lfm_studio.widgets.mla_editor.session\n"
+        "import lfm_studio.widgets.mla_editor.checks, lfm_studio.widgets.mla_editor.presets\n"
         "print(','.join(m for m in ('PySide6', 'PyQt5', 'PyQt6', 'qtpy', 'pyqtgraph') if m in sys.modules))"
     )
     result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)

@@ -11,7 +11,7 @@ Instead each grid value gets
   in the same interleaved rounds as the other rows; its ratio is taken to the default
   grid's time (the ``(standard)`` row of the same knob), since the other rows time the PSF alone;
 - a quality number comparable across grids: the reconstructed two-point resolution
-  (:func:`~lfm_studio.engine.design_metrics.reconstructed.reconstructed_resolution`,
+  (:func:`~lfm_studio.engine.performance.reconstructed.reconstructed_resolution`,
   lateral and axial, noise free, plain RL) at the case's middle depth on a cropped
   sensor. It is a length in micrometres, so grids of different voxels are compared directly;
   ``inf`` when no separation up to the largest tried resolves.
@@ -111,7 +111,7 @@ def grid_quality(
 
     Noise free, plain RL with ``iterations`` iterations, ``crop`` camera pixels about the axis.
     """
-    from lfm_studio.engine.design_metrics.reconstructed import reconstructed_resolution
+    from lfm_studio.engine.performance.reconstructed import reconstructed_resolution
 
     depth = case.depths[len(case.depths) // 2]
     report = reconstructed_resolution(

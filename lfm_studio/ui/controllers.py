@@ -19,7 +19,7 @@ from typing import Any
 from qtpy.QtCore import QObject, QTimer
 
 from lfm_studio.engine.design import MLASpec
-from lfm_studio.engine.design_metrics import compute_design_metrics
+from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.edits import try_changes

@@ -19,14 +19,14 @@ from typing import Any, Protocol
 import torch
 
 from lfm_studio.engine.design import AccuracySpec, Design
-from lfm_studio.engine.design_metrics import DesignMetrics, compute_design_metrics
+from lfm_studio.engine.performance import DesignMetrics, compute_design_metrics
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.fourier_psf import FourierPSFReport, fourier_psf_stack
 from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui.edits import try_changes
 from lfm_studio.ui.results import ImageResult, PSFProfiles, PSFResult, ReconstructionResult, WorkflowSettings
-from lfm_studio.widgets.display_data import image_display, psf_display, volume_display
+from lfm_studio.widgets.viewer.display_data import image_display, psf_display, volume_display
 
 PREVIEW_DEPTHS = 5  # depths of the quick preview (spread over the design's range)
 PREVIEW_BINNING_FROM = 1024  # sensors with at least this many pixels per side are binned 2x for the preview
@@ -241,7 +241,7 @@ def reconstruction_available() -> bool:
     """Whether the engine has Richardson-Lucy (``lfm_studio.engine.reconstruct``) and the metrics."""
     return all(
         importlib.util.find_spec(name) is not None
-        for name in ("lfm_studio.engine.reconstruct", "lfm_studio.engine.metrics")
+        for name in ("lfm_studio.engine.reconstruct", "lfm_studio.engine.image_quality")
     )
 
 
@@ -276,7 +276,7 @@ def reconstruct(
     ``(ncc per iteration, relative change per iteration)``).
     At the end: the scorecard (NCC, bead F1, PSNR, SSIM, each beside the all-zero volume's score).
     """
-    from lfm_studio.engine.metrics import ncc, scorecard
+    from lfm_studio.engine.image_quality import ncc, scorecard
     from lfm_studio.engine.reconstruct import (
         accelerated_rl_options,
         check_reconstruction,

@@ -24,8 +24,8 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
-from lfm_studio.engine.design_metrics import DesignMetrics
-from lfm_studio.engine.design_metrics.report import UNIT_SCALE
+from lfm_studio.engine.performance import DesignMetrics
+from lfm_studio.engine.performance.report import UNIT_SCALE
 from lfm_studio.ui.results import PSFResult
 from lfm_studio.ui.state import StudioState
 

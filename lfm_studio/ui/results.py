@@ -106,7 +106,7 @@ class ReconstructionResult:
     psnr, ssim : final PSNR (dB) and SSIM after scale matching (None when they cannot be computed).
     display : ``volume`` prepared for the viewer on the worker thread (``volume_display``), or None.
     ncc_curve : NCC (Pearson correlation) with the ground truth after each iteration.
-    scores : the final :class:`~lfm_studio.engine.metrics.Scorecard` (NCC, F1 for beads, PSNR,
+    scores : the final :class:`~lfm_studio.engine.image_quality.Scorecard` (NCC, F1 for beads, PSNR,
         SSIM with their all-zero floors), or None.
     summary : ``scores`` in one line, NCC and F1 first (what the workflow panel shows).
     """

@@ -19,7 +19,7 @@ from pathlib import Path
 from psygnal import Signal
 
 from lfm_studio.engine.design import METADATA_FIELDS, Design, spec_hash
-from lfm_studio.engine.design_metrics import DesignMetrics
+from lfm_studio.engine.performance import DesignMetrics
 from lfm_studio.ui.results import (
     STAGES,
     ImageResult,

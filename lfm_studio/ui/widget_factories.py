@@ -32,7 +32,7 @@ def prepare_qt_app() -> QApplication:
     """The QApplication (napari's, with shared OpenGL contexts, when napari is available)."""
     os.environ.setdefault("QT_API", "pyside6")
     os.environ.setdefault("PYQTGRAPH_QT_LIB", "PySide6")
-    embed = _optional("lfm_studio.widgets.napari_embed")
+    embed = _optional("lfm_studio.widgets.viewer.napari_embed")
     if embed is not None and hasattr(embed, "prepare_qt_app"):
         return embed.prepare_qt_app()
     app = QApplication.instance()

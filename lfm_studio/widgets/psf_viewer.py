@@ -1,10 +1,10 @@
 """``PSFViewer``: the PSF stack, the camera image and the reconstruction as layers in micrometres.
 
-napari (embedded through :mod:`lfm_studio.widgets.napari_embed`) when OpenGL works, otherwise a
-pyqtgraph fallback (:mod:`lfm_studio.widgets.pyqtgraph_volume`) with a message saying why.
+napari (embedded through :mod:`lfm_studio.widgets.viewer.napari_embed`) when OpenGL works, otherwise a
+pyqtgraph fallback (:mod:`lfm_studio.widgets.viewer.pyqtgraph_volume`) with a message saying why.
 
 Display conventions (sensor / sample micrometres, depth stretch, max-pooled pyramid) are
-those of :mod:`lfm_studio.widgets.display_data`. The two spaces do not share a world: each
+those of :mod:`lfm_studio.widgets.viewer.display_data`. The two spaces do not share a world: each
 has its own napari canvas, and showing a layer of the other space switches canvas (layers
 are kept and updated in place, never re-made).
 
@@ -36,8 +36,8 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.widgets import napari_embed
-from lfm_studio.widgets.display_data import (
+from lfm_studio.widgets.viewer import napari_embed
+from lfm_studio.widgets.viewer.display_data import (
     DEFAULT_MAX_VOXELS_3D,
     DisplayData,
     describe,
@@ -45,7 +45,7 @@ from lfm_studio.widgets.display_data import (
     psf_display,
     volume_display,
 )
-from lfm_studio.widgets.napari_scene import NapariScene
+from lfm_studio.widgets.viewer.napari_scene import NapariScene
 
 
 class PSFViewer(QWidget):
@@ -56,7 +56,7 @@ class PSFViewer(QWidget):
     parent : QWidget, optional
     use_napari : bool or None
         ``None``: napari when it works here (see
-        :func:`~lfm_studio.widgets.napari_embed.napari_unavailable_reason`), else the pyqtgraph
+        :func:`~lfm_studio.widgets.viewer.napari_embed.napari_unavailable_reason`), else the pyqtgraph
         fallback with a message saying why; ``True``: napari or ``RuntimeError``; ``False``:
         the fallback.
     max_voxels_3d : int
@@ -114,7 +114,7 @@ class PSFViewer(QWidget):
         if reason is None:
             self._body = self._build_napari_body()
         else:
-            from lfm_studio.widgets.pyqtgraph_volume import PyqtgraphVolume
+            from lfm_studio.widgets.viewer.pyqtgraph_volume import PyqtgraphVolume
 
             self._scene = self._body = PyqtgraphVolume()
             for control in (
@@ -330,7 +330,7 @@ class PSFViewer(QWidget):
         return bar
 
     def _build_napari_body(self) -> QWidget:
-        from lfm_studio.widgets.pyqtgraph_volume import OrthoProjections
+        from lfm_studio.widgets.viewer.pyqtgraph_volume import OrthoProjections
 
         body = QSplitter()
         self._ortho = OrthoProjections()

@@ -2,7 +2,7 @@
 correlates with the truth and beats the all-zero volume's PSNR, on a Fourier and a conventional preset.
 
 Only paths, a small depth range and a cropped sensor are given. Pearson correlation and PSNR are
-computed here with numpy, independently of ``lfm_studio.engine.metrics``; the floor is the PSNR of
+computed here with numpy, independently of ``lfm_studio.engine.image_quality``; the floor is the PSNR of
 the all-zero volume against the same truth (a sparse bead truth scores high for doing nothing).
 """
 

@@ -12,7 +12,7 @@ import tifffile
 import torch
 
 from lfm_studio import cli
-from lfm_studio.cli_errors import OUTPUT_REFUSED
+from lfm_studio.cli.errors import OUTPUT_REFUSED
 from lfm_studio.engine.calibration import LensletLattice, load_calibration
 from lfm_studio.engine.calibration.synthetic import conventional_design_for, fourier_frames, synthetic_frames
 from lfm_studio.engine.design import load_preset, resolve_design, save_design

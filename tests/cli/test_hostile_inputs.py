@@ -14,7 +14,7 @@ import torch
 
 from lfm_studio import cli
 from lfm_studio.cli import main
-from lfm_studio.cli_errors import BAD_INPUT, OUT_OF_MEMORY, OUTPUT_REFUSED, RESULT_REJECTED
+from lfm_studio.cli.errors import BAD_INPUT, OUT_OF_MEMORY, OUTPUT_REFUSED, RESULT_REJECTED
 from lfm_studio.engine.design import load_preset, save_design
 from lfm_studio.engine.io import read_image, read_volume, write_image, write_volume
 

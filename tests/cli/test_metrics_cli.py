@@ -12,9 +12,9 @@ import tifffile
 import torch
 
 from lfm_studio import cli
-from lfm_studio.cli_reconstruct import add_reconstruct_parsers
+from lfm_studio.cli.reconstruct import add_reconstruct_parsers
+from lfm_studio.engine.image_quality import gaussian_filter
 from lfm_studio.engine.io import write_volume
-from lfm_studio.engine.metrics import gaussian_filter
 
 VOXEL = (4e-6, 0.5e-6, 0.5e-6)  # dz, dy, dx in metres
 BEADS = [(1, 6, 6), (2, 20, 9), (3, 11, 25), (4, 26, 22), (2, 5, 28)]

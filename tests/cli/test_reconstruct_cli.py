@@ -12,7 +12,7 @@ import tifffile
 import torch
 
 from lfm_studio import cli
-from lfm_studio.cli_reconstruct import add_reconstruct_parsers
+from lfm_studio.cli.reconstruct import add_reconstruct_parsers
 from lfm_studio.engine.design import load_preset, save_design
 from lfm_studio.engine.io import read_image, read_psf_stack, read_volume, write_image
 from lfm_studio.engine.progress import CancelledError
@@ -220,7 +220,7 @@ def test_existing_output_is_kept_and_errors_are_named(files, tmp_path, capsys):
     assert run(["metrics", "--truth", str(files["truth"]), "--estimate", str(other)]) == 2
     assert "has shape (3, 20, 20) but --truth" in capsys.readouterr().err
     truth = str(files["truth"])
-    from lfm_studio.engine.metrics import lpips_available
+    from lfm_studio.engine.image_quality import lpips_available
 
     if not lpips_available()[0]:
         assert run(["metrics", "--truth", truth, "--estimate", truth, "--lpips"]) == 2

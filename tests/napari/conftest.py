@@ -1,7 +1,7 @@
 """Fixtures for the napari plugin tests (``make_napari_viewer`` from napari's pytest plugin, under pytest-xvfb).
 
 ``qapp`` (session)
-    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.napari_embed.prepare_qt_app`).
+    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.viewer.napari_embed.prepare_qt_app`).
 ``bead_layers`` (session)
     The plugin's bead sample, computed once (about 2 s); :func:`add_layers` puts copies into a viewer.
 ``notes``

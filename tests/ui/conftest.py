@@ -1,7 +1,7 @@
 """Shared fixtures for the UI tests (pytest-qt under pytest-xvfb; ``QT_QPA_PLATFORM`` unset).
 
 ``qapp`` (session)
-    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.napari_embed.prepare_qt_app`).
+    From ``tests/conftest.py`` (:func:`lfm_studio.widgets.viewer.napari_embed.prepare_qt_app`).
 ``close_napari_viewers`` (autouse)
     After each test, closes any napari ``QtViewer`` still alive (e.g. a window the test
     forgot to close, or a failing test) and runs the pending deletions, so napari's
@@ -17,7 +17,7 @@ import sys
 
 import pytest
 
-from lfm_studio.widgets import napari_embed
+from lfm_studio.widgets.viewer import napari_embed
 
 
 def collect_widgets() -> None:

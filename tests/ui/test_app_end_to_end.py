@@ -32,10 +32,10 @@ from qtpy.QtGui import QGuiApplication
 
 from lfm_studio import cli
 from lfm_studio.engine.design import load_preset, save_design
-from lfm_studio.engine.metrics import ncc
+from lfm_studio.engine.image_quality import ncc
 from lfm_studio.ui import app as studio_app
 from lfm_studio.ui.edits import apply_changes
-from lfm_studio.widgets import napari_embed
+from lfm_studio.widgets.viewer import napari_embed
 from tests.ui.conftest import collect_widgets
 
 pytestmark = pytest.mark.filterwarnings("error::pytest.PytestUnraisableExceptionWarning")

@@ -114,7 +114,7 @@ def test_the_command_line_argument_opens_a_preset_or_a_file(tmp_path):
 )
 def test_real_widgets_show_a_non_blank_napari_render_and_edits_recompute_one_lenslet(qtbot, settings):
     from lfm_studio.ui.widget_factories import warm_up_viewer
-    from lfm_studio.widgets import napari_embed
+    from lfm_studio.widgets.viewer import napari_embed
 
     reason = napari_embed.napari_unavailable_reason()
     if reason is not None:

@@ -19,9 +19,9 @@ from qtpy.QtWidgets import QApplication, QLineEdit, QMainWindow
 
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
 from lfm_studio.widgets.mla_editor import MLAEditor
-from lfm_studio.widgets.mla_editor_presets import PresetParams, estimate_params
-from lfm_studio.widgets.mla_editor_style import ISSUE
-from lfm_studio.widgets.mla_editor_symmetry import Symmetry
+from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params
+from lfm_studio.widgets.mla_editor.style import ISSUE
+from lfm_studio.widgets.mla_editor.symmetry import Symmetry
 
 PUPIL_UM = 1000.0
 

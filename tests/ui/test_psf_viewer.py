@@ -12,9 +12,10 @@ from qtpy.QtGui import QGuiApplication
 from qtpy.QtWidgets import QApplication
 
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.widgets import napari_embed, psf_viewer
-from lfm_studio.widgets.display_data import psf_display, pyramid_levels
+from lfm_studio.widgets import psf_viewer
 from lfm_studio.widgets.psf_viewer import PSFViewer
+from lfm_studio.widgets.viewer import napari_embed
+from lfm_studio.widgets.viewer.display_data import psf_display, pyramid_levels
 from tests.ui.conftest import collect_widgets
 
 PITCH, MAG = 6.5e-6, 8.96

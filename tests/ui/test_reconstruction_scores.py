@@ -8,8 +8,8 @@ from types import SimpleNamespace
 import pytest
 import torch
 
+from lfm_studio.engine.image_quality import ncc, scorecard
 from lfm_studio.engine.io import read_volume, write_volume
-from lfm_studio.engine.metrics import ncc, scorecard
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.file_menu import _scores_metadata
 from lfm_studio.ui.plots import ConvergencePlot

@@ -10,9 +10,9 @@ import torch
 from qtpy.QtGui import QGuiApplication
 
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.widgets import napari_embed
-from lfm_studio.widgets.display_data import brightest_slice, psf_display, volume_display
 from lfm_studio.widgets.psf_viewer import PSFViewer
+from lfm_studio.widgets.viewer import napari_embed
+from lfm_studio.widgets.viewer.display_data import brightest_slice, psf_display, volume_display
 from tests.ui.test_psf_viewer import _rgb, hide_overlays, settle, spot_stack
 
 

@@ -36,14 +36,38 @@ Overlaps shallower than half a camera pixel are ignored (the sensor cannot see t
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+from lfm_studio.engine.design.camera import CameraSpec
 from lfm_studio.engine.design.errors import DesignError, fmt, warn_design
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
-from lfm_studio.engine.design.mla import RegularMLASpec
+from lfm_studio.engine.design.mla import AnyMLASpec, RegularMLASpec
+from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
 
-if TYPE_CHECKING:
-    from lfm_studio.engine.design.design import Design
+
+class Design(Protocol):
+    """What the checks read of a :class:`~lfm_studio.engine.design.design.Design` (its fields and
+    derived lengths), so this module does not import the class that calls it (no import cycle)."""
+
+    @property
+    def kind(self) -> str: ...
+    @property
+    def wavelength_nm(self) -> float: ...
+    @property
+    def objective(self) -> ObjectiveSpec: ...
+    @property
+    def relay(self) -> RelayLensSpec | None: ...
+    @property
+    def mla(self) -> AnyMLASpec: ...
+    @property
+    def mla_to_camera_distance_mm(self) -> float: ...
+    @property
+    def camera(self) -> CameraSpec: ...
+    @property
+    def pupil_diameter_at_mla(self) -> float | None: ...
+    @property
+    def sub_image_radius(self) -> float | None: ...
+
 
 MIN_PIXELS_PER_SUB_IMAGE = 3  # fewer pixels across a conventional sub-image: no angular information
 

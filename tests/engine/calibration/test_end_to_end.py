@@ -19,7 +19,7 @@ import torch
 
 from lfm_studio.engine.calibration import calibrate, rectify_frame
 from lfm_studio.engine.calibration.synthetic_scene import BASELINE_ADU, misaligned_bead_scene
-from lfm_studio.engine.metrics import ncc
+from lfm_studio.engine.image_quality import ncc
 from lfm_studio.engine.reconstruct.dispatch import reconstruct_frame
 from lfm_studio.engine.simulation import imaging_setup
 

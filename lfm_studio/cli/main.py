@@ -1,0 +1,91 @@
+"""The ``lfm-studio`` command line.
+
+``lfm-studio`` (or ``lfm-studio gui``) opens the desktop studio; further
+sub-commands (simulate, image, info, reconstruct, metrics, bench) run headless.
+GUI packages are imported only by the ``gui`` sub-command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+
+from lfm_studio import __version__
+from lfm_studio.cli.bench import add_bench_parser
+from lfm_studio.cli.calibrate import add_calibrate_parser
+from lfm_studio.cli.errors import EPILOG, INTERRUPTED, exit_code_for
+from lfm_studio.cli.info import add_info_parser
+from lfm_studio.cli.metrics import add_metrics_parser
+from lfm_studio.cli.reconstruct import add_reconstruct_parsers
+from lfm_studio.cli.resolution import add_resolution_parser
+from lfm_studio.cli.simulate import add_simulate_parsers
+from lfm_studio.engine.allocator import keep_freed_memory
+from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
+
+
+def _run_gui(args: argparse.Namespace) -> int:
+    from lfm_studio.ui.app import run_studio  # Qt is imported only here
+
+    return run_studio(design=args.design)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser with every sub-command."""
+    parser = argparse.ArgumentParser(
+        prog="lfm-studio",
+        description="Design studio for light-field microscopes (simulation, reconstruction, design).",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("--version", action="version", version=f"lfm-studio {__version__}")
+    parser.add_argument(
+        "--threads",
+        dest="torch_threads",
+        type=int,
+        default=None,
+        metavar="N",
+        help=f"torch CPU threads for the heavy work (default: ${THREADS_VARIABLE}, else the cores idle at "
+        "start: this process's cores minus the load average, at least 1; docs/benchmarks.md, thread policy)",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+
+    gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
+    gui.add_argument("design", nargs="?", default=None, help="design file or preset name to open")
+    gui.set_defaults(handler=_run_gui)
+    add_simulate_parsers(sub)
+    add_info_parser(sub)
+    add_reconstruct_parsers(sub)
+    add_metrics_parser(sub)
+    add_bench_parser(sub)
+    add_resolution_parser(sub)
+    add_calibrate_parser(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of ``lfm-studio`` and ``python -m lfm_studio``; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        # Only options were given (any positional would be the command): they go before "gui".
+        args = parser.parse_args([*(argv if argv is not None else sys.argv[1:]), "gui"])
+    try:
+        configure_threads(args.torch_threads)
+        keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
+        return int(args.handler(args))
+    except (ValueError, FileNotFoundError, FileExistsError) as error:
+        # Named refusals (bad input, output refused, memory, rejected result) without a traceback;
+        # the exit code says which kind (EPILOG).
+        code = exit_code_for(error)
+        if code is None:
+            raise
+        print(f"lfm-studio {args.command}: error: {error}", file=sys.stderr)
+        return code
+    except KeyboardInterrupt:  # outputs are written atomically: nothing partial is left
+        print(f"lfm-studio {args.command}: interrupted; no output was written.", file=sys.stderr)
+        return INTERRUPTED
+
+
+if __name__ == "__main__":
+    sys.exit(main())

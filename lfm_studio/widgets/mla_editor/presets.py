@@ -1,0 +1,116 @@
+"""Preset layouts for the MLA editor (Qt-free), built by the engine's MLASpec builders.
+
+``square`` and ``hex`` are regular arrays of identical lenslets
+(:meth:`MLASpec.square_grid`, :meth:`MLASpec.hex_grid`), kept inside the pupil
+when its radius is known; ``xlfm`` is the XLFM-like multifocal layout of Cong et
+al. 2017 (:meth:`MLASpec.multifocal_hex`, centred between three lenslets, focal
+groups alternating around each shell).
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+from pydantic import ValidationError
+
+from lfm_studio.engine.design import LensletSpec, MLASpec
+from lfm_studio.engine.design.geometry import candidate_pairs
+from lfm_studio.widgets.mla_editor.model import reason
+
+PresetKind = Literal["square", "hex", "xlfm"]
+PRESET_LABELS: dict[str, str] = {
+    "square": "Square grid",
+    "hex": "Hex grid",
+    "xlfm": "XLFM-like (two focal groups)",
+}
+COUNT_MEANING: dict[str, str] = {
+    "square": "lenslets per side",
+    "hex": "rings around the centre",
+    "xlfm": "lenslets (complete shells: 3, 6, 12, 18, 21, 27, ...)",
+}
+
+DEFAULT_COUNTS: dict[str, int] = {"square": 5, "hex": 2, "xlfm": 27}
+
+
+@dataclass(frozen=True)
+class PresetParams:
+    """Parameters of a preset layout.
+
+    Attributes
+    ----------
+    pitch_um : lattice spacing, micrometres.
+    count : square: lenslets per side; hex: rings; xlfm: number of lenslets.
+    focal_lengths_mm : square and hex use the first; xlfm one per focal group, mm.
+    aperture_diameter_um : aperture diameter of every lenslet, micrometres.
+    """
+
+    pitch_um: float = 2200.0
+    count: int = 27
+    focal_lengths_mm: tuple[float, ...] = (26.0, 28.5)
+    aperture_diameter_um: float = 1000.0
+
+
+def build_preset(
+    kind: PresetKind, params: PresetParams, *, pupil_radius_um: float | None = None
+) -> tuple[LensletSpec, ...]:
+    """The lenslets of preset ``kind``; raises :class:`ValueError` with the reason if they cannot be built."""
+    p = params
+    keep = None if pupil_radius_um is None else 2.0 * pupil_radius_um
+    try:
+        if kind == "square":
+            mla = MLASpec.square_grid(
+                p.pitch_um,
+                p.count,
+                p.focal_lengths_mm[0],
+                fill_factor=p.aperture_diameter_um / p.pitch_um,
+                keep_within_diameter_um=keep,
+            )
+        elif kind == "hex":
+            mla = MLASpec.hex_grid(
+                p.pitch_um,
+                p.focal_lengths_mm[0],
+                rings=p.count,
+                fill_factor=p.aperture_diameter_um / p.pitch_um,
+                keep_within_diameter_um=keep,
+            )
+        elif kind == "xlfm":
+            mla = MLASpec.multifocal_hex(
+                p.pitch_um,
+                p.count,
+                p.focal_lengths_mm,
+                aperture_diameter_um=p.aperture_diameter_um,
+                center="triangle",
+            )
+        else:
+            raise ValueError(f"preset must be one of {', '.join(PRESET_LABELS)}; got {kind!r}.")
+    except ValidationError as exc:
+        raise ValueError(reason(exc)) from None
+    except (ZeroDivisionError, IndexError):
+        raise ValueError("preset needs a pitch > 0 um and at least one focal length.") from None
+    return tuple(mla.lenslets)
+
+
+def estimate_params(lenslets: Sequence[LensletSpec], default: PresetParams = PresetParams()) -> PresetParams:
+    """Preset parameters that resemble ``lenslets``: nearest-neighbour pitch, median aperture, focal lengths."""
+    if not lenslets:
+        return default
+    diameter = statistics.median(lens.aperture_diameter_um for lens in lenslets)
+    focals = sorted({lens.focal_length_mm for lens in lenslets})
+    if len(focals) == 1:
+        focals.append(round(focals[0] * 1.1, 6))
+    sample = list(lenslets[:400])  # enough to see the lattice spacing
+    centers = [lens.center_um for lens in sample]
+    reach = 4.0 * max(lens.aperture_diameter_um for lens in sample)
+    distances = [math.dist(centers[i], centers[j]) for i, j in candidate_pairs(centers, reach)]
+    distances = [d for d in distances if d > 1e-3]
+    pitch = round(min(distances), 6) if distances else round(2.0 * diameter, 6)
+    return PresetParams(
+        pitch_um=pitch,
+        count=default.count,
+        focal_lengths_mm=tuple(focals[:2]),
+        aperture_diameter_um=diameter,
+    )
