@@ -28,6 +28,7 @@ from lfm_studio.engine.performance import DesignMetrics
 from lfm_studio.engine.performance.report import UNIT_SCALE
 from lfm_studio.ui.results import PSFResult
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.stale_mark import StaleMark
 
 PASS, FAIL, UNKNOWN = QColor("#2e7d32"), QColor("#c62828"), QColor("#757575")
 _QUANTITY = {
@@ -78,17 +79,17 @@ class _StateView(QWidget):
         """The stale label's text, or None while the view is fresh."""
         return None if self.stale_label.isHidden() else self.stale_label.text()
 
-    def set_stale(self, text: str | None) -> None:
-        """Mark the view stale with ``text`` (greyed, with a label), or fresh with None."""
-        failed = bool(text) and ("failed" in text or "cancelled" in text)
-        colours = ("#f8d7da", "#842029") if failed else ("#fff3cd", "#664d03")
-        self.stale_label.setStyleSheet(
-            f"QLabel {{ background: {colours[0]}; color: {colours[1]}; padding: 3px; }}"
-        )
-        self.stale_label.setText(text or "")
-        self.stale_label.setVisible(bool(text))
+    def set_stale(self, mark: StaleMark | None) -> None:
+        """Mark the view stale with ``mark`` (greyed, with a label coloured by its severity), or fresh with None."""
+        if mark is not None:
+            background, colour = mark.colours
+            self.stale_label.setStyleSheet(
+                f"QLabel {{ background: {background}; color: {colour}; padding: 3px; }}"
+            )
+        self.stale_label.setText(mark.text if mark is not None else "")
+        self.stale_label.setVisible(mark is not None)
         for item in self._dimmed:
-            item.setOpacity(STALE_OPACITY if text else 1.0)
+            item.setOpacity(STALE_OPACITY if mark is not None else 1.0)
 
     def is_dimmed(self) -> bool:
         """Whether the view's curves are faded out as stale."""

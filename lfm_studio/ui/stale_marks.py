@@ -2,8 +2,9 @@
 
 A stage (:data:`~lfm_studio.ui.results.STAGES`) whose result is on screen but stale (the
 design or settings changed since), being recomputed, or whose job failed or was cancelled,
-gets a one-line mark such as ``"stale: shows the previous design; PSF failed: out of
-memory"``. :func:`stage_mark` computes it from the state alone (pure, Qt-free);
+gets a one-line :class:`~lfm_studio.widgets.stale_mark.StaleMark` such as ``"stale: shows the
+previous design; PSF failed: out of memory"`` (with the job's activity, so views colour it
+without reading the text). :func:`stage_mark` computes it from the state alone;
 :class:`StaleMarks` keeps the views' marks up to date: the viewer's banner per layer, the
 PSF profile plots, the measured rows of the requirements table and the RL convergence plot.
 A fresh result clears the mark.
@@ -16,6 +17,7 @@ from typing import Any
 from qtpy.QtCore import QObject
 
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.stale_mark import Activity, StaleMark
 
 STAGE_LABELS = {"psf": "PSF", "image": "image", "reconstruction": "reconstruction"}
 #: The viewer's layers (the names :mod:`lfm_studio.ui.pipeline` gives them) and their stage.
@@ -33,18 +35,19 @@ def _shown_result(state: StudioState, stage: str) -> Any:
     return state.image if stage == "image" else state.reconstruction
 
 
-def _job_part(state: StudioState, stage: str) -> str:
-    """What the stage's job is doing about it: recomputing, failed (with the error), cancelled or nothing."""
+def _job_part(state: StudioState, stage: str) -> tuple[Activity, str]:
+    """What the stage's job is doing about it (recomputing, failed with the error, cancelled or
+    nothing) and how that reads."""
     job = state.job(stage)
     label = STAGE_LABELS[stage]
     if job.active:
-        return "recomputing…"
+        return "recomputing", "recomputing…"
     if job.state == "failed":
         error = job.message.removeprefix("failed: ") or "unknown error"
-        return f"{label} failed: {error}"
+        return "failed", f"{label} failed: {error}"
     if job.state == "cancelled":
-        return f"{label} cancelled"
-    return ""
+        return "cancelled", f"{label} cancelled"
+    return "", ""
 
 
 def _current_preview_only(state: StudioState) -> bool:
@@ -54,39 +57,41 @@ def _current_preview_only(state: StudioState) -> bool:
     return preview is not None and preview.design == current and (psf is None or psf.design != current)
 
 
-def stage_mark(state: StudioState, stage: str) -> str | None:
+def stage_mark(state: StudioState, stage: str) -> StaleMark | None:
     """The mark for ``stage``'s result on screen, or None when it is fresh (or nothing is shown and nothing failed).
 
-    Examples: ``"stale: shows the previous design; recomputing…"``, ``"stale: shows the
-    previous design; PSF failed: <error>"``, ``"quick preview of this design; full PSF: recomputing…"``.
+    Examples of its text: ``"stale: shows the previous design; recomputing…"``, ``"stale: shows
+    the previous design; PSF failed: <error>"``, ``"quick preview of this design; full PSF: recomputing…"``.
     """
     if stage not in STAGE_LABELS:
         raise ValueError(f"stage must be one of {tuple(STAGE_LABELS)}; got {stage!r}.")
     if stage not in state.stale:
         return None
-    shown, part = _shown_result(state, stage), _job_part(state, stage)
+    shown = _shown_result(state, stage)
+    activity, part = _job_part(state, stage)
     if shown is None:
-        return part if state.job(stage).state == "failed" else None
+        return StaleMark(part, activity) if activity == "failed" else None
     if stage == "psf" and _current_preview_only(state):
-        return f"quick preview of this design; full PSF: {part or 'not computed yet'}"
+        return StaleMark(
+            f"quick preview of this design; full PSF: {part or 'not computed yet'}", activity, preview=True
+        )
     head = (
         "stale: shows the previous design"
         if stage == "psf"
         else "stale: made with the previous design or settings"
     )
-    return f"{head}; {part}" if part else head
+    return StaleMark(f"{head}; {part}" if part else head, activity)
 
 
-def metrics_mark(state: StudioState) -> str | None:
+def metrics_mark(state: StudioState) -> StaleMark | None:
     """The requirements table's mark: its measured rows wait for (or lost) the current design's PSF."""
     if "psf" not in state.stale:
         return None
-    psf_part = _job_part(state, "psf")
-    if psf_part.startswith("PSF failed") or psf_part == "PSF cancelled":
-        return f"formula estimates only: {psf_part}"
-    return "formula estimates only: measured values wait for the PSF" + (
-        " (recomputing…)" if psf_part else ""
-    )
+    activity, part = _job_part(state, "psf")
+    if activity in ("failed", "cancelled"):
+        return StaleMark(f"formula estimates only: {part}", activity)
+    text = "formula estimates only: measured values wait for the PSF" + (" (recomputing…)" if part else "")
+    return StaleMark(text, activity)
 
 
 class StaleMarks(QObject):
@@ -95,8 +100,8 @@ class StaleMarks(QObject):
     Parameters
     ----------
     state : the application state.
-    viewer : anything with ``set_stale_marks(dict[layer name, str])`` (the PSFViewer), or None.
-    profiles, convergence, requirements : views with ``set_stale(str | None)``, or None.
+    viewer : anything with ``set_stale_marks(dict[layer name, StaleMark])`` (the PSFViewer), or None.
+    profiles, convergence, requirements : views with ``set_stale(StaleMark | None)``, or None.
     """
 
     def __init__(
@@ -121,10 +126,10 @@ class StaleMarks(QObject):
             signal.connect(self.refresh)
         # job_changed fires on every progress tick: restyle the views only when a mark changed.
         state.job_changed.connect(self._on_job_changed)
-        self._shown: tuple[dict[str, str], str | None] | None = None
+        self._shown: tuple[dict[str, StaleMark], StaleMark | None] | None = None
         self.refresh()
 
-    def marks(self) -> dict[str, str]:
+    def marks(self) -> dict[str, StaleMark]:
         """Stage -> mark for every marked stage."""
         found = {stage: stage_mark(self.state, stage) for stage in STAGE_LABELS}
         return {stage: mark for stage, mark in found.items() if mark}

@@ -36,6 +36,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.widgets.stale_mark import StaleMark
 from lfm_studio.widgets.viewer import napari_embed
 from lfm_studio.widgets.viewer.display_data import (
     DEFAULT_MAX_VOXELS_3D,
@@ -95,7 +96,7 @@ class PSFViewer(QWidget):
         self._info = QLabel("")
         self._info.setStyleSheet("QLabel { color: gray; }")
         layout.addWidget(self._info)
-        self._stale_marks: dict[str, str] = {}
+        self._stale_marks: dict[str, StaleMark] = {}
         self._stale = QLabel()  # over the view: the shown layer no longer matches the design
         self._stale.setObjectName("staleBanner")
         self._stale.setWordWrap(True)
@@ -144,12 +145,14 @@ class PSFViewer(QWidget):
         """The banner over the view (the shown layer's stale mark), or None when it shows a fresh result."""
         return self._stale.text() if not self._stale.isHidden() else None
 
-    def set_stale_marks(self, marks: dict[str, str]) -> None:
-        """Marks per layer name (e.g. ``{"PSF": "stale: shows the previous design; PSF failed: ..."}``).
+    def set_stale_marks(self, marks: dict[str, StaleMark]) -> None:
+        """Marks per layer name (e.g. ``{"PSF": StaleMark("stale: shows the previous design; PSF failed: ...", "failed")}``).
 
         The shown layer's mark appears as a banner over the view; layers not in ``marks`` are fresh.
         """
-        self._stale_marks = {str(name): str(text) for name, text in marks.items() if text}
+        self._stale_marks = {
+            str(name): mark for name, mark in marks.items() if mark is not None and mark.text
+        }
         self._update_stale()
 
     def show_display(self, shown: DisplayData) -> None:
@@ -281,18 +284,18 @@ class PSFViewer(QWidget):
 
     def _update_stale(self) -> None:
         focused = None if self._closed else self._scene.focused
-        text = self._stale_marks.get(focused) if focused is not None else None
-        failed = text is not None and ("failed" in text or "cancelled" in text)
-        colours = ("#f8d7da", "#842029") if failed else ("#fff3cd", "#664d03")
-        self._stale.setStyleSheet(
-            f"QLabel {{ background: {colours[0]}; color: {colours[1]}; font-weight: bold; padding: 4px; "
-            f"border-left: 6px solid {colours[1]}; }}"
-        )
-        self._stale.setText(f"{focused}: {text}" if text else "")
+        mark = self._stale_marks.get(focused) if focused is not None else None
+        if mark is not None:
+            background, colour = mark.colours
+            self._stale.setStyleSheet(
+                f"QLabel {{ background: {background}; color: {colour}; font-weight: bold; padding: 4px; "
+                f"border-left: 6px solid {colour}; }}"
+            )
+        self._stale.setText(f"{focused}: {mark.text}" if mark is not None else "")
         self._stale.setToolTip("The view shows an out-of-date result; it updates when a fresh one arrives.")
-        self._stale.setVisible(text is not None)
+        self._stale.setVisible(mark is not None)
         if self.backend == "napari" and not self._closed:
-            self._scene.set_stale_note(_short_note(text))
+            self._scene.set_stale_note(mark.short if mark is not None else "")
 
     def _build_toolbar(self) -> QHBoxLayout:
         bar = QHBoxLayout()
@@ -381,18 +384,6 @@ class PSFViewer(QWidget):
         shown = self._scene.shown(self._scene.focused)
         self._info.setText(describe(shown, stretched=self.backend == "napari") if shown is not None else "")
         self._update_stale()
-
-
-def _short_note(mark: str | None) -> str:
-    """The canvas read-out's short form of a stale mark (the banner above has the whole text)."""
-    if not mark:
-        return ""
-    if mark.startswith("quick preview"):  # the current design, coarse: not stale
-        return "PREVIEW (full PSF computing)" if "recomputing" in mark else "PREVIEW"
-    for word in ("failed", "cancelled", "recomputing"):
-        if word in mark:
-            return f"STALE ({word})"
-    return "STALE"
 
 
 def _toggle(text: str, tip: str) -> QPushButton:

@@ -25,6 +25,7 @@ from lfm_studio.ui.results import JobStatus
 from lfm_studio.ui.stale_marks import StaleMarks, metrics_mark, stage_mark
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.psf_viewer import PSFViewer
+from lfm_studio.widgets.stale_mark import StaleMark
 from tests.ui.conftest import collect_widgets
 from tests.ui.standins import FakeMLAEditor, small_fourier_design
 
@@ -41,25 +42,27 @@ def test_marks_follow_staleness_jobs_and_results(design):
     state = StudioState(design)
     assert stage_mark(state, "psf") is None  # nothing shown, nothing failed: nothing to mark
     state.set_job(JobStatus("psf", "failed", message="failed: disk full"))
-    assert stage_mark(state, "psf") == "PSF failed: disk full"  # nothing shown, but the failure is said
+    assert stage_mark(state, "psf").text == "PSF failed: disk full"  # nothing shown, but the failure is said
     state.set_psf(SimpleNamespace(design=design))
     state.mark_fresh("psf")
     assert stage_mark(state, "psf") is None and metrics_mark(state) is None  # fresh
     state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
     assert state.stale == {"psf", "image", "reconstruction"}
-    assert stage_mark(state, "psf") == "stale: shows the previous design; PSF failed: disk full"
+    assert stage_mark(state, "psf").text == "stale: shows the previous design; PSF failed: disk full"
     state.set_job(JobStatus("psf", "running", 1, 4, "lenslet 1/4", generation=2))
-    assert stage_mark(state, "psf") == "stale: shows the previous design; recomputing…"
-    assert metrics_mark(state) == "formula estimates only: measured values wait for the PSF (recomputing…)"
+    assert stage_mark(state, "psf").text == "stale: shows the previous design; recomputing…"
+    assert (
+        metrics_mark(state).text == "formula estimates only: measured values wait for the PSF (recomputing…)"
+    )
     state.set_job(JobStatus("psf", "cancelled", generation=2))
-    assert stage_mark(state, "psf") == "stale: shows the previous design; PSF cancelled"
-    assert metrics_mark(state) == "formula estimates only: PSF cancelled"
+    assert stage_mark(state, "psf").text == "stale: shows the previous design; PSF cancelled"
+    assert metrics_mark(state).text == "formula estimates only: PSF cancelled"
     state.set_preview(SimpleNamespace(design=state.design))  # the new design's quick preview
     state.set_job(JobStatus("psf", "running", generation=3))
-    assert stage_mark(state, "psf") == "quick preview of this design; full PSF: recomputing…"
+    assert stage_mark(state, "psf").text == "quick preview of this design; full PSF: recomputing…"
     assert stage_mark(state, "image") is None  # no image shown
     state.set_image(SimpleNamespace(design=design))
-    assert stage_mark(state, "image") == "stale: made with the previous design or settings"
+    assert stage_mark(state, "image").text == "stale: made with the previous design or settings"
     with pytest.raises(ValueError, match="stage must be one of"):
         stage_mark(state, "metrics")
 
@@ -69,7 +72,7 @@ class _MarkRecorder:
         self.marks: dict[str, str] = {}
 
     def set_stale_marks(self, marks):
-        self.marks = dict(marks)
+        self.marks = {layer: mark.text for layer, mark in marks.items()}
 
 
 def test_image_and_reconstruction_marks_reach_their_layers_and_the_convergence_plot(qtbot, design):
@@ -184,13 +187,28 @@ def test_a_failed_psf_leaves_the_previous_one_marked_stale_until_a_fresh_one(
         collect_widgets()
 
 
-def test_the_canvas_calls_a_preview_of_the_current_design_a_preview_not_stale():
-    from lfm_studio.widgets.psf_viewer import _short_note
-
-    assert (
-        _short_note("quick preview of this design; full PSF: recomputing…") == "PREVIEW (full PSF computing)"
+def test_marks_carry_their_colour_and_short_form_from_the_job_state_not_from_the_text(design):
+    state = StudioState(design)
+    state.set_preview(SimpleNamespace(design=design))  # the current design's quick preview is shown
+    state.mark_stale("psf")
+    # An error message full of the words a text search would look for changes nothing.
+    state.set_job(JobStatus("psf", "failed", message="failed: cancelled while recomputing"))
+    mark = stage_mark(state, "psf")
+    assert mark.text == "quick preview of this design; full PSF: PSF failed: cancelled while recomputing"
+    assert (mark.preview, mark.activity, mark.short) == (True, "failed", "PREVIEW (full PSF failed)")
+    assert mark.colours == StaleMark("x", "failed").colours != StaleMark("x").colours
+    state.set_job(JobStatus("psf", "running", message="failed earlier"))
+    mark = stage_mark(state, "psf")
+    assert (mark.activity, mark.short, mark.colours) == (
+        "recomputing",
+        "PREVIEW (full PSF computing)",
+        StaleMark("x").colours,
     )
-    assert _short_note("quick preview of this design; full PSF: not computed yet") == "PREVIEW"
-    assert _short_note("stale: shows the previous design; recomputing…") == "STALE (recomputing)"
-    assert _short_note("stale: shows the previous design; PSF failed: boom") == "STALE (failed)"
-    assert _short_note(None) == ""
+
+
+def test_the_canvas_calls_a_preview_of_the_current_design_a_preview_not_stale():
+    assert StaleMark("quick preview…", "recomputing", preview=True).short == "PREVIEW (full PSF computing)"
+    assert StaleMark("quick preview…", preview=True).short == "PREVIEW"
+    assert StaleMark("stale: …", "recomputing").short == "STALE (recomputing)"
+    assert StaleMark("stale: …", "failed").short == "STALE (failed)"
+    assert StaleMark("stale: …").short == "STALE"
