@@ -1,0 +1,149 @@
+"""Training data on the fly from the forward model: seeded phantoms imaged at a photon budget.
+
+A sample is a phantom volume (beads, cell-like spheres, or either at random), scaled so that
+its image holds a chosen number of photons, imaged through a projector with Poisson shot
+noise and Gaussian read noise, in photons (counts already converted:
+:func:`~lfm_studio.engine.io.counts_to_photons`); not clipped at 0, so the read noise stays
+unbiased (models that need non-negative data clip it themselves). The truth is the phantom in photons per
+voxel (the unit Richardson-Lucy reconstructs in).
+
+Seeds: sample ``i`` of split ``s`` of a spec with seed ``S`` uses the seed
+``S * 3_000_003 + SPLIT_OFFSET[s] + i`` with offsets 0, 1_000_001 and 2_000_002, so the
+train, validation and test sets never share a phantom while ``i < 1_000_001``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import torch
+
+from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
+
+Split = Literal["train", "validation", "test"]
+SPLIT_OFFSET: dict[str, int] = {"train": 0, "validation": 1_000_001, "test": 2_000_002}
+SPLIT_SIZE = 1_000_001  # samples per split before seeds would overlap
+
+
+@dataclass(frozen=True)
+class TrainingDataSpec:
+    """What the training phantoms and images look like.
+
+    Attributes
+    ----------
+    phantoms : ``"beads"``, ``"cells"`` or ``"mix"`` (each sample picks one at random).
+    objects : (min, max) number of beads or cells per volume (drawn uniformly; fewer when
+        they do not fit).
+    brightness : (min, max) relative peak brightness of an object (cells: per cell; beads:
+        one value per volume).
+    photons : expected photons in each image (one drawn per sample), e.g. ``(1e4, 1e5, 1e6)``.
+    read_noise : camera read noise in photo-electrons (standard deviation per pixel).
+    seed : base seed of the whole data set (see the module docstring for the split seeds).
+    """
+
+    phantoms: Literal["beads", "cells", "mix"] = "mix"
+    objects: tuple[int, int] = (4, 24)
+    brightness: tuple[float, float] = (0.3, 1.0)
+    photons: tuple[float, ...] = (1e4, 1e5, 1e6)
+    read_noise: float = 1.0
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.phantoms not in ("beads", "cells", "mix"):
+            raise ValueError(f"phantoms must be 'beads', 'cells' or 'mix'; got {self.phantoms!r}.")
+        low, high = self.objects
+        if not 1 <= low <= high:
+            raise ValueError(f"objects must be (min, max) with 1 <= min <= max; got {self.objects!r}.")
+        if not (0 < self.brightness[0] <= self.brightness[1]):
+            raise ValueError(f"brightness must be (min, max) with 0 < min <= max; got {self.brightness!r}.")
+        if not self.photons or any(not (p > 0 and math.isfinite(p)) for p in self.photons):
+            raise ValueError(f"photons must be positive photon counts per image; got {self.photons!r}.")
+        if not self.read_noise >= 0:
+            raise ValueError(f"read_noise must be >= 0 photo-electrons; got {self.read_noise!r}.")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form (stored in checkpoints)."""
+        return {
+            **asdict(self),
+            "objects": list(self.objects),
+            "brightness": list(self.brightness),
+            "photons": list(self.photons),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainingDataSpec:
+        """Inverse of :meth:`to_dict`."""
+        return cls(**{**data, "objects": tuple(data["objects"]), "brightness": tuple(data["brightness"]),
+                      "photons": tuple(data["photons"])})  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Sample:
+    """One training pair: ``image (Py, Px)`` in photons and ``truth (Z, Vy, Vx)`` in photons per voxel."""
+
+    image: torch.Tensor
+    truth: torch.Tensor
+    photons: float
+    phantom: str
+    seed: int
+
+
+def sample_seed(spec: TrainingDataSpec, split: Split, index: int) -> int:
+    """The seed of sample ``index`` of ``split`` (disjoint between splits, see the module docstring)."""
+    if split not in SPLIT_OFFSET:
+        raise ValueError(f"split must be one of {list(SPLIT_OFFSET)}; got {split!r}.")
+    if not 0 <= index < SPLIT_SIZE:
+        raise ValueError(f"index must be in [0, {SPLIT_SIZE}); got {index!r}.")
+    return spec.seed * 3 * SPLIT_SIZE + SPLIT_OFFSET[split] + index
+
+
+def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) -> Sample:
+    """Sample ``index`` of ``split`` imaged through ``setup`` (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
+
+    Deterministic: the same spec, setup, split and index give the same sample. ``setup`` may
+    differ from the one a model reconstructs with (optics-mismatch augmentation: image through
+    a jittered design's setup, see :func:`lfm_studio.engine.learned.mismatch.jittered_designs`).
+    """
+    seed = sample_seed(spec, split, index)
+    generator = torch.Generator().manual_seed(seed)
+    kind = spec.phantoms
+    if kind == "mix":
+        kind = "beads" if torch.rand((), generator=generator) < 0.5 else "cells"
+    count = int(torch.randint(spec.objects[0], spec.objects[1] + 1, (), generator=generator))
+    low, high = spec.brightness
+    projector = setup.projector
+    shape, voxel = tuple(setup.volume_shape), tuple(setup.voxel_size)
+    if kind == "beads":
+        level = low + (high - low) * float(torch.rand((), generator=generator))
+        volume = beads(shape, count=count, voxel_size=voxel, seed=seed, allow_fewer=True).data * level
+    else:
+        semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
+        cell = min(3e-6, 0.25 * min(semi))
+        volume = cells_in_ellipsoid(
+            shape, voxel_size=voxel, seed=seed, semi_axes=semi, count=count,
+            cell_semi_axes=(cell, cell, cell), brightness=(low, high),
+        ).data  # fmt: skip
+    volume = volume.to(dtype=torch.float32)
+    with torch.no_grad():
+        expected = projector.forward(volume.to(_projector_dtype(projector))).clamp_min(0.0).float()
+    photons = float(spec.photons[int(torch.randint(len(spec.photons), (), generator=generator))])
+    total = float(expected.double().sum())
+    scale = photons / total if total > 0 else 0.0
+    image = torch.poisson(expected * scale, generator=generator)
+    if spec.read_noise > 0:
+        image = image + spec.read_noise * torch.randn(image.shape, generator=generator)
+    return Sample(image, volume * scale, photons, kind, seed)
+
+
+def _projector_dtype(projector: Any) -> torch.dtype:
+    dtype = getattr(projector, "dtype", None)
+    return dtype if isinstance(dtype, torch.dtype) else torch.float32
+
+
+def make_samples(
+    spec: TrainingDataSpec, setup: Any, split: Split, count: int, start: int = 0
+) -> list[Sample]:
+    """Samples ``start .. start + count - 1`` of ``split``."""
+    return [make_sample(spec, setup, split, start + i) for i in range(count)]

@@ -1,0 +1,48 @@
+"""The learned reconstructors: unrolled Richardson-Lucy (default), MultiWienerNet, blind U-Net.
+
+Each is a ``torch.nn.Module`` built as ``Model(projector, **config)``; ``forward(image)`` maps a
+camera image ``(Py, Px)`` in photons to a volume ``(Z, Vy, Vx)`` in photons per voxel on the
+projector's grid. The projector is not a parameter: a checkpoint stores the weights and the
+config, and is rebuilt on the same design (:mod:`lfm_studio.engine.learned.checkpoint`).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.learned.models.multiwiener import MultiWienerNet
+from lfm_studio.engine.learned.models.unet import BlindUNet
+from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
+
+MODELS: dict[str, type[torch.nn.Module]] = {
+    "unrolled-rl": UnrolledRL,
+    "multiwiener": MultiWienerNet,
+    "unet": BlindUNet,
+}
+"""Model name -> class (``lfm-studio train --model``)."""
+DEFAULT_MODEL = "unrolled-rl"
+
+
+def build_model(name: str, projector: Any, **config: Any) -> torch.nn.Module:
+    """``MODELS[name](projector, **config)``, or a ValueError naming the choices."""
+    if name not in MODELS:
+        raise ValueError(f"model must be one of {sorted(MODELS)}; got {name!r}. Fix: e.g. {DEFAULT_MODEL!r}.")
+    return MODELS[name](projector, **config)
+
+
+def parameter_count(model: torch.nn.Module) -> int:
+    """Number of trainable scalars."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+__all__ = [
+    "DEFAULT_MODEL",
+    "MODELS",
+    "BlindUNet",
+    "MultiWienerNet",
+    "UnrolledRL",
+    "build_model",
+    "parameter_count",
+]

@@ -1,0 +1,240 @@
+"""Training a learned reconstructor from a design's own forward model.
+
+:func:`train` draws training samples one per step (:mod:`.data`, train split), fits with Adam
+on :func:`~.losses.training_loss`, scores a fixed validation set (validation split, disjoint
+seeds) every ``validate_every`` steps, keeps the best weights, and stops at ``max_steps``, at
+the time budget, after ``patience`` validations without improvement, or when cancelled
+(then the best weights so far are returned and the checkpoint on disk is the last good one).
+Torch runs on ``threads`` threads during training (default 1: small convolutions ran 5-40x
+slower on 2 threads on the 2-core development machine, docs/platform.md) and the caller's
+setting is restored afterwards.
+
+A run that ends with a trivial model (all-zero, constant or non-finite output on the
+validation set) is refused with a ValueError and writes no checkpoint.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.image_quality import ncc
+from lfm_studio.engine.learned.checkpoint import (
+    CheckpointHeader,
+    header_for,
+    read_checkpoint,
+    save_checkpoint,
+)
+from lfm_studio.engine.learned.data import Sample, TrainingDataSpec, make_sample, make_samples
+from lfm_studio.engine.learned.losses import require_not_trivial, training_loss, trivial_reason
+from lfm_studio.engine.learned.models import DEFAULT_MODEL, build_model, parameter_count
+from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
+from lfm_studio.engine.threads import torch_threads
+
+
+@dataclass
+class TrainingResult:
+    """A trained model and how it got there.
+
+    Attributes
+    ----------
+    model : the model with its best validation weights, in eval mode.
+    header : the checkpoint header (also written when ``checkpoint`` was given).
+    history : ``(step, training loss, validation loss or NaN)`` per step.
+    stop_reason : "steps", "time budget", "early stopping" or "cancelled".
+    """
+
+    model: torch.nn.Module
+    header: CheckpointHeader
+    history: list[tuple[int, float, float]] = field(default_factory=list)
+    stop_reason: str = ""
+
+
+def validation_loss(model: torch.nn.Module, samples: list[Sample], high_pass_weight: float) -> float:
+    """Mean :func:`training_loss` of ``model`` over ``samples`` (no gradients)."""
+    with torch.no_grad():
+        losses = [float(training_loss(model(s.image), s.truth, high_pass_weight)) for s in samples]
+    return sum(losses) / len(losses)
+
+
+def validation_ncc(model: torch.nn.Module, samples: list[Sample]) -> float:
+    """Mean normalised cross-correlation of ``model``'s volumes with the truths (1 = perfect, 0 = unrelated)."""
+    with torch.no_grad():
+        values = [float(ncc(s.truth, require_not_trivial(model(s.image), "the trained model's output")))
+                  for s in samples]  # fmt: skip
+    return sum(values) / len(values)
+
+
+def train(
+    setup: Any,
+    *,
+    model: str = DEFAULT_MODEL,
+    config: dict[str, Any] | None = None,
+    data: TrainingDataSpec | None = None,
+    budget_minutes: float = 10.0,
+    max_steps: int | None = None,
+    learning_rate: float = 1e-3,
+    high_pass_weight: float = 1.0,
+    validation_size: int = 8,
+    validate_every: int = 10,
+    patience: int = 10,
+    seed: int = 0,
+    design_hash: str | None = None,
+    depths: tuple[float, ...] = (),
+    checkpoint: str | os.PathLike | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    threads: int = 1,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+    clock: Callable[[], float] = time.monotonic,
+) -> TrainingResult:
+    """Train ``model`` for ``setup`` (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
+
+    Parameters
+    ----------
+    model, config : model name and keyword config (:func:`~.models.build_model`).
+    data : training data spec (default :class:`TrainingDataSpec` with ``seed``).
+    budget_minutes : wall-clock budget (the run stops after the step that crosses it).
+    max_steps : stop after this many steps (deterministic runs: tests, benchmarks).
+    validate_every, validation_size, patience : validation schedule and early stopping.
+    design_hash, depths : what the checkpoint header records (the design's optics hash, PSF depths in m).
+    checkpoint : file to write the best model to (atomic; refused if it exists, unless
+        ``overwrite`` or ``resume``); with ``resume`` its weights and step count are the start.
+    threads : torch threads during training.
+    progress, cancel : ``progress(step, total, message)`` and a cancel token.
+    """
+    if not (budget_minutes > 0 and math.isfinite(budget_minutes)):
+        raise ValueError(f"budget_minutes must be a positive number of minutes; got {budget_minutes!r}.")
+    if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
+        raise ValueError(f"max_steps must be an integer >= 1 or None; got {max_steps!r}.")
+    data = data if data is not None else TrainingDataSpec(seed=seed)
+    target = Path(checkpoint).expanduser() if checkpoint is not None else None
+    if target is not None and target.exists() and not (overwrite or resume):
+        raise FileExistsError(
+            f"--out {target} already exists. Fix: pass --overwrite, --resume, or another name."
+        )
+    with torch_threads(threads):
+        torch.manual_seed(seed)
+        network = build_model(model, setup.projector, **(config or {}))
+        start, best = 0, math.inf
+        if resume and target is not None and target.exists():
+            previous, tensors = read_checkpoint(target)
+            if previous.model != model:
+                raise ValueError(f"--resume: {target} holds a {previous.model!r} model, not {model!r}.")
+            network.load_state_dict(tensors)
+            start = int(previous.training.get("steps", 0))
+            best = float(previous.training.get("best_validation", math.inf))
+        loop = _Loop(
+            network, setup, data, model_name=model, design_hash=design_hash, depths=depths, seed=seed,
+            high_pass_weight=high_pass_weight, validation_size=validation_size, target=target,
+        )  # fmt: skip
+        history, reason = loop.run(
+            start=start, best=best, budget_s=60.0 * budget_minutes, max_steps=max_steps,
+            learning_rate=learning_rate, validate_every=validate_every, patience=patience,
+            progress=progress, cancel=cancel, clock=clock,
+        )  # fmt: skip
+        if reason == "cancelled":
+            raise CancelledError(
+                "training cancelled (the checkpoint file holds the last validated best, if any)"
+            )
+        header = loop.finish(history[-1][0] if history else start, reason)
+    return TrainingResult(network, header, history, reason)
+
+
+class _Loop:
+    """One training run's state: the network, its validation set and the checkpoint it writes."""
+
+    def __init__(self, network, setup, data, *, model_name, design_hash, depths, seed, high_pass_weight,
+                 validation_size, target) -> None:  # fmt: skip
+        self.network, self.setup, self.data = network, setup, data
+        self.model_name, self.design_hash, self.depths, self.seed = model_name, design_hash, depths, seed
+        self.high_pass_weight, self.target = high_pass_weight, target
+        self.validation = make_samples(data, setup, "validation", validation_size)
+        self.best = math.inf
+        self.best_state = copy.deepcopy(network.state_dict())
+        self.seconds = 0.0
+
+    def run(self, *, start, best, budget_s, max_steps, learning_rate, validate_every, patience, progress,
+            cancel, clock) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
+        """Steps until ``max_steps``, the budget, early stopping or cancel; returns (history, stop reason)."""
+        network = self.network
+        optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
+        history: list[tuple[int, float, float]] = []
+        began, since_best, reason, step = clock(), 0, "steps", start
+        self.best = best
+        if math.isinf(best):  # the starting point is the first candidate: training never ends worse
+            self.network.eval()
+            self.best = validation_loss(network, self.validation, self.high_pass_weight)
+        total = max_steps if max_steps is not None else 0
+        while max_steps is None or step - start < max_steps:
+            if clock() - began >= budget_s:
+                reason = "time budget"
+                break
+            if is_cancelled(cancel):
+                reason = "cancelled"
+                break
+            sample = make_sample(self.data, self.setup, "train", step)
+            network.train()
+            optimiser.zero_grad()
+            loss = training_loss(network(sample.image), sample.truth, self.high_pass_weight)
+            loss.backward()
+            optimiser.step()
+            value = float(loss.detach())
+            step += 1
+            checked = math.nan
+            if (step - start) % validate_every == 0 or step - start == max_steps:
+                checked = self._validate(step, clock() - began)
+                since_best = 0 if checked <= self.best else since_best + 1
+            history.append((step, value, checked))
+            if progress is not None:
+                shown = "" if math.isnan(checked) else f", validation {checked:.4f}"
+                progress(step - start, total, f"step {step}: loss {value:.4f}{shown}")
+            if since_best >= patience:
+                reason = "early stopping"
+                break
+        self.seconds = clock() - began
+        return history, reason
+
+    def _validate(self, step: int, seconds: float) -> float:
+        """Validation loss now; a new best is kept (and checkpointed when it is not trivial)."""
+        self.network.eval()
+        checked = validation_loss(self.network, self.validation, self.high_pass_weight)
+        if checked < self.best:
+            self.best = checked
+            self.best_state = copy.deepcopy(self.network.state_dict())
+            if (
+                self.target is not None
+                and trivial_reason(self.network(self.validation[0].image).detach()) is None
+            ):
+                save_checkpoint(
+                    self.target, self.network, self._header(step, seconds, "running"), overwrite=True
+                )
+        return checked
+
+    def _header(self, steps: int, seconds: float, reason: str, metrics: dict[str, Any] | None = None):
+        training = {"steps": steps, "seconds": seconds, "seed": self.seed, "best_validation": self.best,
+                    "stop_reason": reason, "parameters": parameter_count(self.network),
+                    "zero_floor": 1.0 + self.high_pass_weight}  # fmt: skip
+        return header_for(self.model_name, self.network.config, self.setup, self.design_hash, self.depths,
+                          data=self.data.to_dict(), training=training, metrics=metrics or {})  # fmt: skip
+
+    def finish(self, steps: int, reason: str) -> CheckpointHeader:
+        """Best weights back in the network, refuse a trivial model, write the final checkpoint."""
+        self.network.load_state_dict(self.best_state)
+        self.network.eval()
+        if math.isinf(self.best):
+            self.best = validation_loss(self.network, self.validation, self.high_pass_weight)
+        score = validation_ncc(self.network, self.validation)  # refuses a trivial model
+        header = self._header(steps, self.seconds, reason, {"validation_ncc": score})
+        if self.target is not None:
+            save_checkpoint(self.target, self.network, header, overwrite=True)
+        return header

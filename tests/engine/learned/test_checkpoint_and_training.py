@@ -1,0 +1,113 @@
+"""Checkpoints (safetensors + header, refusals) and training runs (floors, resume, cancel, collapse)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from lfm_studio.engine.image_quality import ncc
+from lfm_studio.engine.learned import models as model_registry
+from lfm_studio.engine.learned.checkpoint import header_for, load_model, save_checkpoint
+from lfm_studio.engine.learned.data import TrainingDataSpec, make_samples
+from lfm_studio.engine.learned.losses import trivial_reason
+from lfm_studio.engine.learned.models import build_model
+from lfm_studio.engine.learned.models.common import adjoint_normaliser
+from lfm_studio.engine.learned.train import train
+from lfm_studio.engine.progress import CancelledError
+
+DATA = TrainingDataSpec(seed=1)
+
+
+def _perturbed(setup, name="unrolled-rl"):
+    torch.manual_seed(3)
+    model = build_model(name, setup.projector)
+    with torch.no_grad():
+        for parameter in model.parameters():
+            parameter.add_(0.01 * torch.randn_like(parameter))
+    return model
+
+
+def test_a_checkpoint_round_trips_and_refuses_another_design_or_sampling(fourier, conventional, tmp_path):
+    model = _perturbed(fourier.setup)
+    header = header_for(
+        "unrolled-rl", model.config, fourier.setup, "a" * 64, fourier.stack.depths, data=DATA.to_dict()
+    )
+    path = save_checkpoint(tmp_path / "m.safetensors", model, header)
+    loaded, read = load_model(path, fourier.setup, design_hash="a" * 64, depths=fourier.stack.depths)
+    image = make_samples(DATA, fourier.setup, "test", 1)[0].image
+    with torch.no_grad():
+        assert torch.equal(loaded(image), model(image))  # same weights, same code path
+    assert read.data == DATA.to_dict() and read.depths == header.depths
+    with pytest.raises(ValueError, match="trained for another design"):
+        load_model(path, fourier.setup, design_hash="b" * 64)
+    with pytest.raises(ValueError, match="trained for volume_shape"):
+        load_model(path, conventional.setup)
+    with pytest.raises(ValueError, match="trained for depths"):
+        load_model(path, fourier.setup, depths=fourier.stack.depths[:-1])
+    with pytest.raises(FileExistsError):
+        save_checkpoint(path, model, header)
+
+
+def test_foreign_files_are_named(tmp_path, fourier):
+    junk = tmp_path / "junk.safetensors"
+    junk.write_bytes(b"not a checkpoint at all")
+    with pytest.raises(ValueError, match="not a safetensors file"):
+        load_model(junk, fourier.setup)
+    bare = tmp_path / "bare.safetensors"
+    save_file({"w": torch.zeros(2)}, str(bare))
+    with pytest.raises(ValueError, match="no lfm_studio header"):
+        load_model(bare, fourier.setup)
+    with pytest.raises(FileNotFoundError, match="no such checkpoint"):
+        load_model(tmp_path / "missing.safetensors", fourier.setup)
+
+
+def test_a_short_training_beats_the_back_projection_floor_and_is_not_trivial(fourier, tmp_path):
+    setup = fourier.setup
+    result = train(setup, data=DATA, max_steps=30, validate_every=10, checkpoint=tmp_path / "m.safetensors")
+    test = make_samples(DATA, setup, "test", 4)
+    norm = adjoint_normaliser(setup.projector)
+    with torch.no_grad():
+        trained = [float(ncc(s.truth, result.model(s.image))) for s in test]
+        floor = [float(ncc(s.truth, setup.projector.adjoint(s.image) / norm)) for s in test]
+        assert all(trivial_reason(result.model(s.image)) is None for s in test)
+    assert min(t - f for t, f in zip(trained, floor, strict=True)) > 0.1, (trained, floor)
+    assert result.header.training["steps"] == 30 and result.stop_reason == "steps"
+    assert result.header.training["best_validation"] < result.header.training["zero_floor"]
+    reloaded, _ = load_model(tmp_path / "m.safetensors", setup)
+    with torch.no_grad():
+        torch.testing.assert_close(reloaded(test[0].image), result.model(test[0].image))
+
+
+def test_resume_continues_from_the_checkpoint_and_cancel_leaves_it_intact(fourier, tmp_path):
+    path = tmp_path / "m.safetensors"
+    train(fourier.setup, data=DATA, max_steps=4, validate_every=2, checkpoint=path)
+    with pytest.raises(FileExistsError, match="already exists"):
+        train(fourier.setup, data=DATA, max_steps=2, checkpoint=path)
+    resumed = train(fourier.setup, data=DATA, max_steps=2, validate_every=2, checkpoint=path, resume=True)
+    assert [step for step, _, _ in resumed.history] == [5, 6] and resumed.header.training["steps"] == 6
+    before = path.read_bytes()
+    with pytest.raises(CancelledError):
+        train(fourier.setup, data=DATA, max_steps=2, checkpoint=path, resume=True, cancel=lambda: True)
+    assert path.read_bytes() == before
+
+
+class _Collapsing(torch.nn.Module):
+    """A "model" that can only answer zero: training must refuse it."""
+
+    def __init__(self, projector, **config):
+        super().__init__()
+        self.shape, self.config = tuple(projector.volume_shape), config
+        self.weight = torch.nn.Parameter(torch.zeros(()))
+
+    def forward(self, image):
+        return torch.zeros(self.shape) * self.weight
+
+
+def test_a_collapsed_model_is_refused_and_writes_nothing(fourier, tmp_path, monkeypatch):
+    monkeypatch.setitem(model_registry.MODELS, "collapsing", _Collapsing)
+    with pytest.raises(ValueError, match="all zero: a collapsed model"):
+        train(
+            fourier.setup, model="collapsing", data=DATA, max_steps=2, checkpoint=tmp_path / "m.safetensors"
+        )
+    assert not (tmp_path / "m.safetensors").exists()

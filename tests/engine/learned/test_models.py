@@ -1,0 +1,80 @@
+"""The three learned models against independent references: plain RL, the engine's Wiener filter, scale."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lfm_studio.engine.learned.data import TrainingDataSpec, make_sample
+from lfm_studio.engine.learned.losses import training_loss
+from lfm_studio.engine.learned.models import MODELS, build_model, parameter_count
+from lfm_studio.engine.reconstruct.wiener import wiener
+
+
+def _plain_rl(projector, image, iterations):
+    """Plain Richardson-Lucy from a flat start, written out here as the reference."""
+    y = image.clamp_min(0.0)
+    norm = projector.adjoint(torch.ones_like(y))
+    norm = norm.clamp_min(float(norm.max()) * 1e-6)
+    x = torch.full_like(norm, float(y.sum() / norm.sum()))
+    for _ in range(iterations):
+        x = x * projector.adjoint(y / projector.forward(x).clamp_min(torch.finfo(y.dtype).eps)) / norm
+    return x
+
+
+@pytest.fixture(scope="module")
+def sample(fourier):
+    return make_sample(TrainingDataSpec(seed=2, photons=(1e5,)), fourier.setup, "test", 0)
+
+
+@pytest.mark.parametrize("system", ["fourier", "conventional"])
+def test_an_untrained_unrolled_rl_is_plain_rl(system, request):
+    setup = request.getfixturevalue(system).setup64  # float64: the two paths differ only by rounding
+    image = make_sample(TrainingDataSpec(seed=1, photons=(1e5,)), setup, "test", 1).image.double()
+    model = build_model("unrolled-rl", setup.projector, iterations=4)
+    with torch.no_grad():
+        torch.testing.assert_close(model(image), _plain_rl(setup.projector, image, 4), rtol=1e-9, atol=1e-9)
+
+
+def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):
+    setup = fourier.setup64
+    image = make_sample(TrainingDataSpec(seed=1, photons=(1e5,)), setup, "test", 2).image.double()
+    model = build_model("multiwiener", setup.projector, snr=30.0)
+    with torch.no_grad():
+        stage = model._wiener(image)
+    reference = wiener(setup.projector, image, snr=30.0)
+    torch.testing.assert_close(stage, reference, rtol=1e-6, atol=1e-7 * float(reference.abs().max()))
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+@pytest.mark.parametrize("system", ["fourier", "conventional"])
+def test_every_model_maps_an_image_to_a_non_negative_volume_and_learns_through_every_parameter(
+    name, system, request
+):
+    setup = request.getfixturevalue(system).setup
+    sample = make_sample(TrainingDataSpec(seed=5, photons=(1e5,)), setup, "train", 0)
+    torch.manual_seed(0)
+    model = build_model(name, setup.projector)
+    assert parameter_count(model) <= 200_000
+    volume = model(sample.image)
+    assert volume.shape == tuple(setup.volume_shape) and float(volume.detach().min()) >= 0
+    training_loss(volume, sample.truth).backward()
+    missing = [n for n, p in model.named_parameters() if p.grad is None or not bool(p.grad.abs().sum() > 0)]
+    # Unrolled RL's first layers see a zero gradient until the zero-initialised last layers move.
+    if name == "unrolled-rl":
+        missing = [n for n in missing if not n.endswith(("inner.weight", "inner.bias"))]
+    assert missing == []
+
+
+@pytest.mark.parametrize("name", ["unrolled-rl", "multiwiener", "unet"])
+def test_models_answer_in_proportion_to_the_photon_count(fourier, sample, name):
+    torch.manual_seed(0)
+    model = build_model(name, fourier.setup.projector)
+    with torch.no_grad():
+        one, ten = model(sample.image), model(10.0 * sample.image)
+    torch.testing.assert_close(ten, 10.0 * one, rtol=1e-4, atol=1e-4 * float(ten.abs().max()))
+
+
+def test_unknown_model_is_named():
+    with pytest.raises(ValueError, match="model must be one of"):
+        build_model("vcd-net", None)
