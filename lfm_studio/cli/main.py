@@ -20,6 +20,7 @@ from lfm_studio.cli.metrics import add_metrics_parser
 from lfm_studio.cli.reconstruct import add_reconstruct_parsers
 from lfm_studio.cli.resolution import add_resolution_parser
 from lfm_studio.cli.simulate import add_simulate_parsers
+from lfm_studio.cli.train import add_train_parser
 from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
 
@@ -60,6 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_parser(sub)
     add_resolution_parser(sub)
     add_calibrate_parser(sub)
+    add_train_parser(sub)
     return parser
 
 

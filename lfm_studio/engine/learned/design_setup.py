@@ -1,0 +1,22 @@
+"""The imaging set-up a learned model trains and runs on, and the identity it records.
+
+Training simulates the design's PSF stack (or takes one read from a file) and builds the
+projector with :func:`~lfm_studio.engine.simulation.imaging_setup`, exactly as ``lfm-studio
+reconstruct --psf`` does, so a checkpoint trained from a design runs on that design's PSF file.
+The identity is the design's optics hash (None for a PSF without a design) and the PSF depths.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lfm_studio.engine.design.hashing import optics_hash
+from lfm_studio.engine.psf_stack import PSFStack
+
+
+def stack_identity(stack: PSFStack) -> tuple[str | None, tuple[float, ...]]:
+    """``(design optics hash or None, depths in m)`` of a PSF stack."""
+    design: Any = stack.design
+    return (optics_hash(design) if design is not None and hasattr(design, "model_dump") else None), tuple(
+        stack.depths
+    )
