@@ -20,7 +20,6 @@ from torch import nn
 
 from lfm_studio.engine.learned.models.common import adjoint_normaliser, image_scale, projector_dtype
 
-
 EXPONENT_RATE = 10.0
 """The exponent is ``exp(EXPONENT_RATE * p)`` for a parameter ``p`` started at 0: an Adam step of
 about the learning rate then moves the exponent by about ten times as much as a convolution
