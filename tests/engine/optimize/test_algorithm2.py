@@ -6,10 +6,15 @@ import math
 import threading
 
 import pytest
+import torch
 
 from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.mla import mla_transmission
+from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
+from lfm_studio.engine.optimize.algorithm1 import concatenate, mask_coordinates
 from lfm_studio.engine.optimize.algorithm2 import algorithm2
-from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, Block, MLAPlane, orbit
+from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, Block, MLAPlane, merge, orbit
 from lfm_studio.engine.performance import closed_form_metrics
 from lfm_studio.engine.progress import CancelledError
 
@@ -177,3 +182,45 @@ def test_bad_arguments(xlfm, plane):
         algorithm2(xlfm, central_aperture, plane=plane, direction="up")
     result = algorithm2(xlfm, central_aperture, min_lenslet_um=4000.0, sizes=[2])
     assert result.blocks == (Block(1, 1, 2),) and math.isclose(result.score, 8000.0)
+
+
+# ----- Algorithm 1: the literal concatenation agrees with the engine's MLA element -----
+
+
+@pytest.mark.parametrize("shape", ["circle", "square"])
+def test_algorithm1_matches_the_engine_mla_transmission(shape):
+    # 5 x 5 cells of 50 um, 7 pixels each: K = 35 (odd), so the mask's pixel centres are the
+    # engine Grid's and no pixel centre falls on a lenslet edge or rim.
+    small = MLAPlane(50.0, 5, 400.0, (5.0, 6.0), shape)
+    blocks, reason = merge(small.initial_blocks(), [Block(0, 0, 2), Block(2, 2, 3)])
+    assert reason == "" and {b.size for b in blocks} == {1, 2, 3}
+    assert {small.focal_length_mm(b) for b in blocks} == {5.0, 6.0}
+    mask = concatenate(small, blocks, pixels_per_cell=7, wavelength_nm=500.0, refractive_index=1.0)
+    pixel = 50e-6 / 7
+    grid = Grid(35, pixel)
+    assert torch.allclose(mask_coordinates(small, 7), grid.axes(dtype=torch.float64)[1], atol=1e-15)
+    lenslets = tuple(
+        Lenslet(lens.center, lens.aperture_diameter, lens.focal_length, lens.shape)
+        for lens in small.lenslets(blocks)
+    )
+    engine = mla_transmission(MicrolensArray(lenslets), grid, 500e-9, dtype=torch.complex128)
+    assert torch.equal(mask != 0, engine != 0)  # the same pixels are inside the apertures
+    assert torch.allclose(mask, engine, atol=1e-9)
+    # Independent spot check: the 3 x 3-cell lenslet's centre pixel has phase 0, a pixel 10 away
+    # along x has -k (10 px)^2 / (2 f).
+    centre_row = centre_col = 2 * 7 + (3 * 7) // 2
+    assert mask[centre_row, centre_col] == pytest.approx(1.0)
+    k = 2 * math.pi / 500e-9
+    expected = -k * (10 * pixel) ** 2 / (2 * small.focal_length_mm(Block(2, 2, 3)) * 1e-3)
+    got = torch.angle(mask[centre_row, centre_col + 10]).item()
+    assert math.remainder(got - expected, 2 * math.pi) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_algorithm1_refuses_bad_input():
+    small = MLAPlane(50.0, 5, 400.0, (5.0,))
+    with pytest.raises(ValueError, match="pixels_per_cell"):
+        concatenate(small, small.initial_blocks(), pixels_per_cell=0, wavelength_nm=500.0)
+    with pytest.raises(ValueError, match="wavelength_nm"):
+        concatenate(small, small.initial_blocks(), pixels_per_cell=3, wavelength_nm=-1.0)
+    with pytest.raises(ValueError, match="blocks must be lenslets of the plane"):
+        concatenate(small, [Block(4, 4, 2)], pixels_per_cell=3, wavelength_nm=500.0)
