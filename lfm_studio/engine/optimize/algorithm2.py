@@ -71,7 +71,7 @@ class Candidate:
         ``{"size": d, "i": i, "j": j, "base": "current" | "last" | "initial"}``: the block
         tried (cells) and which layout it was merged into.
     blocks : tuple of Block
-        The candidate layout (empty when the merge itself was refused).
+        The candidate layout (empty when the merge was refused: outside the pupil or a conflict).
     score : float or None
         The score (None when infeasible).
     design : Design or None
@@ -129,6 +129,24 @@ def _evaluate(
     if not math.isfinite(value):
         return candidate, None, f"score is not finite ({value})", notes
     return candidate, value, "", notes
+
+
+def _propose(
+    plane: MLAPlane,
+    new: tuple[Block, ...],
+    current: tuple[Block, ...],
+    last: tuple[Block, ...],
+    symmetry: str,
+) -> tuple[str, tuple[Block, ...], str]:
+    """Lines 8-12: ``(base, layout, reason)`` of merging ``new`` (a block's orbit); ``reason`` '' if feasible."""
+    outside = next((reason for reason in map(plane.outside_reason, new) if reason), "")
+    if outside:
+        return "current", (), outside
+    blocks, reason = merge(current, new)
+    if reason.startswith("conflict") and symmetry == "none":
+        blocks, reason = merge(last, new)
+        return "last", blocks, reason
+    return "current", blocks, reason
 
 
 def _sizes(sizes: Iterable[int] | None, cells: int) -> list[int]:
@@ -237,11 +255,7 @@ def algorithm2(
                 checkpoint(cancel, progress, done, total, f"Algorithm 2: size {d}, position ({i}, {j})")
                 done += 1
                 new = orbit(Block(i, j, d), m, symmetry)
-                outside = next((r for r in map(plane.outside_reason, new) if r), "")
-                base, (blocks, reason) = "current", merge(current, new)
-                if not outside and reason.startswith("conflict") and symmetry == "none":
-                    base, (blocks, reason) = "last", merge(last, new)
-                reason = outside or reason
+                base, blocks, reason = _propose(plane, new, current, last, symmetry)
                 if not reason and (blocks in seen or blocks == current):
                     continue  # no change, or a layout already scored
                 params = {"size": d, "i": i, "j": j, "base": base}

@@ -96,7 +96,8 @@ def test_respects_symmetry_and_never_overlaps(xlfm, plane, symmetry):
         for k, a in enumerate(blocks):
             assert not any(a.overlaps(b) for b in blocks[k + 1 :]), candidate.params
         if candidate.reason:
-            assert candidate.score is None
+            assert candidate.score is None and not candidate.accepted
+            assert candidate.blocks == ()  # refused merges (pupil, conflicts) have no layout
         else:
             assert candidate.design.mla.count == len(blocks)  # lenslets = blocks, each inside the pupil
             assert all(not plane.outside_reason(b) for b in blocks)
