@@ -205,7 +205,7 @@ def algorithm2(
             "Fix: e.g. min_lenslet_um=2000."
         )
     if plane is None:
-        plane = MLAPlane.from_design(design, min_lenslet_um)
+        plane = MLAPlane.from_design(design, float(min_lenslet_um))  # type: ignore[arg-type]
     check_symmetry(symmetry)
     if direction not in ("maximize", "minimize"):
         raise ValueError(f"direction must be 'maximize' or 'minimize'; got {direction!r}.")
@@ -219,7 +219,9 @@ def algorithm2(
     def consider(blocks: tuple[Block, ...], params: dict, reason: str, best: float) -> float | None:
         """Score ``blocks`` (unless refused or already seen) and report it; the score or None."""
         start = time.perf_counter()
-        candidate, value, notes = None, None, ()
+        candidate: Design | None = None
+        value: float | None = None
+        notes: tuple[str, ...] = ()
         if not reason:
             seen.add(blocks)
             candidate, value, reason, notes = _evaluate(plane, design, blocks, score)

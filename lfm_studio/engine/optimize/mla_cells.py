@@ -41,6 +41,7 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
 from lfm_studio.engine.design import Design, DesignError, LensletSpec, MLASpec
+from lfm_studio.engine.design.lenslet import LensletShape
 
 SYMMETRIES = ("none", "mirror", "mirror-xy", "4-fold", "8-fold")
 _SLACK_UM = 1e-6  # a lenslet touching the pupil rim (rounding) is inside
@@ -159,7 +160,7 @@ class MLAPlane:
     cells: int
     pupil_diameter_um: float
     focal_lengths_mm: tuple[float, ...]
-    shape: str = "circle"
+    shape: LensletShape = "circle"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.cell_um) and self.cell_um > 0.0):
@@ -182,7 +183,7 @@ class MLAPlane:
         min_lenslet_um: float,
         *,
         focal_lengths_mm: Sequence[float] | None = None,
-        shape: str = "circle",
+        shape: LensletShape = "circle",
         plane_diameter_um: float | None = None,
     ) -> MLAPlane:
         """The plane of ``design`` cut into cells of ``min_lenslet_um`` micrometres.

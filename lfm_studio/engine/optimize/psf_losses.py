@@ -110,7 +110,7 @@ def mtf_support(
         raise ValueError(f"band must be > 0 cycles/pixel; got {band!r}. Fix: e.g. 0.5 (Nyquist).")
     if not (math.isfinite(softness) and softness >= 0.0):
         raise ValueError(f"softness must be >= 0; got {softness!r}. Fix: 0 (hard count) or e.g. 0.02.")
-    inside = band_mask(tuple(psf.shape[-2:]), band, psf.device)
+    inside = band_mask((psf.shape[-2], psf.shape[-1]), band, psf.device)
     values = mtf(psf)[:, inside]
     above = (
         (values > threshold).to(psf.dtype)
