@@ -83,7 +83,8 @@ class Candidate:
     seconds : float
         Wall time spent building and scoring it.
     warnings : tuple of str
-        Design warnings raised while building it (e.g. overlapping sub-images).
+        Warnings raised while building and scoring it (e.g. overlapping sub-images); they
+        are caught and kept here rather than shown once per candidate.
     """
 
     index: int
