@@ -153,6 +153,8 @@ def test_real_small_run_improves_a_closed_form_score(xlfm, plane):
     scored = [c.score for c in records if c.score is not None]
     assert result.score == max(scored)  # greedy acceptance keeps the best ever scored
     assert closed_form_score(result.design) == pytest.approx(result.score, rel=1e-12)
+    # 2 mm lenslets 2 mm apart: their 2.2 mm sub-images overlap, a design warning kept per candidate.
+    assert any("sub-images overlap" in note for note in initial.warnings)
     assert result.evaluated == len(scored) + sum(
         1 for c in records if c.design is not None and c.score is None
     )
