@@ -100,7 +100,11 @@ class Candidate:
 
 @dataclass(frozen=True)
 class Algorithm2Result:
-    """The best layout found: blocks, design and score, and how many candidates were scored."""
+    """The best layout found: blocks, design and score, and how many candidates were scored.
+
+    ``score`` is the best score (``-inf`` / ``inf`` for maximize / minimize when no
+    layout was feasible; ``design`` is then None); ``history`` lists the accepted scores.
+    """
 
     blocks: tuple[Block, ...]
     design: Design | None
@@ -118,9 +122,7 @@ def _evaluate(
         warnings.simplefilter("always")
         try:
             candidate = plane.design_with(design, blocks)
-        except DesignError as error:
-            return None, None, f"design refused: {error}", ()
-        except ValueError as error:  # pydantic.ValidationError wraps DesignError
+        except ValueError as error:  # DesignError, or pydantic's ValidationError wrapping one
             return None, None, f"design refused: {error}", ()
         try:
             value = float(score(candidate))
