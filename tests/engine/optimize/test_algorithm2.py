@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 import threading
+import warnings
 
 import pytest
 import torch
 
-from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.design import evolve, load_preset
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
@@ -227,3 +228,25 @@ def test_algorithm1_refuses_bad_input():
         concatenate(small, small.initial_blocks(), pixels_per_cell=3, wavelength_nm=-1.0)
     with pytest.raises(ValueError, match="blocks must be lenslets of the plane"):
         concatenate(small, [Block(4, 4, 2)], pixels_per_cell=3, wavelength_nm=500.0)
+
+
+def test_layouts_the_design_checks_refuse_are_recorded_and_never_scored(xlfm):
+    # An 11 mm sensor keeps the hand design (views within 5.5 mm) but not 1 mm cells centred
+    # 6.5 mm off the axis: their sub-images would be centred off the sensor (a DesignError).
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the hand design's outer sub-images are clipped
+        narrow = evolve(xlfm, "camera.pixel_count", (1700, 1700))
+    plane = MLAPlane.from_design(narrow, 1000.0)
+    calls, records = [], []
+    result = algorithm2(
+        narrow, lambda d: calls.append(d) or 1.0, plane=plane, sizes=[2], record=records.append
+    )
+    assert calls == []  # every layout still holds an off-sensor cell
+    assert (
+        records[0].reason.startswith("design refused") and "sub-images must be centred" in records[0].reason
+    )
+    assert (
+        result.design is None
+        and result.score == -math.inf
+        and result.evaluated == len(records) - sum(1 for c in records if c.blocks == ())
+    )
