@@ -231,12 +231,12 @@ def test_algorithm1_refuses_bad_input():
 
 
 def test_layouts_the_design_checks_refuse_are_recorded_and_never_scored(xlfm):
-    # An 11 mm sensor keeps the hand design (views within 5.5 mm) but not 1 mm cells centred
-    # 6.5 mm off the axis: their sub-images would be centred off the sensor (a DesignError).
+    # An 11 mm sensor keeps the hand design (views within 5.5 mm) but not 1.5 mm cells centred
+    # 6.75 mm off the axis: their sub-images would be centred off the sensor (a DesignError).
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the hand design's outer sub-images are clipped
         narrow = evolve(xlfm, "camera.pixel_count", (1700, 1700))
-    plane = MLAPlane.from_design(narrow, 1000.0)
+    plane = MLAPlane.from_design(narrow, 1500.0)
     calls, records = [], []
     result = algorithm2(
         narrow, lambda d: calls.append(d) or 1.0, plane=plane, sizes=[2], record=records.append
