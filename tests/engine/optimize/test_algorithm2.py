@@ -250,3 +250,34 @@ def test_layouts_the_design_checks_refuse_are_recorded_and_never_scored(xlfm):
         and result.score == -math.inf
         and result.evaluated == len(records) - sum(1 for c in records if c.blocks == ())
     )
+
+
+@pytest.mark.slow
+def test_psf_scored_run_on_a_small_fourier_design():
+    # Algorithm 2 scored by the mean axial Cramer-Rao bound of the simulated PSF (section 5.2.2):
+    # FLFM preset, 5 x 5 cells, 8-fold symmetry, 3 depths, sensor cut to 480 x 480 pixels
+    # (3.1 mm: every view of the 3.56 mm pupil stays on it).
+    from lfm_studio.engine.optimize.psf_losses import axial_crb
+    from lfm_studio.engine.simulation import simulate_psf
+
+    design = load_preset("flfm_guo2019")
+    plane = MLAPlane.from_design(design, design.pupil_diameter_at_mla / 1e-6 / 5)
+    depths = (-10e-6, 0.0, 10e-6)
+    z = torch.tensor(depths, dtype=torch.float64)
+
+    def mean_crb(candidate):
+        stack = simulate_psf(candidate, depths=depths, crop=480).data.double()
+        return axial_crb(stack, z, photons=1000.0, background=1.0).mean().item()
+
+    records = []
+    result = algorithm2(
+        design, mean_crb, plane=plane, symmetry="8-fold", direction="minimize", record=records.append
+    )
+    scored = [c for c in records if c.score is not None]
+    # The start (13 minimum lenslets) and the centred 3 x 3-cell lenslet with its 4 neighbours
+    # are the only 8-fold layouts inside the pupil.
+    assert [c.design.mla.count for c in scored] == [13, 5]
+    assert all(0.0 < c.score < 1e-6 for c in scored)  # sub-micrometre bounds at 1000 photons
+    # Trading 9 small views for one big central lens (no parallax) loses axial information.
+    assert scored[1].score > scored[0].score and not scored[1].accepted
+    assert result.blocks == plane.initial_blocks() and result.score == scored[0].score
