@@ -7,7 +7,7 @@ The thesis' pseudo-code (section 5.1.2), with ``T`` the lenslet list::
     for d in range(1, M):                           # aperture sizes, in cells
         for i in range(M - d + 1):                  # positions along x
             for j in range(M - d + 1):              # positions along y
-                if !is_symmetric and is_conflict((i, j), d, T_last):
+                if !is_symmetric and is_conflict((i, j), d, last_state):
                     T_new = merge((i, j), d, T_last)
                 else:
                     T_new = merge((i, j), d, T)
@@ -27,14 +27,14 @@ What is implemented, and the choices where the pseudo-code is ambiguous
   ``T_current <- T_new``; ``T`` in line 11 is ``T_current``.
 - ``merge((i, j), d, T)``: the ``d x d`` block at ``(i, j)`` (with its symmetric images)
   absorbs every lenslet of ``T`` lying wholly inside it (:func:`.mla_cells.merge`).
-- ``is_conflict``: the block cuts through a lenslet of ``T_current`` without containing
-  it. Read literally, lines 8-9 then retry the merge on ``T_last`` (the layout before
+- ``is_conflict``: the block cuts through a lenslet of the "last state", read as the
+  current layout ``T_current``, without containing it. Read literally, lines 8-9 then retry the merge on ``T_last`` (the layout before
   the last accepted merge), i.e. the candidate competes as a *replacement* of the last
   merge; this retry happens only without symmetry (``!is_symmetric``), as written. If
   the merge still conflicts (or a symmetric candidate conflicts) it is infeasible:
   recorded with its reason, not scored.
-- ``range(1, M)`` is kept as the default sizes (1 .. M - 1; size 1 changes nothing and
-  is skipped). Pass ``sizes=range(1, M + 1)`` to also try one lenslet over the whole
+- ``range(1, M)`` is kept as the default sizes (1 .. M - 1; size 1 changes nothing: its
+  positions inside the pupil are skipped, those outside recorded as infeasible). Pass ``sizes=range(1, M + 1)`` to also try one lenslet over the whole
   grid. Loop order is the thesis' (size, then x, then y), so runs are deterministic.
 - A block whose lenslet leaves the pupil, a layout the design checks refuse
   (:class:`DesignError`) and a score that raises ``ValueError`` or is not finite are
