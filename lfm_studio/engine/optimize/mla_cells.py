@@ -167,6 +167,10 @@ class MLAPlane:
             raise ValueError(f"cell_um must be a finite number > 0 um; got {self.cell_um!r}. Fix: e.g. 1000.")
         if isinstance(self.cells, bool) or not isinstance(self.cells, int) or self.cells < 1:
             raise ValueError(f"cells must be an integer >= 1; got {self.cells!r}. Fix: a smaller cell_um.")
+        if not (math.isfinite(self.pupil_diameter_um) and self.pupil_diameter_um > 0.0):
+            raise ValueError(
+                f"pupil_diameter_um must be a finite number > 0 um; got {self.pupil_diameter_um!r}. Fix: e.g. 16000."
+            )
         if not self.focal_lengths_mm or any(
             not (math.isfinite(f) and f > 0.0) for f in self.focal_lengths_mm
         ):

@@ -186,7 +186,8 @@ def axial_fisher_information(
         )
     if not (math.isfinite(background) and background >= 0.0):
         raise ValueError(f"background must be >= 0 photons per pixel; got {background!r}. Fix: e.g. 10.")
-    p = psf / psf.sum(dim=(1, 2), keepdim=True) if normalize else psf
+    total = psf.sum(dim=(1, 2), keepdim=True).clamp_min(torch.finfo(psf.dtype).tiny)  # zero slice: no NaN
+    p = psf / total if normalize else psf
     mu = photons * p + background
     slope = _depth_derivative(mu, depths)
     return (slope**2 / mu.clamp_min(min_counts)).sum(dim=(1, 2))

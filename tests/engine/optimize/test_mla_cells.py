@@ -136,5 +136,7 @@ def test_bad_inputs_name_the_parameter(xlfm):
         MLAPlane.from_design(xlfm, 0.0)
     with pytest.raises(ValueError, match="focal_lengths_mm"):
         MLAPlane(1000.0, 4, 4000.0, ())
+    with pytest.raises(ValueError, match="pupil_diameter_um"):
+        MLAPlane(1000.0, 4, float("nan"), (3.0,))
     with pytest.raises(ValueError, match="shape"):
         MLAPlane(1000.0, 4, 4000.0, (3.0,), "hexagon")
