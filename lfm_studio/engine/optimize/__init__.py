@@ -1,0 +1,1 @@
+"""Optimisation of light-field microscope designs (thesis chapter 5)."""
