@@ -18,6 +18,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
 
+from pydantic import ValidationError
+
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.errors import fmt
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
@@ -56,9 +58,19 @@ _ERROR_REASONS = (
 )
 
 
+def error_text(error: Exception) -> str:
+    """The message of a refusal: pydantic's errors as ``location: message`` (without its boilerplate)."""
+    if isinstance(error, ValidationError):
+        return "; ".join(
+            f"{'.'.join(str(p) for p in e['loc']) or 'design'}: {str(e['msg']).removeprefix('Value error, ')}"
+            for e in error.errors()
+        )
+    return str(error)
+
+
 def infeasible_from_error(error: Exception) -> Infeasible:
     """An :class:`Infeasible` for a design the model validation refused (its message kept whole)."""
-    text = str(error)
+    text = error_text(error)
     for phrase, reason in _ERROR_REASONS:
         if phrase in text:
             return Infeasible(reason, text)
