@@ -76,7 +76,7 @@ def run_optimize(args: argparse.Namespace) -> int:
     from lfm_studio.engine.design.design_io import design_from_json
     from lfm_studio.engine.io import check_output
     from lfm_studio.engine.optimize import EvaluationSettings, Evaluator, FocalLengthCatalogue, load_space
-    from lfm_studio.engine.optimize.study import local_client, run_study
+    from lfm_studio.engine.optimize.study import local_client, record_of, run_study
     from lfm_studio.engine.optimize.study_report import format_front, pareto_front, summary
     from lfm_studio.engine.simulation import depth_grid
 
@@ -130,7 +130,7 @@ def run_optimize(args: argparse.Namespace) -> int:
             "Fix: widen the space or relax the constraints."
         )
     best = _best(front, evaluator.objectives)
-    chosen = design_from_json(best.user_attrs["design_json"], origin=f"study trial {best.number}")
+    chosen = design_from_json(record_of(best)["design_json"], origin=f"study trial {best.number}")
     chosen = chosen.updated(
         name=f"{design.name} (optimised, trial {best.number})",
         description=f"{design.description} Optimised by lfm-studio optimize: study {args.study_name!r} in "

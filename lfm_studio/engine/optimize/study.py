@@ -1,18 +1,18 @@
 """Stored, resumable studies on Optuna's RDB storage (SQLite by default, PostgreSQL by URL).
 
 :func:`run_study` evaluates points of a design space with an :class:`~.evaluate.Evaluator`
-and stores every candidate as an Optuna trial: parameters, objective values, seconds per
-stage, the candidate's design JSON, the seed, design warnings, per-lenslet cache use, and
-for an infeasible point its reason (the trial is then ``FAIL`` with user attribute
-``infeasible_reason``). The study itself stores the base design, the space, the
+and stores every candidate as an Optuna trial: parameters, objective values, and in one
+user attribute ``record`` (one database commit) the seconds per stage, the candidate's
+design JSON, the seed, design warnings, per-lenslet cache use, and for an infeasible
+point its reason (the trial is then ``FAIL`` with ``record["infeasible_reason"]``). The study itself stores the base design, the space, the
 objectives (name, unit, direction), the simulation settings and the sampler.
 
 Resuming (``resume=True``) continues where a killed run stopped and never evaluates a
 stored candidate again: the grid sampler enqueues only grid points without a stored
 result, in grid order; for the other samplers a proposed point that is already stored
-gets the stored values copied (user attribute ``reused_from``) instead of an evaluation.
-A trial left ``RUNNING`` by a killed process is closed as ``FAIL`` without an
-``infeasible_reason`` (no result) and its point evaluated again.
+gets the stored values copied (``record["reused_from"]``) instead of an evaluation.
+A trial left ``RUNNING`` by a killed process is closed as ``FAIL`` without a record (no
+result) and its point evaluated again.
 
 Samplers (:data:`SAMPLERS`): ``grid`` (every grid point, in order: enumerated here rather
 than by Optuna's ``GridSampler``, which visits points in random order and can repeat one
@@ -137,8 +137,9 @@ def open_study(
     """Create the study, or (``resume=True``) load it after checking it is the same search."""
     optuna = require_optuna()
     url = storage_url(storage)
+    rdb = optuna.storages.RDBStorage(url)
     directions = [o.direction for o in evaluator.objectives]
-    names = optuna.study.get_all_study_names(storage=url)
+    names = optuna.study.get_all_study_names(storage=rdb)
     exists = study_name in names
     if exists and not resume:
         raise ValueError(
@@ -147,7 +148,7 @@ def open_study(
         )
     attrs = study_attrs(evaluator, sampler)
     study = optuna.create_study(
-        storage=url,
+        storage=rdb,
         study_name=study_name,
         directions=directions,
         sampler=make_sampler("random" if sampler == "grid" else sampler, evaluator.seed),
@@ -161,10 +162,19 @@ def open_study(
     return study
 
 
+RECORD = "record"
+"""The user attribute holding a trial's :meth:`EvaluationRecord.attrs` (one write: one commit)."""
+
+
+def record_of(trial: Any) -> dict[str, Any]:
+    """The stored record of a trial (empty for a trial without one)."""
+    return dict(trial.user_attrs.get(RECORD) or {})
+
+
 def _finished(trial: Any) -> bool:
     """A trial with a result: complete, or failed as infeasible (not interrupted)."""
     state = trial.state.name
-    return state == "COMPLETE" or (state == "FAIL" and trial.user_attrs.get("infeasible_reason") is not None)
+    return state == "COMPLETE" or (state == "FAIL" and record_of(trial).get("infeasible_reason") is not None)
 
 
 def _close_interrupted(study: Any) -> None:
@@ -179,8 +189,7 @@ def _state(name: str) -> Any:
 
 
 def _tell(study: Any, trial: Any, record: EvaluationRecord, names: Sequence[str]) -> None:
-    for key, value in record.attrs().items():
-        trial.set_user_attr(key, value)
+    trial.set_user_attr(RECORD, record.attrs())
     if record.values is None:
         study.tell(trial, state=_state("FAIL"))
     else:
@@ -189,9 +198,7 @@ def _tell(study: Any, trial: Any, record: EvaluationRecord, names: Sequence[str]
 
 def _reuse(study: Any, trial: Any, stored: Any) -> None:
     """Close ``trial`` with the result of the ``stored`` trial of the same point (no evaluation)."""
-    for key, value in stored.user_attrs.items():
-        trial.set_user_attr(key, value)
-    trial.set_user_attr("reused_from", stored.number)
+    trial.set_user_attr(RECORD, {**record_of(stored), "reused_from": stored.number})
     if stored.state.name == "COMPLETE":
         study.tell(trial, list(stored.values))
     else:
@@ -306,14 +313,15 @@ def load_study(storage: str, study_name: str | None = None) -> Any:
         raise FileNotFoundError(
             f"{storage}: no such study database. Fix: give the file of a study (e.g. study.db)."
         )
-    names = optuna.study.get_all_study_names(storage=url)
+    rdb = optuna.storages.RDBStorage(url)
+    names = optuna.study.get_all_study_names(storage=rdb)
     if study_name is None:
         if len(names) != 1:
             raise ValueError(f"{url} holds studies {names}; name one with --study-name.")
         study_name = names[0]
     if study_name not in names:
         raise ValueError(f"{url} has no study {study_name!r}; it holds {names}.")
-    return optuna.load_study(study_name=study_name, storage=url)
+    return optuna.load_study(study_name=study_name, storage=rdb)
 
 
 def space_of(study: Any) -> DesignSpace:

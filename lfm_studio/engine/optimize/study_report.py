@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
+from lfm_studio.engine.optimize.study import record_of
+
 
 @dataclass(frozen=True)
 class TrialRow:
@@ -32,14 +34,15 @@ def objectives_of(study: Any) -> list[dict[str, str]]:
 def trial_rows(study: Any) -> list[TrialRow]:
     rows = []
     for t in study.get_trials(deepcopy=False):
-        reason = t.user_attrs.get("infeasible_reason")
+        record = record_of(t)
+        reason = record.get("infeasible_reason")
         if t.state.name == "COMPLETE":
             state = "complete"
         elif t.state.name == "FAIL":
             state = "infeasible" if reason is not None else "interrupted"
         else:
             state = t.state.name.lower()
-        timing = t.user_attrs.get("timing") or {}
+        timing = record.get("timing") or {}
         rows.append(
             TrialRow(
                 t.number,
@@ -48,7 +51,7 @@ def trial_rows(study: Any) -> list[TrialRow]:
                 tuple(t.values) if t.state.name == "COMPLETE" else None,
                 reason,
                 timing.get("total_s"),
-                t.user_attrs.get("reused_from"),
+                record.get("reused_from"),
             )
         )
     return rows
