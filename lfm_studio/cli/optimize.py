@@ -119,7 +119,10 @@ def run_optimize(args: argparse.Namespace) -> int:
             )  # fmt: skip
     finally:
         if client is not None:
+            cluster = getattr(client, "cluster", None) if not args.scheduler else None
             client.close()
+            if cluster is not None:  # the local cluster --workers started
+                cluster.close()
     counts = summary(study)
     print(", ".join(f"{k} {v}" for k, v in counts.items()))
     print(format_front(study))
