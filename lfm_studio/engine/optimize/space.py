@@ -4,7 +4,9 @@ A :class:`Parameter` names one value of a design (``objective.numerical_aperture
 ``relay.focal_length_mm``, ``mla.pitch_um``, ``mla.lenslets[3].center_um[0]``,
 ``mla.lattice``) and the values it may take: ``low``/``high`` with an optional ``step``
 (a grid) or ``points`` (that many evenly spaced values), or a list of ``choices``.
-``*`` as an index sets every item (``mla.lenslets[*].focal_length_mm``). Values are in the
+``*`` as an index sets every item (``mla.lenslets[*].focal_length_mm``), a comma list sets
+those items together (``mla.lenslets[1,3,5].focal_length_mm``: a lenslet group, or lenslets
+tied by symmetry). Values are in the
 unit of the design field (its name's suffix: ``_mm``, ``_um``, ``_nm``; unitless otherwise).
 
 A :class:`DesignSpace` is a tuple of parameters; :meth:`DesignSpace.apply` writes a point
@@ -51,7 +53,7 @@ def path_parts(path: str) -> list[str]:
 
 def unit_of(path: str) -> str:
     """Unit of the field ``path`` names (from the last field name's suffix; "" when unitless)."""
-    names = [p for p in path_parts(path) if not (p.isdigit() or p == "*")]
+    names = [p for p in path_parts(path) if not _is_index(p)]
     last = names[-1]
     for suffix, unit in UNIT_SUFFIXES.items():
         if last.endswith(suffix):
@@ -59,8 +61,17 @@ def unit_of(path: str) -> str:
     return ""
 
 
+def _is_index(part: str) -> bool:
+    return part == "*" or all(p.strip().lstrip("-").isdigit() for p in part.split(","))
+
+
+def _indices(part: str, length: int) -> list[int]:
+    """Item indices named by ``part``: ``*`` (all), ``3``, ``-1`` or ``1,3,5``."""
+    return list(range(length)) if part == "*" else [int(p) for p in part.split(",")]
+
+
 def _get(node: Any, parts: Sequence[str], path: str) -> list[Any]:
-    """Every value at ``parts`` under ``node`` (plain data from ``model_dump``); ``*`` fans out."""
+    """Every value at ``parts`` under ``node`` (plain data from ``model_dump``); ``*`` and lists fan out."""
     if not parts:
         return [node]
     head, rest = parts[0], parts[1:]
@@ -69,13 +80,11 @@ def _get(node: Any, parts: Sequence[str], path: str) -> list[Any]:
             raise ValueError(f"parameter path {path!r}: no field {head!r} here; known: {sorted(node)}.")
         return _get(node[head], rest, path)
     if isinstance(node, list | tuple):
-        if head == "*":
-            return [v for item in node for v in _get(item, rest, path)]
-        if not (head.lstrip("-").isdigit() and -len(node) <= int(head) < len(node)):
+        if not (_is_index(head) and all(-len(node) <= i < len(node) for i in _indices(head, len(node)))):
             raise ValueError(
                 f"parameter path {path!r}: {head!r} is not an index of a list of {len(node)} items."
             )
-        return _get(node[int(head)], rest, path)
+        return [v for i in _indices(head, len(node)) for v in _get(node[i], rest, path)]
     raise ValueError(f"parameter path {path!r}: cannot go into a {type(node).__name__} with {head!r}.")
 
 
@@ -87,8 +96,7 @@ def _set(node: Any, parts: Sequence[str], value: Any) -> Any:
     if isinstance(node, dict):
         return {**node, head: _set(node[head], rest, value)}
     items = list(node)
-    targets = range(len(items)) if head == "*" else [int(head)]
-    for i in targets:
+    for i in _indices(head, len(items)):
         items[i] = _set(items[i], rest, value)
     return items
 

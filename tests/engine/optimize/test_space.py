@@ -106,6 +106,9 @@ def test_apply_writes_values_and_validates(flfm):
     )
     assert out.objective.numerical_aperture == 0.8
     assert {lens.focal_length_mm for lens in out.mla.lenslets} == {20.0}
+    group = DesignSpace((Parameter("mla.lenslets[1,3].focal_length_mm", choices=(20.0,)),))
+    tied = group.apply(flfm, {"mla.lenslets[1,3].focal_length_mm": 20.0})
+    assert [lens.focal_length_mm for lens in tied.mla.lenslets] == [16.8, 20.0, 16.8, 20.0, *[16.8] * 5]
     assert flfm.objective.numerical_aperture == 0.95  # the base is untouched
     with pytest.raises(ValueError, match="must not overlap"):  # lenslet 4 pushed into lenslet 3
         space.apply(flfm, {"mla.lenslets[4].center_um[0]": -10.0})
