@@ -100,3 +100,23 @@ def test_missing_space_and_study_files(tmp_path, capsys):
     assert code == 2 and "no such file" in capsys.readouterr().err
     assert main(["study", "show", str(tmp_path / "none.db")]) == 2
     assert "no such study database" in capsys.readouterr().err
+
+
+def test_task_objective_through_the_cli(tmp_path, capsys):
+    """A task score (RL of held-out beads) from the command line, on a 128 px crop and 3 depths."""
+    space = tmp_path / "space.json"
+    space.write_text(
+        json.dumps({"parameters": [{"path": "relay.field_stop_diameter_mm", "choices": [2.66, 3.0]}]})
+    )
+    code = main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "task_ncc,task_f1",
+            "--study", str(tmp_path / "task.db"), "--out", str(tmp_path / "best.json"), "--crop", "128",
+            "--depths", "-10:10:10", "--iterations", "5", "--task-seeds", "1000", "--photons", "1e4",
+        ]
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "complete 1, infeasible 1" in out and "sub_image_overlap" in out  # 3.0 mm: sub-images overlap
+    assert "task_ncc" in out and "best design (trial 0)" in out
+    assert load_design(tmp_path / "best.json").relay.field_stop_diameter_mm == 2.66
