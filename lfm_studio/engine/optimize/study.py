@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Sequence
+from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -273,6 +274,8 @@ def run_study(
         total = len(grid) if n_trials is None else min(n_trials, len(grid))
     else:
         grid, total = [], 20 if n_trials is None else n_trials
+    keys = [point_key(p) for p in grid]
+    cursor = 0  # grid points before it all have a stored result (stored results only grow)
     remote = None if client is None else client.scatter(evaluator, broadcast=True)
     batch_size = 1 if client is None else max(1, len(client.scheduler_info().get("workers", {})))
     while True:
@@ -286,7 +289,10 @@ def run_study(
         if done >= total:
             break
         if sampler == "grid":
-            pending = [p for p in grid if point_key(p) not in stored][: min(batch_size, total - done)]
+            while cursor < len(grid) and keys[cursor] in stored:
+                cursor += 1
+            want = min(batch_size, total - done)
+            pending = list(islice((grid[i] for i in range(cursor, len(grid)) if keys[i] not in stored), want))
             for point in pending:
                 study.enqueue_trial(point)
             asks = len(pending)
