@@ -25,6 +25,7 @@ from typing import Any, Literal, Protocol
 import torch
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.errors import fmt
 from lfm_studio.engine.optimize.candidate import Candidate
 from lfm_studio.engine.optimize.constraints import Infeasible
 from lfm_studio.engine.performance import (
@@ -137,7 +138,7 @@ class RequirementsConstraint:
     def check(self, design: Design) -> Infeasible | None:
         metrics = compute_design_metrics(design, requirements=self.requirements)
         failed = [
-            f"{c.label} {c.value * 1e6 if c.value is not None else None} um vs {c.comparison} {c.limit * 1e6:g} um"
+            f"{c.label} {'undefined' if c.value is None else fmt(c.value * 1e6)} um, needs {c.comparison} {fmt(c.limit * 1e6)} um"
             for c in metrics.requirements
             if c.basis == "closed_form"
             and c.passed is not True
