@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
+from functools import partial
 
 import torch
 
@@ -30,6 +31,7 @@ from lfm_studio.engine.systems.from_design import (
     fourier_system_of,
     virtual_pixel_count,
 )
+from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
 Projector = ShiftInvariantProjector | LensletLatticeProjector | BinnedProjector
 
@@ -60,6 +62,7 @@ def simulate_psf(
     crop: int | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
+    cache: LensletCache | None = None,
 ) -> PSFStack:
     """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
     ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached.
@@ -71,6 +74,9 @@ def simulate_psf(
     ``crop``: keep only about ``crop x crop`` camera pixels around the axis, for quick studies
     (Fourier: the sensor cut to that size, views outside it are lost; conventional: the
     lenslets that fit in it).
+
+    ``cache``: a per-lenslet cache (Fourier kind, per-lenslet path) kept across calls, so a
+    design that changes one lenslet recomputes one lenslet (the optimiser's grid search).
     """
     depths = tuple(depths) if depths is not None else design_depths(design)
     refine = design.accuracy.volume_oversampling
@@ -83,7 +89,7 @@ def simulate_psf(
         if crop is not None:
             shape = tuple(virtual_pixel_count(min(crop, n), refine) for n in design.camera.pixel_count)
             system = replace(system, sensor_shape=shape)
-        compute = fourier_psf_stack
+        compute = partial(fourier_psf_stack, cache=cache)
     else:
         lenslets, pitch_um = None, getattr(design.mla, "pitch_um", None)
         if crop is not None and pitch_um is not None:  # (no pitch: conventional_system_of explains)
