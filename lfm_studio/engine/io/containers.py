@@ -85,7 +85,8 @@ class Volume:
     @property
     def extent(self) -> tuple[float, float, float]:
         """Physical size ``(Z dz, Y dy, X dx)`` in metres."""
-        return tuple(n * d for n, d in zip(self.data.shape[-3:], self.voxel_size, strict=True))
+        (nz, ny, nx), (dz, dy, dx) = self.data.shape[-3:], self.voxel_size
+        return (nz * dz, ny * dy, nx * dx)
 
     def depth_values(self) -> tuple[float, ...]:
         """Depth of each slice in metres: ``depths`` if given, else ``(i - Z // 2) * dz``."""
