@@ -25,5 +25,7 @@ Scalar: TypeAlias = float | torch.Tensor
 #: Image or volume data a user may hand in: a tensor or anything numpy can turn into an array
 #: (checked, real and finite, and converted with :func:`torch.as_tensor` at the seam).
 TensorLike: TypeAlias = torch.Tensor | npt.ArrayLike
+#: A JSON value (what provenance metadata and file headers hold).
+JSONValue: TypeAlias = "str | int | float | bool | list[JSONValue] | dict[str, JSONValue] | None"
 #: A contiguous run of depth indices ``start:stop`` (a chunk of a volume's ``Z`` axis).
 DepthSlice: TypeAlias = "slice[int, int, int | None]"
