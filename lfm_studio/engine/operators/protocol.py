@@ -105,7 +105,11 @@ def missing_members(obj: object, protocol: type) -> list[str]:
 
 
 def protocol_members(protocol: type) -> tuple[str, ...]:
-    """The attribute and method names a runtime-checkable protocol requires, in declaration order."""
+    """The method and property names a protocol requires, in declaration order (base protocols first).
+
+    Members declared only as bare annotations (``x: int``) are not listed: these protocols declare
+    every member as a method or a read-only property.
+    """
     names: list[str] = []
     for klass in reversed(protocol.__mro__):
         if getattr(klass, "_is_protocol", False) and klass is not Protocol:

@@ -13,7 +13,7 @@ so they act on the same grids as the projector (a test checks that the matched f
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
-from typing import TypeAlias, TypeGuard
+from typing import TypeAlias
 
 import torch
 
@@ -25,14 +25,9 @@ from lfm_studio.engine.types import DepthSlice, Shape2
 Filters: TypeAlias = torch.Tensor | Callable[[DepthSlice], torch.Tensor]
 
 
-def is_fourier_projector(projector: object) -> TypeGuard[FourierProjector]:
-    """Whether ``projector`` carries OTFs on an FFT window (:class:`FourierProjector`)."""
-    return isinstance(projector, FourierProjector)
-
-
 def require_fourier_projector(projector: object, method: str) -> FourierProjector:
     """``projector`` as a :class:`FourierProjector`; ``NotImplementedError`` naming what it lacks if not."""
-    if not is_fourier_projector(projector):
+    if not isinstance(projector, FourierProjector):
         raise NotImplementedError(
             f"{method} needs a laterally shift-invariant projector with cached OTFs (Fourier LFM, "
             f"ShiftInvariantProjector); {type(projector).__name__} has no "
