@@ -62,3 +62,21 @@ def test_mypy_accepts_the_projectors_and_reports_wrong_types_at_the_seams(tmp_pa
     reported = {int(n) for n in re.findall(r"seams\.py:(\d+): error", result.stdout)}
     assert reported == wrong, result.stdout + result.stderr
     assert result.returncode == 1
+
+
+def test_the_seam_modules_are_checked_strictly():
+    """No explicit ``Any`` and every def annotated where modules meet (pyproject's [tool.mypy])."""
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["mypy"]
+    assert config["check_untyped_defs"] and config["warn_unused_ignores"]
+    strict = [
+        o for o in config["overrides"] if o.get("disallow_any_explicit") and o.get("disallow_untyped_defs")
+    ]
+    modules = {m for o in strict for m in o["module"]}
+    assert {
+        "lfm_studio.engine.types",
+        "lfm_studio.engine.operators.*",
+        "lfm_studio.engine.reconstruct.*",
+        "lfm_studio.engine.simulation",
+        "lfm_studio.engine.psf_stack",
+    } <= modules
