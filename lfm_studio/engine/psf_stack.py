@@ -39,10 +39,12 @@ class PSFStack:
         is ``pixel_size / magnification``.
     wavelength : float
         Emission wavelength in metres.
-    design : Design or None
-        The design the stack was simulated from (``None`` for a measured stack).
+    design : Design, dict or None
+        The design the stack was simulated from (``None`` for a measured stack; its JSON dict when
+        read from a file without rebuilding it, :func:`~lfm_studio.engine.io.read_psf_stack`).
     metadata : dict
-        Free-form JSON-serialisable provenance (e.g. bead measurement notes).
+        JSON provenance (e.g. bead measurement notes); read typed values with
+        :meth:`metadata_int` / :meth:`metadata_ints`.
     """
 
     data: torch.Tensor
@@ -50,7 +52,7 @@ class PSFStack:
     pixel_size: float
     magnification: float
     wavelength: float
-    design: Design | None = None
+    design: Design | dict[str, JSONValue] | None = None
     metadata: dict[str, JSONValue] = field(default_factory=dict)
 
     def __post_init__(self) -> None:

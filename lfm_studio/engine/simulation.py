@@ -175,12 +175,10 @@ def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> Ima
         )
         return ImagingSetup(lattice, lattice.volume_shape, (dz, voxel, voxel))
     voxel = stack.object_pixel_size
-    if (
-        field_of_view is None
-        and stack.design is not None
-        and getattr(stack.design, "field_of_view_diameter", None)
-    ):
-        field_of_view = stack.design.field_of_view_diameter
+    if field_of_view is None and isinstance(
+        stack.design, Design
+    ):  # (a dict: a design read without rebuilding)
+        field_of_view = stack.design.field_of_view_diameter or None
     ny, nx = stack.data.shape[-2:]
     lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
     lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
