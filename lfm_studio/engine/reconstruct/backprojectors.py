@@ -75,9 +75,10 @@ class FilteredBackProjector:
             )
         self.projector = projector
         self.filters = filters
-        # The projector's transposed layout (Z, Fx//2+1, Fy), made contiguous once.
-        self._pruned = projector if isinstance(projector, PrunedFourierProjector) else None
-        self._filters_t = filters.transpose(-2, -1).contiguous() if self._pruned is not None else None
+        # A pruned projector and the filters in its transposed layout (Z, Fx//2+1, Fy), made contiguous once.
+        self._pruned: tuple[PrunedFourierProjector, torch.Tensor] | None = None
+        if isinstance(projector, PrunedFourierProjector):
+            self._pruned = (projector, filters.transpose(-2, -1).contiguous())
 
     @property
     def volume_shape(self) -> Shape3:
@@ -92,8 +93,9 @@ class FilteredBackProjector:
     def __call__(self, image: torch.Tensor) -> torch.Tensor:
         """Back-project ``image`` ``(Py, Px)`` to a volume ``(Z, Vy, Vx)``."""
         image = image.to(device=self.filters.device, dtype=self.projector.otf.real.dtype)
-        if self._pruned is not None and self._filters_t is not None:
-            return self._pruned.filtered_adjoint(image, self._filters_t)
+        if self._pruned is not None:
+            pruned, filters_t = self._pruned
+            return pruned.filtered_adjoint(image, filters_t)
         return filter_to_volume(self.projector, image_spectrum(self.projector, image), self.filters)
 
 

@@ -21,7 +21,14 @@ from lfm_studio.engine.operators import (
 from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.operators.protocol import missing_members, protocol_members
-from lfm_studio.engine.reconstruct import poisson_nll, reconstruct_frame, richardson_lucy, tikhonov, wiener
+from lfm_studio.engine.reconstruct import (
+    FilteredBackProjector,
+    poisson_nll,
+    reconstruct_frame,
+    richardson_lucy,
+    tikhonov,
+    wiener,
+)
 
 
 def _random(shape: tuple[int, ...], seed: int) -> torch.Tensor:
@@ -145,3 +152,38 @@ def test_fourier_methods_name_what_a_non_fourier_projector_lacks(make, method):
         reconstruct_frame(projector, image, method=method)
     with pytest.raises(NotImplementedError, match=message):
         {"wiener": wiener, "tikhonov": tikhonov}[method](projector, image)
+
+
+class OnlyFourier:
+    """A shift-invariant projector seen through FourierProjector's members only (no pruned adjoint)."""
+
+    def __init__(self, inner: ShiftInvariantProjector) -> None:
+        self.inner = inner
+        self.volume_shape, self.image_shape = inner.volume_shape, inner.image_shape
+        self.device, self.dtype = inner.device, inner.dtype
+        self.otf, self.fft_shape, self.full_shape = inner.otf, inner.fft_shape, inner.full_shape
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor:
+        return self.inner.forward(volume)
+
+    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
+        return self.inner.adjoint(image)
+
+    def depth_chunks(self):
+        return self.inner.depth_chunks()
+
+
+def test_fourier_solvers_need_only_the_fourier_protocol():
+    inner = shift_invariant()
+    plain = OnlyFourier(inner)
+    assert isinstance(plain, FourierProjector) and not isinstance(plain, PrunedFourierProjector)
+    y = _random(inner.image_shape, 8)
+    # Without filtered_adjoint the back projector runs its own FFTs: conj(otf) still gives A^T.
+    matched = FilteredBackProjector(plain, inner.otf.conj().resolve_conj())
+    expected = inner.adjoint(y)
+    assert torch.allclose(matched(y), expected, rtol=0, atol=1e-12 * float(expected.abs().max()))
+    # Wiener and Tikhonov read only FourierProjector members: same result as on the projector itself.
+    torch.testing.assert_close(wiener(plain, y, snr=20.0), wiener(inner, y, snr=20.0), rtol=1e-12, atol=1e-12)
+    torch.testing.assert_close(
+        tikhonov(plain, y, mu=1e-2), tikhonov(inner, y, mu=1e-2), rtol=1e-12, atol=1e-12
+    )
