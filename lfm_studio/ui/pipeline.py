@@ -291,7 +291,7 @@ def reconstruct(
     changes: list[float] = []
     estimate = None
     iterates = richardson_lucy_iterates(
-        projector, counts.to(_device_of(projector)), background=floor, iterations=total, progress=_rl_progress(ctx),
+        projector, counts.to(projector.device), background=floor, iterations=total, progress=_rl_progress(ctx),
         cancel=ctx.cancel, **accelerated_rl_options(projector),
     )  # fmt: skip
     for it in iterates:
@@ -320,14 +320,6 @@ def reconstruct(
         scores=card,
         summary=card.summary(noun=noun),
     )
-
-
-def _device_of(projector: Any) -> torch.device:
-    for name in ("otf", "psf", "patterns"):
-        value = getattr(projector, name, None)
-        if isinstance(value, torch.Tensor):
-            return value.device
-    return torch.device("cpu")
 
 
 def _rl_progress(ctx: Context):

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 
 from lfm_studio.engine.calibration.record import Calibration
-from lfm_studio.engine.design import Design, LensletSpec, MLASpec
+from lfm_studio.engine.design import Design, LensletSpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.lenslet import overlap_depth_um
 
 
@@ -39,6 +39,16 @@ def _moved(
     )
 
 
+def _regular_mla(design: Design) -> RegularMLASpec:
+    """The design's MLA, which a fitted lattice describes: it must be a regular array."""
+    if not isinstance(design.mla, RegularMLASpec):
+        raise ValueError(
+            f"a lenslet lattice calibration needs a regular MLA (layout 'regular'); got layout "
+            f"{design.mla.layout!r}. Fix: use the design the calibration was made with."
+        )
+    return design.mla
+
+
 def nominal_design(calibration: Calibration) -> Design:
     """The nominal design the calibration was made with (stored in it)."""
     return Design.model_validate(calibration.design)
@@ -60,7 +70,7 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
         lattice = calibration.grid.lattice
         pitch_px = math.sqrt(lattice.pitch[0] * lattice.pitch[1])
         oy, ox = lattice.origin
-        shape = design.mla.shape
+        shape = _regular_mla(design).shape
         half = [0.5 if n % 2 == 0 else 0.0 for n in shape]  # an even array is centred between sites
         offset_y = (
             oy + half[0] * lattice.row_vector[0] + half[1] * lattice.col_vector[0] - axis_y
@@ -122,11 +132,12 @@ def rectified_design(
             "Fix: use the design the calibration was made with."
         )
     ni, nj = (calibration.block[1], calibration.block[3]) if lenslets is None else lenslets
-    ratio = design.mla.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
+    regular = _regular_mla(design)
+    ratio = regular.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
     # The projector images int(count / ratio) lenslets: half a lenslet of margin keeps rounding away.
     count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
-    shape = design.mla.shape
-    mla = design.mla.model_copy(
+    shape = regular.shape
+    mla = regular.model_copy(
         update={"shape": (max(shape[0], ni), max(shape[1], nj)), "offset_um": (0.0, 0.0)}
     )
     camera = design.camera.model_copy(update={"pixel_count": count})

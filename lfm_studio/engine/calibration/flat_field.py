@@ -64,7 +64,7 @@ def envelope_map(coefficients: torch.Tensor, shape: tuple[int, int]) -> torch.Te
 
 def flat_field(frame: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
     """``frame`` divided by the envelope (values below 5 % of its median are clamped there)."""
-    envelope = envelope_map(coefficients, tuple(frame.shape)).clamp_min(0.05)
+    envelope = envelope_map(coefficients, (frame.shape[-2], frame.shape[-1])).clamp_min(0.05)
     return frame.to(torch.float64) / envelope
 
 

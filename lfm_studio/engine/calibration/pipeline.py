@@ -11,6 +11,8 @@ calibration to a raw frame so that the design's projector can reconstruct it.
 
 from __future__ import annotations
 
+from functools import partial
+
 import torch
 
 from lfm_studio.engine.calibration import defects as defect_pixels
@@ -57,25 +59,20 @@ def calibrate(
         bad |= defect_pixels.hot_pixels(dark_frame)
     image = defect_pixels.replace_defects(lit, bad)
     shape = (int(frame.shape[0]), int(frame.shape[1]))
-    common = {
-        "frame_shape": shape,
-        "design": design.model_dump(mode="json"),
-        "dark_level": dark_level,
-        "dark_frame": None if dark_frame is None else dark_frame.to(torch.float32),
-        "defects": torch.nonzero(bad),
-    }
+    calibration = partial(
+        Calibration,
+        frame_shape=shape,
+        design=design.model_dump(mode="json"),
+        dark_level=dark_level,
+        dark_frame=None if dark_frame is None else dark_frame.to(torch.float32),
+        defects=torch.nonzero(bad),
+    )
     if design.kind == "fourier":
         checkpoint(cancel, progress, 1, _STEPS, "sub-image centres")
         fit = fit_sub_images(image, nominal_sub_images(design, shape))
         checkpoint(cancel, progress, _STEPS, _STEPS, "done")
-        return Calibration(
-            kind="fourier",
-            envelope=None,
-            pixels_per_lenslet=None,
-            block=None,
-            grid=None,
-            sub_images=fit,
-            **common,
+        return calibration(
+            kind="fourier", envelope=None, pixels_per_lenslet=None, block=None, grid=None, sub_images=fit
         )
     nominal = nominal_grid(design)
     checkpoint(cancel, progress, 1, _STEPS, "lattice from Fourier peaks")
@@ -89,14 +86,13 @@ def calibrate(
     grid = refine_lattice(flat_field(image, envelope), grid.lattice, disk_diameter=nominal.disk_diameter)
     check_pitch(grid.lattice.pitch, nominal.pitch)
     checkpoint(cancel, progress, _STEPS, _STEPS, "done")
-    return Calibration(
+    return calibration(
         kind="conventional",
         envelope=envelope,
         pixels_per_lenslet=nominal.pixels_per_lenslet,
         block=lenslet_block(grid.lattice, shape, lit=_lit(grid)),
         grid=grid,
         sub_images=None,
-        **common,
     )
 
 

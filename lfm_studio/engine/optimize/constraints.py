@@ -44,7 +44,8 @@ class Infeasible:
 class Constraint(Protocol):
     """A check of a built design (``None`` = feasible)."""
 
-    name: str
+    @property
+    def name(self) -> str: ...
 
     def check(self, design: Design) -> Infeasible | None: ...
 

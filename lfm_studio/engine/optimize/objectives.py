@@ -40,11 +40,15 @@ DIRECTIONS: tuple[str, ...] = ("minimize", "maximize")
 
 
 class Objective(Protocol):
-    """A named score of a candidate, with its unit and whether lower or higher is better."""
+    """A named score of a candidate, with its unit and whether lower or higher is better
+    (read-only members, so frozen dataclasses implement it)."""
 
-    name: str
-    unit: str
-    direction: Direction
+    @property
+    def name(self) -> str: ...
+    @property
+    def unit(self) -> str: ...
+    @property
+    def direction(self) -> Direction: ...
 
     def __call__(self, candidate: Candidate) -> float: ...
 
@@ -201,19 +205,33 @@ def objective_named(name: str, options: Mapping[str, Any] | None = None) -> Obje
     return _REGISTRY[name][0](options or {})
 
 
+def _closed_form_factory(quantity: str, unit: str, direction: Direction) -> ObjectiveFactory:
+    def build(options: Mapping[str, Any]) -> Objective:
+        return ClosedForm(quantity, direction, unit)
+
+    return build
+
+
+def _penalty_factory(basis: Literal["closed_form", "measured"]) -> ObjectiveFactory:
+    def build(options: Mapping[str, Any]) -> Objective:
+        return RequirementsPenalty(basis=basis)
+
+    return build
+
+
 for _quantity, (_unit, _direction) in CLOSED_FORM_QUANTITIES.items():
     register_objective(
         _quantity,
-        lambda _o, q=_quantity, u=_unit, d=_direction: ClosedForm(q, d, u),
+        _closed_form_factory(_quantity, _unit, _direction),
         f"closed-form {_quantity.replace('_', ' ')} ({_unit or 'unitless'}, {_direction})",
     )
 register_objective(
     "requirements_penalty",
-    lambda _o: RequirementsPenalty(),
+    _penalty_factory("closed_form"),
     "relative shortfall from the zebrafish requirements, closed forms (unitless, minimize; 0 = all met)",
 )
 register_objective(
     "measured_requirements_penalty",
-    lambda _o: RequirementsPenalty(basis="measured"),
+    _penalty_factory("measured"),
     "relative shortfall from the zebrafish requirements measured on the PSF (unitless, minimize)",
 )

@@ -101,10 +101,12 @@ def distributions(space: DesignSpace) -> dict[str, Any]:
     for p in space.parameters:
         if p.choices is not None or p.points is not None:
             out[p.path] = d.CategoricalDistribution(p.grid())
-        elif p.integer:
-            out[p.path] = d.IntDistribution(int(p.low), int(p.high), log=p.log, step=int(p.step or 1))
         else:
-            out[p.path] = d.FloatDistribution(p.low, p.high, log=p.log, step=None if p.log else p.step)
+            assert p.low is not None and p.high is not None  # Parameter's checks: bounds without choices
+            if p.integer:
+                out[p.path] = d.IntDistribution(int(p.low), int(p.high), log=p.log, step=int(p.step or 1))
+            else:
+                out[p.path] = d.FloatDistribution(p.low, p.high, log=p.log, step=None if p.log else p.step)
     return out
 
 
@@ -115,7 +117,7 @@ def make_sampler(name: str, seed: int) -> Any:
         raise ValueError(f"sampler must be one of {SAMPLERS}; got {name!r}.")
     if name == "cmaes":
         try:
-            import cmaes  # noqa: F401
+            import cmaes  # type: ignore[import-untyped]  # noqa: F401
         except ImportError as error:
             raise ValueError(
                 "sampler 'cmaes' needs the cmaes package. Fix: pip install cmaes, or use 'tpe'."

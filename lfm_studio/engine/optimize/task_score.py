@@ -20,6 +20,7 @@ small examples and tests use for anything they tune (0, 1, 2...).
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,7 +29,7 @@ import torch
 from lfm_studio.engine.image_quality import ncc, peak_match
 from lfm_studio.engine.io.camera_counts import CameraCalibration, counts_to_photons
 from lfm_studio.engine.optimize.candidate import Candidate
-from lfm_studio.engine.optimize.objectives import Direction, register_objective
+from lfm_studio.engine.optimize.objectives import Direction, Objective, ObjectiveFactory, register_objective
 from lfm_studio.engine.reconstruct import METHODS, reconstruct_frame
 from lfm_studio.engine.simulation import camera_of, light_field_image, make_phantom
 
@@ -181,9 +182,16 @@ def task_score_from(options: dict[str, Any], metric: str) -> TaskScore:
     return TaskScore(metric=metric, **{k: v for k, v in options.items() if k in known})
 
 
+def _task_factory(metric: str) -> ObjectiveFactory:
+    def build(options: Mapping[str, Any]) -> Objective:
+        return task_score_from(dict(options), metric)
+
+    return build
+
+
 for _metric, (_unit, _direction) in TASK_METRICS.items():
     register_objective(
         f"task_{_metric}",
-        lambda options, m=_metric: task_score_from(dict(options), m),
+        _task_factory(_metric),
         f"task score: {_metric} of reconstructed held-out phantoms ({_unit or 'unitless'}, {_direction})",
     )

@@ -32,6 +32,7 @@ from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
 from lfm_studio.engine.reconstruct.result_check import ReconstructionRejectedError, check_reconstruction
 from lfm_studio.engine.reconstruct.richardson_lucy import (
     Iterate,
+    RLOptions,
     poisson_nll,
     richardson_lucy,
     richardson_lucy_iterates,
@@ -43,6 +44,7 @@ __all__ = [
     "METHODS",
     "FilteredBackProjector",
     "Iterate",
+    "RLOptions",
     "ReconstructionRejectedError",
     "accelerated_rl_options",
     "check_reconstruction",

@@ -6,13 +6,13 @@ share it, so "rl-accelerated" means the same everywhere (:func:`accelerated_rl_o
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
+from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
+from lfm_studio.engine.reconstruct.fourier_geometry import require_fourier_projector
 from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
-from lfm_studio.engine.reconstruct.richardson_lucy import richardson_lucy
+from lfm_studio.engine.reconstruct.richardson_lucy import RLOptions, richardson_lucy
 from lfm_studio.engine.reconstruct.tikhonov import tikhonov
 from lfm_studio.engine.reconstruct.wiener import wiener
 
@@ -27,7 +27,7 @@ ITERATIVE = ("rl", "rl-accelerated")
 
 
 def reconstruct_frame(
-    projector: Any,
+    projector: Projector,
     frame: torch.Tensor,
     *,
     method: str = "rl",
@@ -54,12 +54,16 @@ def reconstruct_frame(
             f"method must be one of {list(METHODS)}; got {method!r}. Fix: e.g. 'rl-accelerated'."
         )
     if method in ITERATIVE:
-        faster = accelerated_rl_options(projector) if method == "rl-accelerated" else {}
-        return richardson_lucy(
-            projector, frame, background=background, iterations=iterations, rtol=rtol,
-            progress=progress, cancel=cancel, **faster,
-        )  # fmt: skip
+        options: RLOptions = {
+            "background": background, "iterations": iterations, "rtol": rtol,
+            "progress": progress, "cancel": cancel,
+        }  # fmt: skip
+        if method == "rl-accelerated":
+            options.update(accelerated_rl_options(projector))
+        return richardson_lucy(projector, frame, **options)
     signal = (frame - background).clamp_min(0.0)
     if method == "wiener":
-        return wiener(projector, signal, **({} if snr is None else {"snr": snr}))
-    return tikhonov(projector, signal, **({} if snr is None else {"mu": 1.0 / snr}))
+        fourier = require_fourier_projector(projector, "Wiener deconvolution")
+        return wiener(fourier, signal) if snr is None else wiener(fourier, signal, snr=snr)
+    fourier = require_fourier_projector(projector, "Tikhonov reconstruction")
+    return tikhonov(fourier, signal) if snr is None else tikhonov(fourier, signal, mu=1.0 / snr)
