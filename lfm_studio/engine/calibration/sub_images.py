@@ -1,16 +1,17 @@
 """Fourier LFM / XLFM: the centre of each lenslet's sub-image on a radiometry frame.
 
 A uniform slide fills each sub-image with a disk (the field stop's image). Around each
-nominal centre the disk is thresholded at half its brightness (a soft ramp from 3/8 to
-5/8 of the 95th percentile of the disk's core, within ``CORE`` of the nominal radius, so
+nominal centre the disk is thresholded at half its brightness (a soft ramp from 3/8 to 5/8
+of the 95th percentile of the disk's core, within ``CORE`` of the nominal radius, so
 vignetting across the disk and a brighter neighbour do not pull the centre) and its
-centroid is iterated inside a window of radius ``min(D/2 + 2 px, s/2)`` (a sub-image
-whose disk, plus 1 px, leaves the frame is flagged ``EDGE``) (``D`` the nominal diameter,
-``s`` the closest nominal spacing). The measured centres are then registered to the nominal ones by a least-squares similarity transform (scale,
-rotation, shift); the distance of each measured centre from the registered nominal one
-is its residual. Outliers are flagged: a sub-image with under half the median light, and,
-one at a time, the sub-image whose leave-one-out residual (from the transform fitted to
-the others) exceeds ``max(6 robust sigmas of the others, 1 px)``.
+centroid is iterated inside a window of radius ``min(D/2 + 2 px, s/2)`` (a sub-image whose
+disk, plus 1 px, leaves the frame is flagged ``EDGE``) (``D`` the nominal diameter, ``s``
+the closest nominal spacing). The measured centres are then registered to the nominal ones
+by a least-squares similarity transform (scale, rotation, shift); the distance of each
+measured centre from the registered nominal one is its residual. Outliers are flagged: a
+sub-image with under half the median light, and, one at a time, the sub-image whose
+leave-one-out residual (from the transform fitted to the others) exceeds ``max(6 robust
+sigmas of the others, 1 px)``.
 """
 
 from __future__ import annotations
