@@ -7,7 +7,8 @@ jittered by 0.3 px rms (:func:`~lfm_studio.engine.calibration.synthetic.fourier_
 and each sub-image has its own gain (``GAINS``, 0.6 to 1.25) on top of a 30 % radial
 vignetting. The true instrument's design (lenslets at the true centres) images six beads
 through our own forward model; the raw frame then gets the vignetting, Poisson and read
-noise (1.5 e-), a 100 ADU dark offset and 0.1 % hot pixels (gain 1 ADU per electron).
+noise (1.5 e-), a 100 ADU dark offset and the sensor's 0.1 % hot pixels (the same in every
+frame, as on a real camera; gain 1 ADU per electron).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from lfm_studio.engine.simulation import imaging_setup, simulate_psf
 
 RAW_SHAPE = (288, 288)
 BASELINE_ADU = 100.0
+HOT_ADU = 3000.0  # as in fourier_frames
 GAINS = torch.tensor([1.0, 0.7, 1.25, 0.85, 1.1, 0.6, 0.95, 1.2, 0.75], dtype=torch.float64)
 
 
@@ -63,17 +65,18 @@ def _vignetting(design: Design, centres: torch.Tensor) -> torch.Tensor:
     )
 
 
-def _camera(electrons: torch.Tensor, *, seed: int) -> tuple[torch.Tensor, torch.Tensor]:
-    frame, dark, _ = expose(
+def _camera(electrons: torch.Tensor, hot: torch.Tensor, *, seed: int) -> torch.Tensor:
+    """A frame (ADU) of the scene's camera: noise, dark offset, and its hot pixels ``hot`` (Y, X) bool."""
+    frame, _, _ = expose(
         electrons,
         baseline_adu=BASELINE_ADU,
         read_noise_e=1.5,
         gain_adu_per_e=1.0,
-        hot_fraction=1e-3,
-        hot_adu=3000.0,
+        hot_fraction=0.0,
+        hot_adu=0.0,
         seed=seed,
     )
-    return frame, dark
+    return frame + HOT_ADU * hot
 
 
 def misaligned_fourier_scene(photons: float = 3e6, seed: int = 0) -> MisalignedFourierScene:
@@ -101,13 +104,14 @@ def misaligned_fourier_scene(photons: float = 3e6, seed: int = 0) -> MisalignedF
     image = setup.projector.forward(truth.float()).clamp_min(0.0).double()
     vignetting = _vignetting(nominal, centres)
     image = image * (photons / float(image.sum())) * vignetting
-    raw, _ = _camera(image, seed=seed + 2)
+    hot = dark > BASELINE_ADU + 0.5 * HOT_ADU  # the sensor's hot pixels, the same in every frame
+    raw = _camera(image, hot, seed=seed + 2)
     frames = []
     for z in range(setup.volume_shape[0]):  # one bead on the axis at each depth
         point = torch.zeros(setup.volume_shape)
         point[z, setup.volume_shape[1] // 2, setup.volume_shape[2] // 2] = 1.0
         frames.append(setup.projector.forward(point).clamp_min(0.0).double())
     scan = torch.stack(frames)
-    scan = scan * (2e5 / float(scan[len(scan) // 2].sum())) * vignetting
-    bead_scan = torch.stack([_camera(frame, seed=seed + 4 + z)[0] for z, frame in enumerate(scan)])
+    scan = scan * (2e6 / float(scan[len(scan) // 2].sum())) * vignetting
+    bead_scan = torch.stack([_camera(frame, hot, seed=seed + 4 + z) for z, frame in enumerate(scan)])
     return MisalignedFourierScene(nominal, true_design, truth, raw, radiometry, dark, centres, bead_scan)
