@@ -145,7 +145,7 @@ def rectified_design(
     count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
     shape = design.mla.shape
     mla = design.mla.model_copy(
-        update={"shape": (max(shape[0], ni), max(shape[1], nj)), "offset_um": (0.0, 0.0)}
+        update={"shape": (ni, nj), "offset_um": (0.0, 0.0)}
     )
     camera = design.camera.model_copy(update={"pixel_count": count})
     lattice = calibration.grid.lattice
