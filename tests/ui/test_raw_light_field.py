@@ -131,7 +131,7 @@ def test_open_a_raw_frame_calibrate_it_and_reconstruct(qtbot, studio, scene_file
     truth = scene_files["scene"].truth
     assert volume.shape == truth.shape
     score = float(ncc(truth, volume))
-    assert score > 0.8, score  # the all-zero and constant volumes score 0
+    assert score > 0.8, score  # measured 0.878; the all-zero and constant volumes score 0
     assert state.reconstruction.scores is None and "no ground truth" in state.reconstruction.summary
     assert window.viewer.layer("reconstruction") is not None
     assert not callback_errors, callback_errors[0]
