@@ -143,10 +143,7 @@ def rectified_design(
     ratio = design.mla.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
     # The projector images int(count / ratio) lenslets: half a lenslet of margin keeps rounding away.
     count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
-    shape = design.mla.shape
-    mla = design.mla.model_copy(
-        update={"shape": (ni, nj), "offset_um": (0.0, 0.0)}
-    )
+    mla = design.mla.model_copy(update={"shape": (ni, nj), "offset_um": (0.0, 0.0)})
     camera = design.camera.model_copy(update={"pixel_count": count})
     lattice = calibration.grid.lattice
     note = (
