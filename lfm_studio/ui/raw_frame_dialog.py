@@ -210,9 +210,19 @@ class RawFrameActions(QObject):
             self._install(psf.stack)
 
     def _on_psf(self, result: Any) -> None:
-        fits = result is not None and not result.preview and result.design == self.state.design
-        if self.pending is not None and fits:
-            self._install(result.stack)
+        frame = self.pending
+        if frame is None or result is None or result.preview or result.design != self.state.design:
+            return
+        if self.use_fitted and result.design != frame.psf_design:  # edited while its PSF was computed
+            self.pending = None
+            self.last_failure = show_failure(
+                self.window,
+                "Cannot open raw light field",
+                f"the design changed before the PSF of the calibration's design was ready, so "
+                f"{frame.request.raw.name} was not opened. Fix: open it again (File > Open raw light field…).",
+            )
+            return
+        self._install(result.stack)
 
     def _install(self, stack: Any) -> None:
         frame, self.pending = self.pending, None

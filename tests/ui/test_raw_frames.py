@@ -125,3 +125,45 @@ def test_requests_and_the_dialog_name_what_is_missing(qtbot, scene, tmp_path):
     assert dialog.problem() is None
     request = dialog.request(truth_scene.nominal)
     assert request.radiometry is not None and request.dark is None and request.calibration is None
+
+
+def test_the_frame_waits_for_its_design_psf_and_an_edit_meanwhile_drops_it(qtbot, scene):
+    """The slots of RawFrameActions, driven as the controller drives them (psf_changed)."""
+    from types import SimpleNamespace
+
+    from qtpy.QtWidgets import QMainWindow
+
+    from lfm_studio.ui.edits import apply_changes
+    from lfm_studio.ui.jobs import JobRunner
+    from lfm_studio.ui.raw_frame_dialog import RawFrameActions
+    from lfm_studio.ui.state import StudioState
+
+    truth_scene, paths, _ = scene
+    window = QMainWindow()
+    qtbot.addWidget(window)
+    state = StudioState(truth_scene.nominal)
+    runner = JobRunner(window)
+    actions = RawFrameActions(state, window, runner)
+    request = RawFrameRequest(raw=paths["raw"], design=state.design, radiometry=paths["radiometry"])
+    frame = load_raw_frame(Ctx(), request)
+    try:
+        actions._on_loaded(frame)  # the calibration's design replaces the nominal one; its PSF follows
+        assert state.design == frame.psf_design and actions.pending is frame and state.image is None
+        stack = simulate_psf(frame.psf_design)
+        actions._on_psf(SimpleNamespace(preview=True, design=state.design, stack=stack))  # a preview: wait
+        assert state.image is None
+        actions._on_psf(SimpleNamespace(preview=False, design=state.design, stack=stack))
+        assert state.image is not None and state.image.ground_truth is None and "image" not in state.stale
+        assert actions.pending is None
+        # Again, but the user edits the design before its PSF is ready: the frame is dropped, with why.
+        state.set_image(None)
+        actions._on_loaded(frame)  # the design is the calibration's already: waits for a PSF
+        edited = apply_changes(state.design, {"wavelength_nm": 600.0})
+        state.set_design(edited)
+        actions._on_psf(SimpleNamespace(preview=False, design=edited, stack=stack))
+        assert actions.pending is None and state.image is None
+        assert "design changed before" in actions.last_failure.text()
+        actions.last_failure.close()
+    finally:
+        actions.disconnect_state()
+        runner.shutdown()
