@@ -5,8 +5,9 @@ camera baseline) -> defective pixels (hot in the dark and radiometry frames, dea
 radiometry frame) replaced by their 3 x 3 median ->
 conventional LFM: Fourier lattice, centroid refinement, flat-field envelope, a second
 refinement on the flat-fielded frame (vignetting no longer pulls the centroids) ->
-Fourier LFM: sub-image centres registered to the design, then a flat field per sub-image. ``rectify_frame`` applies a
-calibration to a raw frame so that the design's projector can reconstruct it.
+Fourier LFM: sub-image centres registered to the design, then a flat field per sub-image.
+``rectify_frame`` applies a calibration to a raw frame so that the design's projector can
+reconstruct it.
 """
 
 from __future__ import annotations
@@ -135,23 +136,22 @@ def rectify_frame(
     dark frame and flat-field map are prepared once for the series (:mod:`.corrections`).
     """
     frames = torch.as_tensor(raw)
-    series = frames.ndim == 3
     corrections = frame_corrections(calibration)  # once per series: mask, dark frame, flat-field map
+    grid, n = calibration.grid, calibration.pixels_per_lenslet
     block = None
-    if calibration.grid is not None:
-        lattice = calibration.grid.lattice
+    if grid is not None:
         block = (
             calibration.block
             if lenslets is None
-            else lenslet_block(lattice, calibration.frame_shape, lenslets)
+            else lenslet_block(grid.lattice, calibration.frame_shape, lenslets)
         )
-        if block is None or calibration.pixels_per_lenslet is None:
+        if block is None or n is None:
             raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
 
     def one(frame: object) -> torch.Tensor:
         image = corrections.apply(frame)
-        if calibration.grid is None or block is None or calibration.pixels_per_lenslet is None:
+        if grid is None or block is None or n is None:  # Fourier LFM: corrected only
             return image
-        return rectify(image, calibration.grid.lattice, calibration.pixels_per_lenslet, block)
+        return rectify(image, grid.lattice, n, block)
 
-    return torch.stack([one(frame) for frame in frames]) if series else one(raw)
+    return torch.stack([one(frame) for frame in frames]) if frames.ndim == 3 else one(raw)
