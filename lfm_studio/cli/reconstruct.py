@@ -29,6 +29,7 @@ import torch
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.cli.raw_frames import (
     add_raw_frame_arguments,
+    calibrated_bead_psf,
     calibrated_camera,
     load_raw_calibration,
     rectified_image,
@@ -154,7 +155,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     raw_calibration = load_raw_calibration(args)
     stack = _read_psf(args, device)
     image = _read_frames(args, stack.pixel_size, device)
-    stack = _prepare_stack(args, stack, image)
+    if raw_calibration is not None and args.measured:  # the bead z-scan gets the frames' corrections
+        stack = calibrated_bead_psf(args, stack, image, raw_calibration)
+    else:
+        stack = _prepare_stack(args, stack, image)
     fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
     setup = imaging_setup(stack, field_of_view=fov)
     if args.method in ("wiener", "tikhonov") and not hasattr(setup.projector, "otf"):

@@ -350,7 +350,7 @@ class ViewerBinding(QObject):
 
     def _on_image(self, result: ImageResult | None) -> None:
         if result is not None:
-            if hasattr(self.viewer, "show_volume"):  # the phantom, beside the reconstruction (sample space)
+            if hasattr(self.viewer, "show_volume") and result.ground_truth is not None:  # the phantom
                 self._show(
                     result.truth_display,
                     partial(self.viewer.show_volume, result.ground_truth, result.voxel_size, name="phantom"),

@@ -251,8 +251,8 @@ def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, flo
     from lfm_studio.engine.io import CameraCalibration, counts_to_photons
 
     camera = design.camera
-    if image.info.get("photons") is None:  # noise-free: already photons
-        return image.counts.clamp_min(0.0), 0.0
+    if image.info.get("photons") is None:  # noise-free, or a calibrated raw frame: already photons
+        return image.counts.clamp_min(0.0), float(image.info.get("noise_floor_photons", 0.0))
     calibration = CameraCalibration(
         camera.baseline_adu,
         camera.gain_adu_per_e,
@@ -297,11 +297,18 @@ def reconstruct(
     for it in iterates:
         estimate = it.estimate.detach().cpu()
         changes.append(float(it.relative_change))
-        nccs.append(float(ncc(truth, estimate)))
+        if truth is not None:  # a measured raw frame has no ground truth
+            nccs.append(float(ncc(truth, estimate)))
         ctx.partial((tuple(nccs), tuple(changes)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
     check_reconstruction(estimate)  # all zero, constant or NaN/Inf: an error, not a result
+    if truth is None:
+        display = volume_display(estimate, image.voxel_size, "reconstruction")
+        summary = "measured frame: no ground truth to score against"
+        return ReconstructionResult(
+            estimate, image.voxel_size, len(changes), tuple(changes), display=display, summary=summary
+        )
     ctx.progress(total, total, "reconstruction: scoring against the phantom")
     card = scorecard(
         truth, estimate, normalize="scale", peaks=peak_mode(settings), voxel_size=image.voxel_size,

@@ -73,7 +73,7 @@ class ImageResult:
     ----------
     counts : (Py, Px) camera counts in ADU (the noise-free image when ``photons`` is None).
     expected : (Py, Px) noise-free image.
-    ground_truth : (Z, Y, X) phantom volume.
+    ground_truth : (Z, Y, X) phantom volume, or None for a measured raw frame (nothing to score against).
     voxel_size : (dz, dy, dx) metres.
     pixel_size : sensor pixel pitch, metres.
     setup : the :class:`~lfm_studio.engine.simulation.ImagingSetup` (reused by the reconstruction).
@@ -84,7 +84,7 @@ class ImageResult:
 
     counts: torch.Tensor
     expected: torch.Tensor
-    ground_truth: torch.Tensor
+    ground_truth: torch.Tensor | None
     voxel_size: tuple[float, float, float]
     pixel_size: float
     setup: Any

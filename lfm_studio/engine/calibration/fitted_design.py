@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from lfm_studio.engine.calibration.record import Calibration
 from lfm_studio.engine.design import Design, LensletSpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.lenslet import overlap_depth_um
@@ -47,6 +49,30 @@ def _regular_mla(design: Design) -> RegularMLASpec:
             f"{design.mla.layout!r}. Fix: use the design the calibration was made with."
         )
     return design.mla
+
+
+def mla_at_centres(
+    design: Design, centres_yx: torch.Tensor, frame_shape: tuple[int, int]
+) -> tuple[MLASpec, str]:
+    """A Fourier ``design``'s MLA with each lenslet at a sub-image centre ``centres_yx`` (L, 2) px.
+
+    Centres are taken on a frame of ``frame_shape`` whose optical axis is pixel ``(Y // 2, X // 2)``.
+    Returns the MLA and the end of a note for ``assumed`` (". " or the aperture reduction that
+    keeps touching apertures from overlapping).
+    """
+    pixel_um = design.camera.pixel_pitch_um
+    axis_y, axis_x = float(frame_shape[0] // 2), float(frame_shape[1] // 2)
+    centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in centres_yx.tolist()]
+    lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
+    shrink = max(
+        (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
+    )
+    if shrink > 0:  # touching apertures measured a little closer: keep them touching
+        lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
+    mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+    return mla, (
+        f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else "."
+    )
 
 
 def nominal_design(calibration: Calibration) -> Design:
@@ -91,18 +117,10 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
         fit = calibration.sub_images
         if fit is None:  # excluded by Calibration.__post_init__
             raise ValueError("a Fourier calibration needs its sub-image fit.")
-        centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in fit.measured.tolist()]
-        lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
-        shrink = max(
-            (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
-        )
-        if shrink > 0:  # touching apertures measured a little closer: keep them touching
-            lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
-        mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+        mla, moved = mla_at_centres(design, fit.measured, calibration.frame_shape)
         note = (
-            f"calibrated: {len(lenslets)} lenslet centres from their measured sub-images (similarity to the "
-            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)"
-            + (f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else ".")
+            f"calibrated: {len(mla.lenslets)} lenslet centres from their measured sub-images (similarity to "
+            f"the nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg){moved}"
         )
     return design.updated(
         name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)
@@ -136,10 +154,7 @@ def rectified_design(
     ratio = regular.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
     # The projector images int(count / ratio) lenslets: half a lenslet of margin keeps rounding away.
     count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
-    shape = regular.shape
-    mla = regular.model_copy(
-        update={"shape": (max(shape[0], ni), max(shape[1], nj)), "offset_um": (0.0, 0.0)}
-    )
+    mla = regular.model_copy(update={"shape": (ni, nj), "offset_um": (0.0, 0.0)})
     camera = design.camera.model_copy(update={"pixel_count": count})
     lattice = calibration.grid.lattice
     note = (
