@@ -15,7 +15,7 @@ from lfm_studio.engine.progress import checkpoint
 from lfm_studio.engine.reconstruct import registry
 
 NAME = "backprojection"
-GAIN = registry.Option("gain", float, 1.0, "scale of the result", minimum=0.0, exclusive_minimum=True)
+SCALE = registry.Option("scale", float, 1.0, "scale of the result", minimum=0.0, exclusive_minimum=True)
 
 
 def backprojection(projector, frame, options, progress, cancel) -> torch.Tensor:
@@ -24,14 +24,14 @@ def backprojection(projector, frame, options, progress, cancel) -> torch.Tensor:
     sensitivity = projector.adjoint(torch.ones_like(signal))
     volume = projector.adjoint(signal) / sensitivity.clamp_min(1e-12 * float(sensitivity.max()))
     checkpoint(cancel, progress, 1, 1, "done")
-    return options["gain"] * volume
+    return options["scale"] * volume
 
 
 METHOD = registry.Method(
     NAME,
     "Back projection (toy)",
     "normalised adjoint A^T (y - b) / A^T 1, one step",
-    (GAIN,),
+    (SCALE,),
     backprojection,
     differentiable=True,
 )

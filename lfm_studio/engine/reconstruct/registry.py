@@ -112,8 +112,11 @@ class Option:
         text += f" ({self.units})" if self.units else ""
         return text + (" or None" if self.optional else "")
 
-    def check(self, value: Any, *, owner: str = "") -> Any:
-        """``value`` as this option's kind, or a ``ValueError`` naming the option, the value and a fix."""
+    def check(self, value: Any, *, owner: str = "", label: str | None = None) -> Any:
+        """``value`` as this option's kind, or a ``ValueError`` naming the option, the value and a fix.
+
+        ``label`` names the option in the message (e.g. the CLI flag ``--iterations``; default its name).
+        """
         if value is None and self.optional:
             return None
         ok = value is not None and not (self.kind is not bool and isinstance(value, bool))
@@ -130,9 +133,10 @@ class Option:
             ok = self._in_bounds(converted)
         if not ok:
             where = f"{owner} " if owner else ""
+            name = label or self.name
+            example = f"{name} {self.example()}" if name.startswith("-") else f"{name}={self.example()!r}"
             raise ValueError(
-                f"{where}{self.name} must be {self.requirement()}; got {value!r}. "
-                f"Fix: e.g. {self.name}={self.example()!r} ({self.help})."
+                f"{where}{name} must be {self.requirement()}; got {value!r}. Fix: e.g. {example} ({self.help})."
             )
         return converted
 

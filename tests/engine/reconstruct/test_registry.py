@@ -119,14 +119,14 @@ def test_a_registered_method_runs_by_name_and_leaves_again(small):
     projector, frame = small
     with toy_method.registered() as method:
         assert toy_method.NAME in registry.names() and registry.get(toy_method.NAME) is method
-        assert [o.name for o in method.options] == ["background", "gain"]  # the background was added
-        got = reconstruct_frame(projector, frame, method=toy_method.NAME, background=0.5, gain=2.0)
+        assert [o.name for o in method.options] == ["background", "scale"]  # the background was added
+        got = reconstruct_frame(projector, frame, method=toy_method.NAME, background=0.5, scale=2.0)
         sensitivity = projector.adjoint(torch.ones_like(frame))
         torch.testing.assert_close(got, 2.0 * projector.adjoint((frame - 0.5).clamp_min(0)) / sensitivity)
         with pytest.raises(ValueError, match="is registered already"):
             registry.register(toy_method.METHOD)
-        assert "gain" in registry.all_options()
-    assert toy_method.NAME not in registry.names() and "gain" not in registry.all_options()
+        assert "scale" in registry.all_options()
+    assert toy_method.NAME not in registry.names() and "scale" not in registry.all_options()
 
 
 def test_an_option_that_means_two_things_is_refused():
