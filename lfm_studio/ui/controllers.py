@@ -180,8 +180,9 @@ class StudioController(QObject):
         )  # fmt: skip
 
     def _start_reconstruction(self) -> None:
-        image, iterations = self.state.image, self.state.workflow.iterations
-        if image is None or not self._submit_once("reconstruction", (id(image), iterations)):
+        image, workflow = self.state.image, self.state.workflow
+        settings = tuple(getattr(workflow, f) for f in workflow.RECONSTRUCTION_FIELDS)
+        if image is None or not self._submit_once("reconstruction", (id(image), settings)):
             return
         self._asked.discard("reconstruction")
         self.state.set_convergence((), ())

@@ -109,6 +109,7 @@ class ReconstructionResult:
     scores : the final :class:`~lfm_studio.engine.image_quality.Scorecard` (NCC, F1 for beads, PSNR,
         SSIM with their all-zero floors), or None.
     summary : ``scores`` in one line, NCC and F1 first (what the workflow panel shows).
+    method : the registry name of the method that made it ("" when unknown).
     """
 
     volume: torch.Tensor
@@ -121,6 +122,7 @@ class ReconstructionResult:
     ncc_curve: tuple[float, ...] = ()
     scores: Any = None
     summary: str = ""
+    method: str = ""
 
     @property
     def ncc(self) -> float | None:
@@ -145,7 +147,10 @@ class WorkflowSettings:
     tiff_path : volume TIFF (phantom "tiff").
     photons : expected photons in the image; None = noise-free.
     seed : random seed of phantom and noise.
-    iterations : Richardson-Lucy iterations.
+    iterations : iterations of an iterative method (Richardson-Lucy).
+    method : a reconstruction method of :mod:`lfm_studio.engine.reconstruct.registry`.
+    method_options : its other options as ``(name, value)`` pairs (not iterations, not background:
+        the background is the camera's noise floor).
     auto_update : recompute image and reconstruction when the design changes.
     """
 
@@ -156,12 +161,19 @@ class WorkflowSettings:
     seed: int = 0
     iterations: int = 10
     auto_update: bool = True
+    method: str = "rl-accelerated"
+    method_options: tuple[tuple[str, Any], ...] = ()
 
     IMAGE_FIELDS = ("phantom", "bead_count", "tiff_path", "photons", "seed")
+    RECONSTRUCTION_FIELDS = ("iterations", "method", "method_options")
 
     def image_changed(self, other: WorkflowSettings) -> bool:
         """Whether the image stage depends on something that differs between the two settings."""
         return any(getattr(self, f) != getattr(other, f) for f in self.IMAGE_FIELDS)
+
+    def reconstruction_changed(self, other: WorkflowSettings) -> bool:
+        """Whether the reconstruction settings (method, its options, iterations) differ."""
+        return any(getattr(self, f) != getattr(other, f) for f in self.RECONSTRUCTION_FIELDS)
 
 
 @dataclass(frozen=True)

@@ -1,8 +1,8 @@
 """A reconstruction method box and its option fields, built from the engine's registry (qtpy).
 
 :class:`MethodOptions` lists every registered method (:mod:`lfm_studio.engine.reconstruct.registry`)
-in a combo box and shows one field per option of any method (spin box for numbers, check box for
-true/false, combo box for choices); the fields the chosen method does not take are disabled.
+in a combo box and shows one field per option of any method (:class:`NumericField` for numbers,
+check box for true/false, combo box for choices); the fields the chosen method does not take are disabled.
 Switching methods moves a field still at the old method's default to the new method's default
 (Wiener's SNR 100 -> Tikhonov's 1000) and keeps a value the user typed. The napari plugin and
 the studio both use it, so a newly registered method appears in both without editing them.
@@ -13,14 +13,15 @@ from __future__ import annotations
 from typing import Any
 
 from qtpy.QtCore import Qt, Signal
-from qtpy.QtWidgets import QCheckBox, QComboBox, QDoubleSpinBox, QFormLayout, QSpinBox, QWidget
+from qtpy.QtWidgets import QCheckBox, QComboBox, QFormLayout, QWidget
 
 from lfm_studio.engine.reconstruct import registry
+from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_text import NumberRule
 
-FLOAT_DECIMALS = 4
-FLOAT_STEP = 10.0**-FLOAT_DECIMALS  # the smallest value above an exclusive lower bound of 0
-LARGEST_FLOAT = 1e9  # a number field's upper end when the option has no maximum
+LARGEST = 1e9  # a number field's upper end (lower: minus it) when the option has no bound
 LARGEST_INT = 10**6
+EXCLUSIVE_MARGIN = 1e-12  # relative: how far inside an exclusive bound a field's range ends
 OFF = "off"  # what an optional number shows at the bottom of its range (None)
 
 
@@ -30,23 +31,28 @@ def _label(name: str) -> str:
     )
 
 
-def _number_field(option: registry.Option) -> QSpinBox | QDoubleSpinBox:
+def _inside(bound: float, direction: int) -> float:
+    return bound + direction * EXCLUSIVE_MARGIN * max(abs(bound), 1.0)
+
+
+def number_rule(option: registry.Option) -> NumberRule:
+    """The :class:`NumberRule` of a number option: its bounds (exclusive ones moved just inside, missing
+    ones at +-1e9, +-1e6 for integers), units, and ``"off"`` at the bottom for an optional one (None)."""
     integer = option.kind is int
-    box: QSpinBox | QDoubleSpinBox = QSpinBox() if integer else QDoubleSpinBox()
-    step = 1 if integer else FLOAT_STEP
-    low = option.minimum if option.minimum is not None else (-LARGEST_INT if integer else -LARGEST_FLOAT)
-    high = option.maximum if option.maximum is not None else (LARGEST_INT if integer else LARGEST_FLOAT)
-    low = low + step if option.exclusive_minimum else low
-    high = high - step if option.exclusive_maximum else high
-    if isinstance(box, QDoubleSpinBox):
-        box.setDecimals(FLOAT_DECIMALS)
-    if option.optional:  # the bottom of the range means None ("off")
-        low -= step
-        box.setSpecialValueText(OFF)
-    box.setRange(int(low) if integer else low, int(high) if integer else high)
-    if option.units:
-        box.setSuffix(f" {option.units}")
-    return box
+    largest = LARGEST_INT if integer else LARGEST
+    low = -largest if option.minimum is None else option.minimum
+    high = largest if option.maximum is None else option.maximum
+    if option.exclusive_minimum:
+        low = low + 1 if integer else _inside(low, +1)
+    if option.exclusive_maximum:
+        high = high - 1 if integer else _inside(high, -1)
+    special = ""
+    if option.optional:  # one step below the range means None
+        low, special = low - (1 if integer else EXCLUSIVE_MARGIN * max(abs(low), 1.0)), OFF
+    return NumberRule(
+        _label(option.name), low, high, option.units, integer=integer, special_text=special,
+        example=None if option.default is None else option.default,
+    )  # fmt: skip
 
 
 class MethodOptions(QWidget):
@@ -55,9 +61,11 @@ class MethodOptions(QWidget):
     Signals
     -------
     methodChanged(str) : the chosen method's name.
+    edited() : the user changed the method or an option (not emitted by :meth:`show`).
     """
 
     methodChanged = Signal(str)  # noqa: N815 - Qt signal names are camelCase
+    edited = Signal()
 
     def __init__(self, *, exclude: tuple[str, ...] = (), parent: QWidget | None = None) -> None:
         super().__init__(parent)
@@ -75,6 +83,7 @@ class MethodOptions(QWidget):
             field.setToolTip(option.help)
             self._fields[name] = field
             self.form.addRow(_label(name), field)
+            _change_signal(field).connect(self._on_field_edited)
         self._current = ""
         self.set_method(registry.default_method())
         self.method.currentIndexChanged.connect(self._on_method)
@@ -93,14 +102,41 @@ class MethodOptions(QWidget):
             raise ValueError(
                 f"method {name!r} was registered after this form was built. Fix: reopen the widget."
             )
-        if index == self.method.currentIndex() and self._current == name:
-            return
-        self.method.setCurrentIndex(index)
-        self._on_method()
+        self.method.setCurrentIndex(index)  # runs _on_method unless signals are blocked
+        if self._current != name:
+            self._on_method()
 
     def field(self, name: str) -> QWidget:
-        """The field of option ``name``."""
+        """The field of option ``name`` (one of :meth:`option_names`)."""
+        if name not in self._fields:
+            raise ValueError(f"no field for the option {name!r}; the fields are {self.option_names()}.")
         return self._fields[name]
+
+    def option_names(self) -> tuple[str, ...]:
+        """The options shown here, in form order."""
+        return tuple(self._fields)
+
+    def fields(self) -> tuple[QWidget, ...]:
+        """Every option field, in form order."""
+        return tuple(self._fields.values())
+
+    def numeric_fields(self) -> tuple[NumericField, ...]:
+        """The typed numbers among :meth:`fields` (for ``commit_all`` and error labels)."""
+        return tuple(f for f in self._fields.values() if isinstance(f, NumericField))
+
+    def show(self, method: str, values: dict[str, Any]) -> None:
+        """Show ``method`` with ``values`` (others at its defaults) without emitting any signal."""
+        blocked = (self, self.method, *self._fields.values())
+        for widget in blocked:
+            widget.blockSignals(True)
+        try:
+            self.set_method(method)
+            for name, value in values.items():
+                if name in self._fields:
+                    self._set_value(name, value)
+        finally:
+            for widget in blocked:
+                widget.blockSignals(False)
 
     def values(self) -> dict[str, Any]:
         """The chosen method's options shown here (the caller adds the excluded ones)."""
@@ -117,7 +153,7 @@ class MethodOptions(QWidget):
             for choice in option.choices or ():
                 box.addItem(choice, choice)
             return box
-        return _number_field(option)
+        return NumericField(number_rule(option), option.default, step=1 if option.kind is int else 0.0)
 
     def _value(self, name: str) -> Any:
         field, option = self._fields[name], self._options[name]
@@ -125,7 +161,7 @@ class MethodOptions(QWidget):
             return field.isChecked()
         if isinstance(field, QComboBox):
             return field.currentData()
-        if option.optional and field.value() == field.minimum():
+        if option.optional and field.value() <= field.rule.minimum:
             return None
         return field.value()
 
@@ -136,7 +172,7 @@ class MethodOptions(QWidget):
         elif isinstance(field, QComboBox):
             field.setCurrentIndex(max(0, field.findData(value)))
         else:
-            field.setValue(field.minimum() if value is None else value)
+            field.setValue(field.rule.minimum if value is None else value)
 
     def _on_method(self, *_: Any) -> None:
         new = registry.get(self.method_name())
@@ -152,3 +188,16 @@ class MethodOptions(QWidget):
                 self._set_value(name, option.default)
         self._current = new.name
         self.methodChanged.emit(new.name)
+        self.edited.emit()
+
+    def _on_field_edited(self, *_: Any) -> None:
+        self.edited.emit()
+
+
+def _change_signal(field: QWidget) -> Any:
+    """The signal ``field`` emits when its value changes."""
+    for name in ("committed", "toggled", "currentIndexChanged"):
+        signal = getattr(field, name, None)
+        if signal is not None:
+            return signal
+    raise TypeError(f"{type(field).__name__} has no value-change signal")
