@@ -7,8 +7,8 @@ photons from the image's camera metadata (an image without it gets an estimated
 baseline, said in a warning notification), so the volume is in photons per voxel.
 Inputs are checked
 before anything starts (a mismatch, e.g. of pixel sizes, is an error notification
-naming both layers and values); the reconstruction then runs on a napari
-``thread_worker`` with progress and Cancel. Only a finished reconstruction adds a
+naming both layers and values); the reconstruction then runs as a
+background job (:mod:`lfm_studio.widgets.jobs`) with progress and Cancel. Only a finished reconstruction adds a
 layer: the volume in object space (voxel size from the PSF's magnification and depth
 step, in um), its settings in the layer metadata. Cancel or failure adds nothing and
 leaves every layer as it was.

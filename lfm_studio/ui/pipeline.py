@@ -1,6 +1,6 @@
 """The studio's background stages as plain functions ``(ctx, ...) -> result`` (Qt-free).
 
-Each runs on a worker thread (:mod:`lfm_studio.ui.jobs`): it reports through
+Each runs on a worker thread (:mod:`lfm_studio.widgets.jobs`): it reports through
 ``ctx.progress``, stops when ``ctx.cancel`` is set (the engine's cancel token) and
 returns detached CPU tensors in the records of :mod:`lfm_studio.ui.results`.
 
@@ -34,7 +34,7 @@ LATERAL_HALF_WIDTH = 20  # pixels either side of the peak in the lateral profile
 
 
 class Context(Protocol):
-    """What a stage needs from :class:`lfm_studio.ui.jobs.JobContext`."""
+    """What a stage needs from :class:`lfm_studio.widgets.jobs.JobContext`."""
 
     cancel: Any
 

@@ -13,6 +13,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.widgets.job_status import JobStatus as JobStatus  # re-exported: lives with the job runner
 
 STAGES = ("psf", "image", "reconstruction")
 """The recompute chain: a stage is stale when anything it depends on changed."""
@@ -174,29 +175,3 @@ class WorkflowSettings:
     def reconstruction_changed(self, other: WorkflowSettings) -> bool:
         """Whether the reconstruction settings (method, its options, iterations) differ."""
         return any(getattr(self, f) != getattr(other, f) for f in self.RECONSTRUCTION_FIELDS)
-
-
-@dataclass(frozen=True)
-class JobStatus:
-    """State of one named background job (what the status bar shows).
-
-    ``state`` is "idle", "running", "cancelling", "done", "failed" or "cancelled";
-    ``done``/``total`` count units of work (lenslets, depths, iterations).
-    """
-
-    name: str
-    state: str = "idle"
-    done: int = 0
-    total: int = 0
-    message: str = ""
-    generation: int = 0
-
-    @property
-    def active(self) -> bool:
-        """Running or being cancelled."""
-        return self.state in ("running", "cancelling")
-
-    @property
-    def fraction(self) -> float | None:
-        """Progress in [0, 1], None when the total is unknown."""
-        return None if self.total <= 0 else min(1.0, max(0.0, self.done / self.total))
