@@ -142,6 +142,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     check_output(args.out, overwrite=args.overwrite, inputs=inputs)
     method, options = method_options(args)
     device = resolve_device(args.device)
+    if device not in method.devices:
+        raise ValueError(
+            f"--method {method.name} runs on {' or '.join(method.devices)}; got --device {device}. "
+            f"Fix: --device {method.devices[0]}."
+        )
     raw_calibration = load_raw_calibration(args)
     stack = _read_psf(args, device)
     image = _read_frames(args, stack.pixel_size, device)

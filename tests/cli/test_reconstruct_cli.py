@@ -16,6 +16,7 @@ from lfm_studio.cli.reconstruct import add_reconstruct_parsers
 from lfm_studio.engine.design import load_preset, save_design
 from lfm_studio.engine.io import read_image, read_psf_stack, read_volume, write_image
 from lfm_studio.engine.progress import CancelledError
+from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.simulation import imaging_setup
 
 BASELINE = 100.0  # camera baseline (ADU) of the flfm_guo2019 preset; reconstruct reads it from the image
@@ -302,3 +303,19 @@ def test_a_method_option_out_of_bounds_names_the_flag(files, tmp_path, capsys):
     assert _reconstruct(files, tmp_path / "w.tif", "--method", "wiener", "--snr", "0") == 2
     assert "--snr must be a finite number > 0; got 0.0. Fix: e.g. --snr 100.0" in capsys.readouterr().err
     assert not (tmp_path / "w.tif").exists()
+
+
+def test_a_method_that_does_not_run_on_the_device_is_refused(files, tmp_path, capsys):
+    from dataclasses import replace
+
+    from tests import toy_method
+
+    with toy_method.registered():
+        registry.register(replace(registry.get("backprojection"), devices=("cuda",)), overwrite=True)
+        capsys.readouterr()
+        assert _reconstruct(files, tmp_path / "bp.tif", "--method", "backprojection") == 2
+    assert (
+        "--method backprojection runs on cuda; got --device cpu. Fix: --device cuda."
+        in capsys.readouterr().err
+    )
+    assert not (tmp_path / "bp.tif").exists()
