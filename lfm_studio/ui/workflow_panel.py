@@ -179,7 +179,7 @@ class WorkflowPanel(QWidget):
         self.photons.setEnabled(settings.photons is not None)
         self.seed.setValue(settings.seed)
         self.iterations.setValue(settings.iterations)
-        self.method_options.show(settings.method, dict(settings.method_options))
+        self.method_options.display(settings.method, dict(settings.method_options))
         self.iterations.setEnabled(self._method_takes("iterations"))
         self.auto_update.setChecked(settings.auto_update)
         self.tiff_path.setText(settings.tiff_path or "")

@@ -61,7 +61,7 @@ class MethodOptions(QWidget):
     Signals
     -------
     methodChanged(str) : the chosen method's name.
-    edited() : the user changed the method or an option (not emitted by :meth:`show`).
+    edited() : the user changed the method or an option (not emitted by :meth:`display`).
     """
 
     methodChanged = Signal(str)  # noqa: N815 - Qt signal names are camelCase
@@ -72,7 +72,7 @@ class MethodOptions(QWidget):
         self.method = QComboBox(self)
         for method in registry.methods():
             self.method.addItem(method.label, method.name)
-            self.method.setItemData(self.method.count() - 1, method.description, Qt.ToolTipRole)
+            self.method.setItemData(self.method.count() - 1, method.description, Qt.ItemDataRole.ToolTipRole)
         self.form = QFormLayout(self)
         self.form.setContentsMargins(0, 0, 0, 0)
         self.form.addRow("Method", self.method)
@@ -124,7 +124,7 @@ class MethodOptions(QWidget):
         """The typed numbers among :meth:`fields` (for ``commit_all`` and error labels)."""
         return tuple(f for f in self._fields.values() if isinstance(f, NumericField))
 
-    def show(self, method: str, values: dict[str, Any]) -> None:
+    def display(self, method: str, values: dict[str, Any]) -> None:
         """Show ``method`` with ``values`` (others at its defaults) without emitting any signal."""
         blocked = (self, self.method, *self._fields.values())
         for widget in blocked:
@@ -161,6 +161,7 @@ class MethodOptions(QWidget):
             return field.isChecked()
         if isinstance(field, QComboBox):
             return field.currentData()
+        assert isinstance(field, NumericField)
         if option.optional and field.value() <= field.rule.minimum:
             return None
         return field.value()
@@ -171,7 +172,7 @@ class MethodOptions(QWidget):
             field.setChecked(bool(value))
         elif isinstance(field, QComboBox):
             field.setCurrentIndex(max(0, field.findData(value)))
-        else:
+        elif isinstance(field, NumericField):
             field.setValue(field.rule.minimum if value is None else value)
 
     def _on_method(self, *_: Any) -> None:

@@ -9,14 +9,14 @@ Total-variation regularisation (:mod:`.total_variation`) is the RL option ``tv_w
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 import torch
 
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
-from lfm_studio.engine.reconstruct.registry import Method, Option, register
+from lfm_studio.engine.reconstruct.registry import Method, MethodRun, Option, register
 from lfm_studio.engine.reconstruct.richardson_lucy import Iterate, richardson_lucy, richardson_lucy_iterates
 from lfm_studio.engine.reconstruct.tikhonov import tikhonov
 from lfm_studio.engine.reconstruct.total_variation import MAX_TV_WEIGHT
@@ -58,7 +58,12 @@ def _rl_arguments(projector: Any, options: Mapping[str, Any], accelerated: bool)
     return {**{k: options[k] for k in keys}, **faster}
 
 
-def _rl_iterates(accelerated: bool):
+IteratesFunction = Callable[
+    [Any, torch.Tensor, Mapping[str, Any], ProgressCallback | None, CancelToken], Iterator[Iterate]
+]
+
+
+def _rl_iterates(accelerated: bool) -> IteratesFunction:
     def iterates(
         projector: Any,
         frame: torch.Tensor,
@@ -72,7 +77,7 @@ def _rl_iterates(accelerated: bool):
     return iterates
 
 
-def _rl_run(accelerated: bool):
+def _rl_run(accelerated: bool) -> MethodRun:
     def run(
         projector: Any,
         frame: torch.Tensor,
@@ -88,15 +93,28 @@ def _rl_run(accelerated: bool):
 
 def _signal(frame: torch.Tensor, options: Mapping[str, Any]) -> torch.Tensor:
     """The frame minus the background, clipped at 0 (what the one-step methods invert)."""
-    return (frame - options["background"]).clamp_min(0.0)
+    signal: torch.Tensor = (frame - options["background"]).clamp_min(0.0)
+    return signal
 
 
-def _wiener_run(projector, frame, options, progress, cancel) -> torch.Tensor:
+def _wiener_run(
+    projector: Any,
+    frame: torch.Tensor,
+    options: Mapping[str, Any],
+    progress: ProgressCallback | None,
+    cancel: CancelToken,
+) -> torch.Tensor:
     del progress, cancel  # one step
     return wiener(projector, _signal(frame, options), snr=options["snr"])
 
 
-def _tikhonov_run(projector, frame, options, progress, cancel) -> torch.Tensor:
+def _tikhonov_run(
+    projector: Any,
+    frame: torch.Tensor,
+    options: Mapping[str, Any],
+    progress: ProgressCallback | None,
+    cancel: CancelToken,
+) -> torch.Tensor:
     del progress, cancel  # one step (plus ``refine`` CG steps)
     return tikhonov(projector, _signal(frame, options), mu=1.0 / options["snr"], refine=options["refine"])
 
