@@ -24,6 +24,7 @@ The built-in methods (Richardson-Lucy, its accelerated form, Wiener, Tikhonov) a
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, Protocol
@@ -122,10 +123,12 @@ class Option:
         ok = value is not None and not (self.kind is not bool and isinstance(value, bool))
         converted = value
         if ok and self.kind is int:
-            ok = isinstance(value, int) or (isinstance(value, float) and value.is_integer())
+            ok = isinstance(value, numbers.Integral) or (
+                isinstance(value, numbers.Real) and math.isfinite(value) and float(value).is_integer()
+            )
             converted = int(value) if ok else value
         elif ok and self.kind is float:
-            ok = isinstance(value, (int, float)) and math.isfinite(value)
+            ok = isinstance(value, numbers.Real) and math.isfinite(value)
             converted = float(value) if ok else value
         elif ok:
             ok = isinstance(value, self.kind) and (self.choices is None or value in self.choices)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import warnings
 
+import numpy as np
 import pytest
 import torch
 
@@ -81,6 +82,9 @@ def test_resolve_fills_defaults_and_converts():
     assert got == {"background": 2.0, "iterations": 5, "rtol": None, "tv_weight": 0.0}
     assert isinstance(got["iterations"], int) and isinstance(got["background"], float)
     assert registry.get("tikhonov").resolve({})["snr"] == 1000.0  # mu = 1e-3, the engine's default
+    numpy_values = registry.get("rl").resolve({"iterations": np.int64(4), "background": np.float32(0.5)})
+    assert numpy_values["iterations"] == 4 and type(numpy_values["iterations"]) is int
+    assert type(numpy_values["background"]) is float
 
 
 def test_differentiable_claims_hold(small):
