@@ -113,7 +113,7 @@ class WorkflowPanel(QWidget):
         self.method = self.method_options.method
         form.addRow(self.method_options)
         self.iterations = NumericField(ITERATIONS, 10, step=1, parent=self)
-        form.addRow("Iterations", self.iterations)
+        self.method_options.form.insertRow(1, "Iterations", self.iterations)  # under the method box
         self.input_error = ErrorLabel(self)  # why a typed number was refused
         form.addRow(self.input_error)
         self.auto_update = QCheckBox("update image and reconstruction when the design changes", self)
