@@ -29,3 +29,5 @@ TensorLike: TypeAlias = torch.Tensor | npt.ArrayLike
 JSONValue: TypeAlias = "str | int | float | bool | list[JSONValue] | dict[str, JSONValue] | None"
 #: A contiguous run of depth indices ``start:stop`` (a chunk of a volume's ``Z`` axis).
 DepthSlice: TypeAlias = "slice[int, int, int | None]"
+#: The value of a reconstruction method's option (:class:`~lfm_studio.engine.reconstruct.registry.Option`).
+OptionValue: TypeAlias = int | float | str | bool | None

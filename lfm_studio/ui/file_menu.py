@@ -26,9 +26,9 @@ from qtpy.QtWidgets import QFileDialog, QMenu, QMessageBox, QWidget
 from lfm_studio.engine.design import list_presets, load_design, load_preset, save_design
 from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.failure_notices import show_failure, write_error_text
-from lfm_studio.ui.jobs import JobOutcome, JobRunner
 from lfm_studio.ui.raw_frame_dialog import RawFrameActions
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 ORGANIZATION = APPLICATION = "lfm_studio"
 RECENT_KEY = "recent_files"

@@ -131,10 +131,10 @@ def test_the_frame_waits_for_its_design_psf_and_an_edit_meanwhile_drops_it(qtbot
     """The slots of RawFrameActions, driven as the controller drives them (psf_changed)."""
     from types import SimpleNamespace
 
+    from lfm_studio.ui.jobs import JobRunner
     from qtpy.QtWidgets import QMainWindow
 
     from lfm_studio.ui.edits import apply_changes
-    from lfm_studio.ui.jobs import JobRunner
     from lfm_studio.ui.raw_frame_dialog import RawFrameActions
     from lfm_studio.ui.state import StudioState
 

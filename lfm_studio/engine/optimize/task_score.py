@@ -30,7 +30,7 @@ from lfm_studio.engine.image_quality import ncc, peak_match
 from lfm_studio.engine.io.camera_counts import CameraCalibration, counts_to_photons
 from lfm_studio.engine.optimize.candidate import Candidate
 from lfm_studio.engine.optimize.objectives import Direction, Objective, ObjectiveFactory, register_objective
-from lfm_studio.engine.reconstruct import METHODS, reconstruct_frame
+from lfm_studio.engine.reconstruct import reconstruct_frame, registry
 from lfm_studio.engine.simulation import camera_of, light_field_image, make_phantom
 
 TASK_METRICS: dict[str, tuple[str, Direction]] = {
@@ -101,8 +101,8 @@ class TaskScore:
     def __post_init__(self) -> None:
         if self.metric not in TASK_METRICS:
             raise ValueError(f"task metric must be one of {sorted(TASK_METRICS)}; got {self.metric!r}.")
-        if self.method not in METHODS:
-            raise ValueError(f"task method must be one of {list(METHODS)}; got {self.method!r}.")
+        if self.method not in registry.names():
+            raise ValueError(f"task method must be one of {registry.names()}; got {self.method!r}.")
         if self.phantom not in ("beads", "cells"):
             raise ValueError(f"task phantom must be 'beads' or 'cells'; got {self.phantom!r}.")
         if not (math.isfinite(self.photons) and self.photons > 0):
