@@ -13,6 +13,11 @@ waits until the quick PSF preview has been computed and drawn, and saves:
 saves the viewer in each state to DIR: ``psf_full.png``, ``light_field.png``, ``phantom.png``,
 ``phantom_mip.png``, ``reconstruction.png`` (its brightest slice) and ``reconstruction_mip.png``,
 plus ``main_window_workflow.png`` (the status bar's stage trail with times).
+``--raw-demo DIR`` starts from the nominal design of a synthetic misaligned instrument
+(:func:`lfm_studio.engine.calibration.synthetic_scene.misaligned_bead_scene`, its frames written
+to DIR), fills File > Open raw light field… (``raw_dialog.png``), calibrates, accepts the
+calibration's design and reconstructs: ``raw_light_field.png``, ``raw_reconstruction.png``,
+``main_window_raw.png``.
 
 Headless machines need an X server with OpenGL (napari's canvas)::
 
@@ -80,6 +85,54 @@ def _workflow_states(app, window, out: Path, timeout: float) -> None:
     _save(window, out / "main_window_workflow.png")
 
 
+def _raw_demo_files(out: Path) -> dict[str, str]:
+    """The synthetic misaligned scene's nominal design and frames, written to ``out``."""
+    import numpy as np
+    import tifffile
+
+    from lfm_studio.engine.calibration.synthetic_scene import misaligned_bead_scene
+    from lfm_studio.engine.design import save_design
+
+    out.mkdir(parents=True, exist_ok=True)
+    scene = misaligned_bead_scene()
+    files = {"design": str(save_design(scene.nominal, out / "nominal.json", overwrite=True))}
+    for name in ("raw", "radiometry", "dark"):
+        frame = getattr(scene, name).clamp(0, 65535).round().numpy().astype(np.uint16)
+        tifffile.imwrite(out / f"{name}.tif", frame)
+        files[name] = str(out / f"{name}.tif")
+    return files
+
+
+def _raw_demo(app, window, files: dict[str, str], out: Path, timeout: float) -> None:
+    """Open the raw frame with a calibration made from the radiometry and dark frames, reconstruct."""
+    from lfm_studio.ui.raw_frame_dialog import JOB, RawFrameDialog
+
+    state, viewer, raw_frames = window.state, window.viewer, window.file_actions.raw_frames
+    dialog = RawFrameDialog(window)
+    dialog.make_new.setChecked(True)
+    dialog.raw_edit.setText(files["raw"])
+    dialog.radiometry_edit.setText(files["radiometry"])
+    dialog.dark_edit.setText(files["dark"])
+    dialog.show()
+    settle(app, 0.5)
+    _save(dialog, out / "raw_dialog.png")
+    request = dialog.request(state.design)
+    dialog.close()
+    raw_frames.load(request, use_fitted=True)
+    wait_until(app, lambda: state.image is not None or (_finished(state, JOB)() and state.job(JOB).state != "done"),
+               timeout, "the raw frame")  # fmt: skip
+    _require_done(state, JOB)
+    settle(app, 2.0)
+    _save(viewer, out / "raw_light_field.png")
+    window.workflow_panel.reconstruct_button.click()
+    wait_until(app, _finished(state, "reconstruction"), timeout, "the reconstruction")
+    _require_done(state, "reconstruction")
+    viewer.set_mip(True)
+    settle(app, 2.0)
+    _save(viewer, out / "raw_reconstruction.png")
+    _save(window, out / "main_window_raw.png")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "screenshots")
@@ -87,7 +140,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--full", action="store_true", help="wait for the full PSF stack too")
     parser.add_argument("--workflow", type=Path, default=None, help="also save every display state here")
     parser.add_argument("--timeout", type=float, default=1200.0, help="seconds to wait for each stage")
+    parser.add_argument("--raw-demo", type=Path, default=None, help="open a synthetic raw frame; shots here")
     args = parser.parse_args(argv)
+    raw_files = None if args.raw_demo is None else _raw_demo_files(args.raw_demo)
+    if raw_files is not None:
+        args.design = raw_files["design"]
 
     from qtpy.QtWidgets import QApplication
 
@@ -121,6 +178,8 @@ def main(argv: list[str] | None = None) -> int:
         _save(widget, args.out / name)
     if args.workflow is not None:
         _workflow_states(app, window, args.workflow, args.timeout)
+    if raw_files is not None:
+        _raw_demo(app, window, raw_files, args.raw_demo, args.timeout)
 
     window.controller.cancel()
     state.set_dirty(False)

@@ -32,6 +32,8 @@ PY
 echo "== ruff"
 ruff check .
 ruff format --check .
+echo "== mypy (engine)"
+mypy lfm_studio/engine
 echo "== import contracts"
 lint-imports
 echo "== napari plugin manifest (discovered, every command imports)"

@@ -13,9 +13,6 @@ simulate the PSF with for ``reconstruct --calibration`` (conventional:
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
-import torch
 
 from lfm_studio.cli.progress import progress_bar
 
@@ -47,16 +44,6 @@ def add_calibrate_parser(subparsers: argparse._SubParsersAction) -> argparse.Arg
     return parser
 
 
-def _read_frame(option: str, path: str, pixel_size: float) -> torch.Tensor:
-    """One frame from a TIFF (a (T, Y, X) stack is averaged), float64; errors name the option."""
-    from lfm_studio.engine.io import read_image
-
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"{option} {path}: no such file. Fix: give the path to a TIFF frame.")
-    data = read_image(path, pixel_size=pixel_size, dtype=torch.float64).data
-    return data.mean(dim=0) if data.ndim == 3 else data
-
-
 def _save_psf_design(args: argparse.Namespace, design, calibration) -> None:
     """Write ``--design-out``: the design whose PSF matches what ``reconstruct --calibration`` feeds it."""
     from lfm_studio.engine.calibration import fitted_design, rectified_design
@@ -76,6 +63,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
     from lfm_studio.engine.calibration import calibrate, save_calibration
     from lfm_studio.engine.calibration.calibration_io import dark_frame_path
+    from lfm_studio.engine.calibration.frame_files import read_frame
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io.file_checks import check_output
 
@@ -87,8 +75,8 @@ def run_calibrate(args: argparse.Namespace) -> int:
         check_output(args.design_out, overwrite=args.overwrite, inputs=inputs, flag="--design-out")
     design = resolve_design(args.design)
     pixel = design.camera.pixel_pitch
-    radiometry = _read_frame("--radiometry", args.radiometry, pixel)
-    dark = None if args.dark is None else _read_frame("--dark", args.dark, pixel)
+    radiometry = read_frame("--radiometry", args.radiometry, pixel)
+    dark = None if args.dark is None else read_frame("--dark", args.dark, pixel)
     with progress_bar(f"calibration ({design.kind})") as progress:
         calibration = calibrate(radiometry, design, dark=dark, progress=progress)
     save_calibration(calibration, out, overwrite=args.overwrite)

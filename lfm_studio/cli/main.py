@@ -17,6 +17,7 @@ from lfm_studio.cli.calibrate import add_calibrate_parser
 from lfm_studio.cli.errors import EPILOG, INTERRUPTED, exit_code_for
 from lfm_studio.cli.info import add_info_parser
 from lfm_studio.cli.metrics import add_metrics_parser
+from lfm_studio.cli.optimize import add_optimize_parsers
 from lfm_studio.cli.reconstruct import add_reconstruct_parsers
 from lfm_studio.cli.resolution import add_resolution_parser
 from lfm_studio.cli.simulate import add_simulate_parsers
@@ -61,6 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_bench_parser(sub)
     add_resolution_parser(sub)
     add_calibrate_parser(sub)
+    add_optimize_parsers(sub)
     add_train_parser(sub)
     return parser
 

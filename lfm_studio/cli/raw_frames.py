@@ -11,6 +11,11 @@ Order of the corrections (one dark subtraction, never two):
    gain, quantum efficiency and read noise of ``--gain/--read-noise``, else the image's
    camera metadata, else the calibration's nominal design camera. ``--baseline`` is refused.
 
+With ``--measured`` (a bead z-scan as the PSF) and a Fourier-LFM calibration, the bead frames
+get the same corrections (step 1) before the PSF is prepared (:func:`calibrated_bead_psf`);
+with a conventional-LFM calibration the combination is refused: a bead gives one PSF per
+depth, and a conventional LFM's PSF changes with the position under the lenslet.
+
 Register the options with :func:`add_raw_frame_arguments`.
 """
 
@@ -59,13 +64,48 @@ def load_raw_calibration(args: argparse.Namespace):
             f"--baseline {args.baseline} with --calibration {args.calibration}: the calibration subtracts "
             "its dark frame, a second baseline would subtract the dark level twice. Fix: drop --baseline."
         )
-    if args.measured:
+    calibration = load_calibration(args.calibration)
+    if args.measured and calibration.grid is not None:
         raise ValueError(
-            f"--measured with --calibration {args.calibration}: a bead PSF measured on the raw camera is not "
-            "rectified yet. Fix: simulate the PSF for the rectified frames ('lfm-studio calibrate ... "
-            "--design-out rectified.json', then 'lfm-studio simulate rectified.json --out psf.tif')."
+            f"--measured with --calibration {args.calibration}: a conventional-LFM calibration, but a bead "
+            "z-scan gives one PSF per depth, and a conventional LFM has none (its PSF changes with the "
+            "bead's position under its lenslet). Fix: drop --measured and simulate the PSF for the "
+            "rectified frames ('lfm-studio calibrate ... --design-out rectified.json', then "
+            "'lfm-studio simulate rectified.json --out psf.tif')."
         )
-    return load_calibration(args.calibration)
+    return calibration
+
+
+def calibrated_bead_psf(args: argparse.Namespace, stack, image, calibration):
+    """``--measured`` with a Fourier-LFM ``--calibration``: the bead z-scan as the PSF of the frames.
+
+    The scan, recorded on the same raw camera region as the frames, gets the frames' own
+    corrections (dark frame, defective pixels, per-sub-image flat field); the calibration's
+    dark level goes back on as a flat pedestal (the preparation estimates and removes the
+    background itself, and a PSF stack holds no negative noise). It is then prepared
+    (:func:`~lfm_studio.engine.bead_psf.prepare_measured_psf`: background, noise floor,
+    centring, normalisation) and registered to the calibration's optical axis
+    (:func:`~lfm_studio.engine.calibration.bead_scan.register_bead_psf`); without that the
+    volume would be shifted by the unknown bead position.
+    """
+    from lfm_studio.engine.bead_psf import prepare_measured_psf
+    from lfm_studio.engine.calibration import rectify_frame
+    from lfm_studio.engine.calibration.bead_scan import register_bead_psf
+
+    data = stack.data
+    try:
+        corrected = rectify_frame(data.detach().to("cpu", torch.float64), calibration)
+    except ValueError as error:
+        raise ValueError(
+            f"--measured --psf {args.psf} with --calibration {args.calibration}: {error}"
+        ) from error
+    pedestal = (corrected + calibration.dark_level).clamp_min(0.0)
+    stack = dataclasses.replace(stack, data=pedestal.to(dtype=data.dtype, device=data.device))
+    sensor = tuple(image.data.shape[-2:])
+    prepared = prepare_measured_psf(
+        stack, sensor_shape=sensor, pixel_size=image.pixel_size, energy=args.psf_energy
+    )
+    return register_bead_psf(prepared, calibration)
 
 
 def calibrated_camera(args: argparse.Namespace, metadata: dict[str, Any] | None, calibration):

@@ -26,18 +26,19 @@ import sys
 
 import torch
 
+from lfm_studio.cli.method_options import add_method_arguments, method_options
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.cli.raw_frames import (
     add_raw_frame_arguments,
+    calibrated_bead_psf,
     calibrated_camera,
     load_raw_calibration,
     rectified_image,
 )
 from lfm_studio.cli.simulate import allow_negative_values, parse_depths, resolve_device
-from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
+from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.simulation import depth_grid
 
-METHODS = ("rl", "rl-accelerated", "wiener", "tikhonov")  # the engine's reconstruct_frame methods
 _READ_FLAGS = {
     "pixel_size": "--pixel-size-um (sensor pixel pitch)",
     "magnification": "--magnification",
@@ -108,15 +109,11 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
 
 
 def _reconstruct_frame(
-    args: argparse.Namespace, projector, frame: torch.Tensor, floor: float, report
+    method, options: dict, projector, frame: torch.Tensor, floor: float, report
 ) -> torch.Tensor:
-    """One frame in photons; ``floor`` is the camera's noise floor it carries (photons per pixel)."""
-    from lfm_studio.engine.reconstruct import reconstruct_frame
-
-    return reconstruct_frame(
-        projector, frame, method=args.method, iterations=args.iterations, background=args.background + floor,
-        snr=args.snr, rtol=args.rtol, progress=report,
-    )  # fmt: skip
+    """One frame in photons; ``floor`` is the camera's noise floor it carries (photons per pixel),
+    modelled as background on top of ``--background``."""
+    return method(projector, frame, {**options, "background": options["background"] + floor}, report)
 
 
 def _photons(args: argparse.Namespace, image, raw_calibration=None):
@@ -144,23 +141,27 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
     inputs = [args.psf, args.image] + ([] if args.calibration is None else [args.calibration])
     check_output(args.out, overwrite=args.overwrite, inputs=inputs)
-    if args.iterations < 1:
-        raise ValueError(f"--iterations must be >= 1; got {args.iterations}.")
-    if args.background < 0 or not math.isfinite(args.background):
-        raise ValueError(
-            f"--background must be a finite number >= 0 (photons per pixel); got {args.background}."
-        )
+    method, options = method_options(args)
     device = resolve_device(args.device)
+    if device not in method.devices:
+        raise ValueError(
+            f"--method {method.name} runs on {' or '.join(method.devices)}; got --device {device}. "
+            f"Fix: --device {method.devices[0]}."
+        )
     raw_calibration = load_raw_calibration(args)
     stack = _read_psf(args, device)
     image = _read_frames(args, stack.pixel_size, device)
-    stack = _prepare_stack(args, stack, image)
+    if raw_calibration is not None and args.measured:  # the bead z-scan gets the frames' corrections
+        stack = calibrated_bead_psf(args, stack, image, raw_calibration)
+    else:
+        stack = _prepare_stack(args, stack, image)
     fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
     setup = imaging_setup(stack, field_of_view=fov)
-    if args.method in ("wiener", "tikhonov") and not hasattr(setup.projector, "otf"):
+    if not method.supports(setup.projector):
+        others = " or ".join(m.name for m in registry.methods() if m.projectors == "any")
         raise ValueError(
             f"--method {args.method} needs a laterally shift-invariant (Fourier LFM) PSF stack; {args.psf} is a "
-            "conventional-LFM pattern stack. Fix: use --method rl or rl-accelerated."
+            f"conventional-LFM pattern stack. Fix: use --method {others}."
         )
     if raw_calibration is not None:
         image = rectified_image(args, image, raw_calibration, tuple(setup.projector.image_shape), device)
@@ -172,8 +173,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         )
     photons, floor, calibration = _photons(args, image, raw_calibration)
     frames = photons if photons.ndim == 3 else photons[None]
-    iterative = args.method in ITERATIVE
-    count, steps = frames.shape[0], args.iterations if iterative else 1
+    count, steps = frames.shape[0], method.steps(options)
     volumes = []  # Ctrl+C: cli.main exits 130; nothing is written before the last frame
     with progress_bar(f"{args.method} ({count} frame{'s' if count > 1 else ''})") as progress:
         for t, frame in enumerate(frames):
@@ -182,7 +182,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
                 progress(t * steps + min(done, steps), count * steps, f"frame {t + 1}/{count}: {message}")
 
             report(0, steps, "starting")
-            volume = _reconstruct_frame(args, setup.projector, frame, floor, report).detach().cpu()
+            volume = _reconstruct_frame(method, options, setup.projector, frame, floor, report).detach().cpu()
             what = f"the {args.method} reconstruction of {args.image}" + (
                 f" (frame {t})" if count > 1 else ""
             )
@@ -191,10 +191,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     volume = torch.stack(volumes) if image.data.ndim == 3 else volumes[0]
     metadata = {
         "method": args.method,
-        "iterations": args.iterations if iterative else None,
-        "background": args.background,
+        **options,  # the method's options (iterations, snr, ...), background = --background
         "noise_floor_photons": floor,
-        "snr": args.snr,
         "psf": str(args.psf),
         "image": str(args.image),
         "measured_psf": bool(args.measured),
@@ -221,8 +219,8 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         subparsers.add_parser(
             "reconstruct",
             help="reconstruct a volume from a light-field image and a PSF stack",
-            description="Richardson-Lucy (plain or Biggs-Andrews accelerated), Wiener or Tikhonov "
-            "reconstruction. A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume. "
+            description="Reconstruction with any registered method (Richardson-Lucy, plain or accelerated, "
+            "Wiener, Tikhonov, ...: see --method). A (T, Y, X) image is reconstructed frame by frame into a (T, Z, Y, X) volume. "
             "Camera counts are converted to photons first, max((ADU - baseline) / gain + c, 0) / QE, where c, "
             "the camera's read-noise floor, keeps dark pixels from being clipped and is modelled as background; "
             "the camera comes from the image's metadata, --baseline/--gain, "
@@ -237,17 +235,7 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
     rec.add_argument(
         "--out", required=True, help="output volume TIFF (ImageJ hyperstack with voxel size and depths)"
     )
-    rec.add_argument(
-        "--method",
-        choices=METHODS,
-        default="rl-accelerated",
-        help="rl-accelerated (default): Richardson-Lucy with geometric extrapolation and a likelihood "
-        "safeguard, plain RL's quality in about a quarter of its iterations; rl: plain Richardson-Lucy",
-    )
-    rec.add_argument("--iterations", type=int, default=30, help="RL iterations (default 30)")
-    rec.add_argument(
-        "--rtol", type=float, default=None, help="stop RL when the relative change falls below this"
-    )
+    add_method_arguments(rec)
     rec.add_argument(
         "--background",
         type=float,
@@ -276,12 +264,6 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="camera read noise in electrons rms (default: the image's metadata, else 0); sets the noise "
         "floor added before clipping at 0 and modelled as background",
-    )
-    rec.add_argument(
-        "--snr",
-        type=float,
-        default=None,
-        help="wiener: power SNR (default 100); tikhonov: mu = 1/SNR (default mu 1e-3)",
     )
     rec.add_argument(
         "--field-of-view-um",

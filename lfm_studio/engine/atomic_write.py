@@ -19,7 +19,7 @@ from typing import BinaryIO
 
 
 def atomic_write(
-    path: str | os.PathLike, write: Callable[[BinaryIO], None], *, overwrite: bool = False
+    path: str | os.PathLike, write: Callable[[BinaryIO], object], *, overwrite: bool = False
 ) -> Path:
     """Write a file atomically through ``write(fh)`` and return its path.
 

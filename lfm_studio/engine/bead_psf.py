@@ -59,6 +59,7 @@ from lfm_studio.engine import fft
 from lfm_studio.engine.optics.camera import integrate_pixels
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.types import JSONValue
 
 Background = Literal["border", "percentile"] | float
 Normalize = Literal["stack", "per_depth", "none"]
@@ -206,14 +207,15 @@ def _resampled(
     same_pitch = math.isclose(target_pitch, source_pitch, rel_tol=1e-9)
     if sensor_shape is None:
         ratio = source_pitch / target_pitch
-        sensor_shape = source_shape if same_pitch else tuple(max(1, round(n * ratio)) for n in source_shape)
+        sy, sx = source_shape
+        sensor_shape = source_shape if same_pitch else (max(1, round(sy * ratio)), max(1, round(sx * ratio)))
     if len(sensor_shape) != 2 or any(int(n) != n or n < 1 for n in sensor_shape):
         raise ValueError(f"sensor_shape must be (ny, nx) positive integers; got {sensor_shape!r}.")
     sensor_shape = (int(sensor_shape[0]), int(sensor_shape[1]))
     if same_pitch:
         ny, nx = work.shape[-2:]
         return _window(work, (ny // 2, nx // 2), sensor_shape)
-    grid = Grid(tuple(work.shape[-2:]), source_pitch)
+    grid = Grid((work.shape[-2], work.shape[-1]), source_pitch)
     return integrate_pixels(work / grid.pixel_area, grid, target_pitch, shape=sensor_shape)
 
 
@@ -295,11 +297,11 @@ def prepare_measured_psf(
     work = torch.where(work > floor, work, torch.zeros_like(work))
 
     work, centroid, shift = _centred(work, centre, subpixel)
-    work = _resampled(work, stack.pixel_size, target_pitch, sensor_shape, tuple(data.shape[-2:]))
+    work = _resampled(work, stack.pixel_size, target_pitch, sensor_shape, (data.shape[-2], data.shape[-1]))
     work, sums, scale = _normalised(work, normalize, energy)
     if not float(work.sum()) > 0:
         bead_centroid(work)  # raises the named "no signal" error
-    record = {
+    record: dict[str, JSONValue] = {
         "background": level.tolist(),
         "noise_sigma": sigma.tolist(),
         "threshold_sigmas": threshold,

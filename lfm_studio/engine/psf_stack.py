@@ -10,11 +10,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING
 
 import torch
 
 from lfm_studio.engine.errors import require_finite_tensor, require_positive
+from lfm_studio.engine.types import Depths, JSONValue
+
+if TYPE_CHECKING:
+    from lfm_studio.engine.design import Design
 
 
 @dataclass(frozen=True)
@@ -35,19 +39,21 @@ class PSFStack:
         is ``pixel_size / magnification``.
     wavelength : float
         Emission wavelength in metres.
-    design : object or None
-        The design the stack was simulated from (``None`` for a measured stack).
+    design : Design, dict or None
+        The design the stack was simulated from (``None`` for a measured stack; its JSON dict when
+        read from a file without rebuilding it, :func:`~lfm_studio.engine.io.read_psf_stack`).
     metadata : dict
-        Free-form JSON-serialisable provenance (e.g. bead measurement notes).
+        JSON provenance (e.g. bead measurement notes); read typed values with
+        :meth:`metadata_int` / :meth:`metadata_ints`.
     """
 
     data: torch.Tensor
-    depths: tuple[float, ...]
+    depths: Depths
     pixel_size: float
     magnification: float
     wavelength: float
-    design: Any | None = None
-    metadata: dict[str, Any] = field(default_factory=dict)
+    design: Design | dict[str, JSONValue] | None = None
+    metadata: dict[str, JSONValue] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not isinstance(self.data, torch.Tensor) or self.data.is_complex() or self.data.ndim < 3:
@@ -72,6 +78,17 @@ class PSFStack:
         if self.data.numel() and float(self.data.detach().min()) < 0:
             raise ValueError("PSFStack.data must be non-negative (intensities). Fix: clip or re-measure.")
 
+    def metadata_int(self, key: str, default: int | None = None) -> int:
+        """``metadata[key]`` as an int (``default`` when absent); ``ValueError`` naming the key otherwise."""
+        return _as_int(key, self.metadata.get(key, default))
+
+    def metadata_ints(self, key: str) -> tuple[int, ...]:
+        """``metadata[key]``, a list of ints, as a tuple; ``ValueError`` naming the key otherwise."""
+        values = self.metadata.get(key)
+        if not isinstance(values, list):
+            raise ValueError(f"PSFStack.metadata[{key!r}] must be a list of integers; got {values!r}.")
+        return tuple(_as_int(key, value) for value in values)
+
     @property
     def object_pixel_size(self) -> float:
         """Lateral pixel size projected into the sample, in metres."""
@@ -92,3 +109,15 @@ class PSFStack:
     def to(self, device: torch.device | str | None = None, dtype: torch.dtype | None = None) -> PSFStack:
         """Move to ``device`` and/or cast to a real ``dtype``."""
         return replace(self, data=self.data.to(device=device, dtype=dtype))
+
+
+def _as_int(key: str, value: JSONValue) -> int:
+    """A metadata value that must be an integer (a float with an integral value counts, as JSON writes it)."""
+    if isinstance(value, int) and not isinstance(value, bool):
+        return value
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    raise ValueError(
+        f"PSFStack.metadata[{key!r}] must be an integer; got {value!r}. Fix: simulate the stack again "
+        "(lfm_studio.engine.simulation.simulate_psf) or restore the file's metadata."
+    )

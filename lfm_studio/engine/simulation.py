@@ -11,12 +11,11 @@ from dataclasses import dataclass, replace
 
 import torch
 
-from lfm_studio.engine.design import Design
+from lfm_studio.engine.design import Design, RegularMLASpec
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.memory import require_memory, tensor_bytes
-from lfm_studio.engine.operators import ShiftInvariantProjector
+from lfm_studio.engine.operators import Projector, ShiftInvariantProjector
 from lfm_studio.engine.operators.binned import BinnedProjector
-from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
 from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
@@ -30,8 +29,7 @@ from lfm_studio.engine.systems.from_design import (
     fourier_system_of,
     virtual_pixel_count,
 )
-
-Projector = ShiftInvariantProjector | LensletLatticeProjector | BinnedProjector
+from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
 
 def depth_grid(depths_um: tuple[float, float, float], name: str = "depths") -> tuple[float, ...]:
@@ -60,6 +58,7 @@ def simulate_psf(
     crop: int | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
+    cache: LensletCache | None = None,
 ) -> PSFStack:
     """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
     ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached.
@@ -71,31 +70,55 @@ def simulate_psf(
     ``crop``: keep only about ``crop x crop`` camera pixels around the axis, for quick studies
     (Fourier: the sensor cut to that size, views outside it are lost; conventional: the
     lenslets that fit in it).
+
+    ``cache``: a per-lenslet cache (Fourier kind, per-lenslet path) kept across calls, so a
+    design that changes one lenslet recomputes one lenslet (the optimiser's grid search).
     """
     depths = tuple(depths) if depths is not None else design_depths(design)
     refine = design.accuracy.volume_oversampling
     if crop is not None and not (isinstance(crop, int) and crop >= 1):
         raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
-    sensor = tuple(min(crop, n) for n in design.camera.pixel_count) if crop is not None else None
+    ny, nx = design.camera.pixel_count
+    sensor = (min(crop, ny), min(crop, nx)) if crop is not None else None
     require_psf_memory(design, len(depths), dtype=dtype, device=device, sensor=sensor)
+    real = real_dtype_named(dtype) if dtype is not None else None
     if design.kind == "fourier":
-        system, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
-        if crop is not None:
-            shape = tuple(virtual_pixel_count(min(crop, n), refine) for n in design.camera.pixel_count)
-            system = replace(system, sensor_shape=shape)
-        compute = fourier_psf_stack
+        fourier, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
+        if sensor is not None:
+            shape = (virtual_pixel_count(sensor[0], refine), virtual_pixel_count(sensor[1], refine))
+            fourier = replace(fourier, sensor_shape=shape)
+        if real is not None:
+            accuracy = replace(accuracy, dtype=real)
+        stack = fourier_psf_stack(
+            fourier,
+            depths,
+            accuracy=accuracy,
+            device=device,
+            progress=progress,
+            cancel=cancel,
+            design=design,
+            cache=cache,
+        )
     else:
-        lenslets, pitch_um = None, getattr(design.mla, "pitch_um", None)
-        if crop is not None and pitch_um is not None:  # (no pitch: conventional_system_of explains)
-            count = max(1, int(crop * design.camera.pixel_pitch / (pitch_um * 1e-6)))
-            lenslets = tuple(min(count, n) for n in design.mla.shape)
-        system = conventional_system_of(design, lenslets=lenslets)
-        accuracy, compute = conventional_accuracy_of(design, system), conventional_psf_stack
-    if dtype is not None:
-        accuracy = replace(accuracy, dtype=real_dtype_named(dtype))
-    stack = compute(
-        system, depths, accuracy=accuracy, device=device, progress=progress, cancel=cancel, design=design
-    )
+        lenslets, mla = None, design.mla
+        if crop is not None and isinstance(
+            mla, RegularMLASpec
+        ):  # (no pitch: conventional_system_of explains)
+            count = max(1, int(crop * design.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
+            lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
+        conventional = conventional_system_of(design, lenslets=lenslets)
+        patterns = conventional_accuracy_of(design, conventional)
+        if real is not None:
+            patterns = replace(patterns, dtype=real)
+        stack = conventional_psf_stack(
+            conventional,
+            depths,
+            accuracy=patterns,
+            device=device,
+            progress=progress,
+            cancel=cancel,
+            design=design,
+        )
     if design.kind == "fourier" and refine > 1:
         stack = replace(stack, metadata={**stack.metadata, "volume_oversampling": refine})
     return stack
@@ -156,25 +179,23 @@ def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> Ima
     depths = stack.depths
     dz = abs(depths[1] - depths[0]) if len(depths) > 1 else stack.object_pixel_size
     if stack.metadata.get("kind") == "conventional":
-        projector = lattice_projector(stack)
+        lattice = lattice_projector(stack)
         voxel = (
             stack.pixel_size
-            * stack.metadata["pixels_per_lenslet"]
-            / (stack.magnification * stack.metadata["voxels_per_lenslet"])
+            * stack.metadata_int("pixels_per_lenslet")
+            / (stack.magnification * stack.metadata_int("voxels_per_lenslet"))
         )
-        return ImagingSetup(projector, projector.volume_shape, (dz, voxel, voxel))
+        return ImagingSetup(lattice, lattice.volume_shape, (dz, voxel, voxel))
     voxel = stack.object_pixel_size
-    if (
-        field_of_view is None
-        and stack.design is not None
-        and getattr(stack.design, "field_of_view_diameter", None)
-    ):
-        field_of_view = stack.design.field_of_view_diameter
+    if field_of_view is None and isinstance(
+        stack.design, Design
+    ):  # (a dict: a design read without rebuilding)
+        field_of_view = stack.design.field_of_view_diameter or None
     ny, nx = stack.data.shape[-2:]
     lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
     lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
     projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
-    refine = int(stack.metadata.get("volume_oversampling", 1))
+    refine = stack.metadata_int("volume_oversampling", 1)
     if refine > 1:
         projector = BinnedProjector(projector, refine)
     return ImagingSetup(projector, (len(depths), lateral, lateral), (dz, voxel, voxel))
@@ -202,7 +223,9 @@ def make_phantom(
         "crop the sensor (camera.pixel_count) or simulate fewer depths.",
     )
     note = None
-    if kind == "beads" and count is None:
+    if kind == "beads" and count is not None:
+        phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
+    elif kind == "beads":
         wanted = default_bead_count(shape, voxel)
         phantom = beads(shape, count=wanted, voxel_size=voxel, seed=seed, dtype=dtype, allow_fewer=True)
         if phantom.count < DEFAULT_BEADS:
@@ -211,10 +234,9 @@ def make_phantom(
                 f"{2 * max(voxel) * 1e6:.3g} um apart in a volume of {shape} voxels. Fix: pass --count N "
                 "(at most what fits), or use more depths / a larger field of view."
             )
-    elif kind == "beads":
-        phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
     elif kind == "cells":
-        semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
+        (nz, ny, nx), (dz, dy, dx) = shape, voxel
+        semi = (0.45 * nz * dz, 0.45 * ny * dy, 0.45 * nx * dx)
         phantom = cells_in_ellipsoid(shape, voxel_size=voxel, seed=seed, semi_axes=semi, dtype=dtype)
     else:
         raise ValueError(f"phantom must be 'beads', 'cells' or a TIFF volume path; got {kind!r}.")

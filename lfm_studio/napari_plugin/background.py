@@ -1,33 +1,32 @@
-"""The plugin's one way to run engine work off the GUI thread: a napari ``thread_worker`` with progress and cancel.
+"""The plugin's one way to run engine work off the GUI thread: one job of the shared :class:`JobRunner`.
 
 :class:`BackgroundTask` runs ``func(progress, cancel)`` (an engine-style callable: it
 reports with ``progress(done, total, message)`` and stops at the engine's next
-checkpoint once the ``threading.Event`` ``cancel`` is set) on a
-:func:`napari.qt.threading.create_worker` thread. Progress reaches the GUI thread through
-a queued Qt signal; the end arrives as one :class:`Outcome` (``"done"``, ``"cancelled"`` or
-``"failed"`` with the error's text), so callers add a layer only for ``"done"`` and a
-cancelled or failed task never leaves a half result. Tensors in the result must be
-detached and on the CPU.
+checkpoint once the ``threading.Event`` ``cancel`` is set) as a job of
+:class:`lfm_studio.widgets.jobs.JobRunner`, the worker mechanism the studio uses too.
+Progress reaches the GUI thread through a queued Qt signal; the end arrives as one
+:class:`Outcome` (``"done"``, ``"cancelled"`` or ``"failed"`` with the error's text), so
+callers add a layer only for ``"done"`` and a cancelled or failed task never leaves a half
+result. Tensors in the result must be detached and on the CPU.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
-import time
-import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from napari.qt.threading import create_worker
 from qtpy.QtCore import QObject, Signal
 
-from lfm_studio.engine.progress import CancelledError, ProgressCallback
+from lfm_studio.engine.progress import ProgressCallback
+from lfm_studio.widgets.jobs import JobContext, JobOutcome, JobRunner
 
 _log = logging.getLogger(__name__)
 
 TaskFunction = Callable[[ProgressCallback, threading.Event], Any]
+_JOB = "task"
 
 
 @dataclass(frozen=True)
@@ -41,23 +40,9 @@ class Outcome:
     seconds: float = 0.0
 
 
-def _run(func: TaskFunction, report: ProgressCallback, cancel: threading.Event) -> Outcome:
-    """Worker-thread body; never raises, so every ending reaches the GUI thread as one outcome."""
-    start = time.perf_counter()
-    try:
-        if cancel.is_set():
-            raise CancelledError("cancelled before it started")
-        value = func(report, cancel)
-    except CancelledError:
-        return Outcome("cancelled", seconds=time.perf_counter() - start)
-    except Exception as error:
-        text = str(error) if isinstance(error, (ValueError, OSError)) else f"{type(error).__name__}: {error}"
-        return Outcome(
-            "failed", message=text, details=traceback.format_exc(), seconds=time.perf_counter() - start
-        )
-    if cancel.is_set():  # finished after the user asked to stop: honour the request
-        return Outcome("cancelled", seconds=time.perf_counter() - start)
-    return Outcome("done", value=value, seconds=time.perf_counter() - start)
+def _message(error: BaseException | None) -> str:
+    """A failure for a notification: the text of a ValueError/OSError (ours name the fix), else with its type."""
+    return str(error) if isinstance(error, (ValueError, OSError)) else f"{type(error).__name__}: {error}"
 
 
 class BackgroundTask(QObject):
@@ -75,43 +60,54 @@ class BackgroundTask(QObject):
     def __init__(self, func: TaskFunction, parent: QObject | None = None) -> None:
         super().__init__(parent)
         self._func = func
-        self._cancel = threading.Event()
-        self._worker: Any = None
+        self._runner = JobRunner(self)
+        self._runner.progressed.connect(self._on_progress)
+        self._runner.ended.connect(self._on_ended)
+        self._ctx: JobContext | None = None
+        self._cancel_early = False
         self._started = False
         self.running = False
         self.outcome: Outcome | None = None
         if parent is not None:  # the owner going away stops the work at the next checkpoint
-            event = self._cancel
-            parent.destroyed.connect(lambda *_: event.set())
+            runner = self._runner
+            parent.destroyed.connect(lambda *_: runner.cancel())
 
     def start(self) -> None:
         """Start the worker thread (once)."""
         if self._started:
             raise RuntimeError("a BackgroundTask runs once; create a new one")
         self._started = True
-        worker = create_worker(
-            _run, self._func, self._report, self._cancel, _start_thread=False, _ignore_errors=True
-        )
-        worker.returned.connect(self._on_returned)
-        self._worker = worker
         self.running = True
-        worker.start()
+        self._runner.submit(_JOB, self._body)
+
+    def _body(self, ctx: JobContext) -> Any:
+        """Worker thread: the task with the job's progress and cancel token."""
+        if self._cancel_early:
+            ctx.cancel.set()
+            ctx.check("cancelled before it started")
+        return self._func(ctx.progress, ctx.cancel)
 
     def cancel(self) -> None:
         """Ask the task to stop at the engine's next checkpoint (between iterations, depths, lenslets)."""
-        self._cancel.set()
+        self._cancel_early = True
+        self._runner.cancel(_JOB)
 
     @property
     def cancel_requested(self) -> bool:
-        return self._cancel.is_set()
+        return self._cancel_early
 
-    def _report(self, done: int, total: int, message: str) -> None:
-        self.progressed.emit(int(done), int(total), str(message))  # queued: emitted on the worker thread
+    def _on_progress(self, name: str, generation: int, done: int, total: int, message: str) -> None:
+        self.progressed.emit(done, total, message)
 
-    def _on_returned(self, outcome: Outcome) -> None:
+    def _on_ended(self, outcome: JobOutcome) -> None:
         self.running = False
-        self.outcome = outcome
-        self._worker = None
         if outcome.state == "failed":
             _log.debug("background task failed:\n%s", outcome.details)
-        self.ended.emit(outcome)
+        self.outcome = Outcome(
+            outcome.state,
+            value=outcome.value,
+            message=_message(outcome.error) if outcome.state == "failed" else "",
+            details=outcome.details,
+            seconds=outcome.seconds,
+        )
+        self.ended.emit(self.outcome)

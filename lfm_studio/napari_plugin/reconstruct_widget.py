@@ -1,13 +1,14 @@
 """Dock widget "Reconstruct light field": image layer + PSF layer -> volume layer, in the background.
 
-Pick the camera image and the PSF stack layers, the method (Richardson-Lucy, its
-accelerated form, Wiener, Tikhonov), iterations and background. Camera counts become
+Pick the camera image and the PSF stack layers, the method (the engine's registry:
+Richardson-Lucy, its accelerated form, Wiener, Tikhonov, and any method registered later) and
+its options (iterations, background, SNR, ...; the fields of other methods are disabled). Camera counts become
 photons from the image's camera metadata (an image without it gets an estimated
 baseline, said in a warning notification), so the volume is in photons per voxel.
 Inputs are checked
 before anything starts (a mismatch, e.g. of pixel sizes, is an error notification
-naming both layers and values); the reconstruction then runs on a napari
-``thread_worker`` with progress and Cancel. Only a finished reconstruction adds a
+naming both layers and values); the reconstruction then runs as a
+background job (:mod:`lfm_studio.widgets.jobs`) with progress and Cancel. Only a finished reconstruction adds a
 layer: the volume in object space (voxel size from the PSF's magnification and depth
 step, in um), its settings in the layer metadata. Cancel or failure adds nothing and
 leaves every layer as it was.
@@ -28,14 +29,11 @@ from typing import Any
 import napari
 from napari.layers import Image, Layer
 from qtpy.QtWidgets import (
-    QComboBox,
-    QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
     QHBoxLayout,
     QLineEdit,
     QPushButton,
-    QSpinBox,
     QVBoxLayout,
     QWidget,
 )
@@ -53,9 +51,7 @@ from lfm_studio.napari_plugin.layer_data import (
 from lfm_studio.napari_plugin.layer_picker import LayerPicker
 from lfm_studio.napari_plugin.notify import report_error, report_info, report_warning
 from lfm_studio.napari_plugin.task_controls import TaskControls
-
-MAX_ITERATIONS = 10_000
-MAX_BACKGROUND = 1e9
+from lfm_studio.widgets.method_options import MethodOptions
 
 
 def is_camera_image(layer: Any) -> bool:
@@ -84,25 +80,13 @@ class ReconstructWidget(QWidget):
         self.viewer = napari_viewer
         self.image_picker = LayerPicker(napari_viewer, is_camera_image, preferred=_is_ours)
         self.psf_picker = LayerPicker(napari_viewer, is_psf_stack)
-        self.method = QComboBox()
-        for key, label in reconstruction.METHODS.items():
-            self.method.addItem(label, key)
-        self.iterations = QSpinBox()
-        self.iterations.setRange(1, MAX_ITERATIONS)
-        self.iterations.setValue(30)
-        self.background = QDoubleSpinBox()
-        self.background.setRange(0.0, MAX_BACKGROUND)
-        self.background.setDecimals(2)
-        self.background.setSuffix(" photons")
+        self.options = MethodOptions()  # method box + option fields, from the engine's registry
+        self.method = self.options.method
+        self.background = self.options.field("background")
         self.background.setToolTip(
             "Extra background per pixel in photons (e.g. out-of-focus light), modelled by RL. The camera "
             "baseline is removed first, from the image's camera metadata (or estimated, with a warning)."
         )
-        self.snr = QDoubleSpinBox()
-        self.snr.setRange(1e-3, 1e9)
-        self.snr.setDecimals(3)
-        self.snr.setValue(reconstruction.DEFAULT_SNR)
-        self.snr.setToolTip("Wiener: power signal-to-noise ratio; Tikhonov: mu = 1 / SNR.")
         self.calibration = QLineEdit()
         self.calibration.setPlaceholderText("none: the image is already on the PSF's lattice")
         self.calibration.setToolTip(
@@ -119,19 +103,14 @@ class ReconstructWidget(QWidget):
         form.addRow("Light-field image", self.image_picker)
         form.addRow("PSF stack", self.psf_picker)
         form.addRow("Calibration (raw frame)", calibration_row)
-        form.addRow("Method", self.method)
-        form.addRow("Iterations", self.iterations)
-        form.addRow("Background", self.background)
-        form.addRow("SNR", self.snr)
         layout = QVBoxLayout(self)
         layout.addLayout(form)
+        layout.addWidget(self.options)
         layout.addWidget(self.controls)
         layout.addStretch(1)
-        self.method.currentIndexChanged.connect(self._on_method)
         self.controls.runClicked.connect(self.start)
         self._task: BackgroundTask | None = None
         self._request: reconstruction.Request | None = None
-        self._on_method()
         napari_viewer.layers.events.inserted.connect(self._on_layer_inserted)
         for layer in napari_viewer.layers:
             self._on_layer_inserted(layer=layer)
@@ -143,12 +122,21 @@ class ReconstructWidget(QWidget):
         """Whether a reconstruction is running."""
         return self._task is not None
 
+    def option_field(self, name: str) -> QWidget:
+        """The field of the method option ``name`` (``"iterations"``, ``"snr"``, ...)."""
+        return self.options.field(name)
+
+    @property
+    def iterations(self) -> QWidget:
+        return self.options.field("iterations")
+
+    @property
+    def snr(self) -> QWidget:
+        return self.options.field("snr")
+
     def set_method(self, method: str) -> None:
-        """Choose ``method`` by key (``"rl"``, ``"rl-accelerated"``, ``"wiener"``, ``"tikhonov"``)."""
-        index = self.method.findData(method)
-        if index < 0:
-            raise ValueError(f"method must be one of {', '.join(reconstruction.METHODS)}; got {method!r}.")
-        self.method.setCurrentIndex(index)
+        """Choose a registered ``method`` by name (``"rl"``, ``"rl-accelerated"``, ``"wiener"``, ...)."""
+        self.options.set_method(method)
 
     def set_calibration(self, path: str | Path | None) -> None:
         """Reconstruct the image as a raw frame with the calibration file ``path`` (None: no calibration)."""
@@ -156,12 +144,7 @@ class ReconstructWidget(QWidget):
 
     def settings(self) -> reconstruction.Settings:
         """The settings shown (raises ``ValueError`` for invalid ones)."""
-        return reconstruction.Settings(
-            method=self.method.currentData(),
-            iterations=self.iterations.value(),
-            background=self.background.value(),
-            snr=self.snr.value(),
-        )
+        return reconstruction.Settings(method=self.options.method_name(), options=self.options.values())
 
     def start(self) -> bool:
         """Check the inputs and start the reconstruction; False (with an error notification) if refused."""
@@ -252,8 +235,3 @@ class ReconstructWidget(QWidget):
             report_info("Reconstruction cancelled; no layer was added.")
         elif outcome.state == "failed":
             report_error(f"Reconstruction failed: {outcome.message}")
-
-    def _on_method(self, *_: Any) -> None:
-        iterative = self.method.currentData() in reconstruction.ITERATIVE
-        self.iterations.setEnabled(iterative)
-        self.snr.setEnabled(not iterative)

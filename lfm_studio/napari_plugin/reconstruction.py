@@ -11,14 +11,17 @@ frame is dark-subtracted, defect-corrected, flat-fielded and rectified onto the 
 first (:func:`~lfm_studio.engine.calibration.rectify_frame`), and the camera conversion then
 uses a baseline of 0 (:mod:`~lfm_studio.engine.calibration.raw_camera`): the dark level is
 subtracted once. A result that is all zero, constant or NaN/Inf is
-refused (:func:`~lfm_studio.engine.reconstruct.check_reconstruction`). The method
-choices and their options are those of ``lfm-studio reconstruct``.
+refused (:func:`~lfm_studio.engine.reconstruct.check_reconstruction`). The methods and their
+options are the engine's registry (:mod:`lfm_studio.engine.reconstruct.registry`), as in
+``lfm-studio reconstruct``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
@@ -28,46 +31,35 @@ from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
 from lfm_studio.engine.io import LightFieldImage, Volume, counts_to_photons, resolve_calibration
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
+from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.simulation import imaging_setup
 from lfm_studio.engine.units import um
-
-# Short labels for the method box; the methods themselves are the engine's (reconstruct_frame).
-METHODS = {
-    "rl": "Richardson-Lucy",
-    "rl-accelerated": "Richardson-Lucy, accelerated",
-    "wiener": "Wiener (one step)",
-    "tikhonov": "Tikhonov (one step)",
-}
-DEFAULT_SNR = 100.0  # wiener: power SNR; tikhonov: mu = 1 / SNR
 
 
 @dataclass(frozen=True)
 class Settings:
-    """Reconstruction options: ``method`` (see :data:`METHODS`), RL ``iterations``, ``background``
-    photons per pixel left after the camera baseline is removed, ``snr`` for Wiener / Tikhonov, and
-    the camera ``baseline`` (ADU) / ``gain`` (ADU per electron) for an image without camera metadata
-    (None: from the image's metadata, else estimated)."""
+    """Reconstruction settings: a registered ``method`` and its ``options`` (checked against its schema
+    and completed with its defaults on construction; ``background`` is the photons per pixel left after
+    the camera baseline is removed), and the camera ``baseline`` (ADU) / ``gain`` (ADU per electron) for
+    an image without camera metadata (None: from the image's metadata, else estimated)."""
 
     method: str = "rl"
-    iterations: int = 30
-    background: float = 0.0
-    snr: float = DEFAULT_SNR
+    options: Mapping[str, Any] = field(default_factory=dict)
     baseline: float | None = None
     gain: float | None = None
 
     def __post_init__(self) -> None:
-        if self.method not in METHODS:
-            raise ValueError(f"method must be one of {', '.join(METHODS)}; got {self.method!r}.")
-        if self.method in ITERATIVE and not (isinstance(self.iterations, int) and self.iterations >= 1):
-            raise ValueError(f"iterations must be an integer >= 1; got {self.iterations!r}.")
-        if not (math.isfinite(self.background) and self.background >= 0):
-            raise ValueError(
-                f"background must be a finite number >= 0 (photons per pixel); got {self.background!r}. "
-                "Fix: 0, or the out-of-focus light per pixel (the camera baseline is removed separately)."
-            )
-        if not (math.isfinite(self.snr) and self.snr > 0):
-            raise ValueError(f"SNR must be a finite number > 0; got {self.snr!r}. Fix: e.g. 100.")
+        object.__setattr__(self, "options", registry.get(self.method).resolve(self.options))
+
+    @property
+    def label(self) -> str:
+        """The method's label (for messages)."""
+        return registry.get(self.method).label
+
+    @property
+    def background(self) -> float:
+        """Expected background in photons per pixel (after the camera baseline)."""
+        return float(self.options[registry.BACKGROUND.name])
 
 
 @dataclass(frozen=True)
@@ -124,10 +116,11 @@ def prepare(
             "'lfm-studio reconstruct'."
         )
     conventional = stack.data.ndim == 5
-    if settings.method not in ITERATIVE and conventional:
+    if registry.get(settings.method).projectors == "shift-invariant" and conventional:
+        choices = " or ".join(m.label for m in registry.methods() if m.projectors == "any")
         raise ValueError(
-            f"{METHODS[settings.method]} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
-            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose Richardson-Lucy."
+            f"{settings.label} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
+            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose {choices}."
         )
     if calibration is not None:  # a raw frame: its rectified shape is checked against the PSF in run
         name = calibration_name or "calibration"
@@ -159,10 +152,10 @@ def _solve(
 ) -> torch.Tensor:
     """Reconstruct ``photons``, which carry the camera's noise floor ``floor`` (photons per pixel)."""
     s = request.settings
+    options = {**s.options, registry.BACKGROUND.name: s.background + floor}
     return reconstruct.reconstruct_frame(
-        projector, photons, method=s.method, iterations=s.iterations, background=s.background + floor,
-        snr=s.snr, progress=progress, cancel=cancel,
-    )  # fmt: skip
+        projector, photons, method=s.method, progress=progress, cancel=cancel, **options
+    )
 
 
 def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Volume:
@@ -199,17 +192,15 @@ def run(request: Request, progress: ProgressCallback, cancel: CancelToken) -> Vo
             request.image.metadata, frame, baseline=s.baseline, gain=s.gain
         )
     photons, floor = counts_to_photons(frame, calibration, name=f"image layer {request.image_name!r}")
-    checkpoint(cancel, progress, 0, 1, METHODS[s.method])
+    checkpoint(cancel, progress, 0, 1, s.label)
     volume = _solve(request, setup.projector, photons, floor, progress, cancel).detach().cpu()
     reconstruct.check_reconstruction(
         volume,
-        what=f"the {METHODS[s.method]} reconstruction of {request.image_name!r} with {request.psf_name!r}",
+        what=f"the {s.label} reconstruction of {request.image_name!r} with {request.psf_name!r}",
     )
     metadata = {
         "method": s.method,
-        "iterations": s.iterations if s.method in ITERATIVE else None,
-        "background": s.background,
-        "snr": None if s.method in ITERATIVE else s.snr,
+        **s.options,  # the method's options (iterations, snr, background, ...)
         "image": request.image_name,
         "psf": request.psf_name,
         "calibration": request.calibration_name,

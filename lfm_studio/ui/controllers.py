@@ -5,7 +5,7 @@ reconstruction. Changes mark stages stale (see :class:`~lfm_studio.ui.state.Stud
 after a debounce only the stale stages run, in order, on worker threads. The PSF stage
 keeps a per-lenslet cache across edits, so editing one lenslet of a Fourier design
 recomputes that lenslet only. Results are written to the state on the GUI thread when
-a job succeeded and is still current (:mod:`lfm_studio.ui.jobs`).
+a job succeeded and is still current (:mod:`lfm_studio.widgets.jobs`).
 
 :class:`MLAEditorBinding` and :class:`ViewerBinding` tie the two reusable widgets
 (:mod:`lfm_studio.widgets`) to the state; both only need the widgets' public contracts.
@@ -23,9 +23,9 @@ from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.edits import try_changes
-from lfm_studio.ui.jobs import JobOutcome, JobRunner
 from lfm_studio.ui.results import ImageResult, PSFResult, ReconstructionResult
 from lfm_studio.ui.state import StudioState, psf_key
+from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 DEBOUNCE_MS = 300  # quiet time after the last edit before recomputing
 CACHE_BYTES = 2 * 2**30  # per-lenslet PSF patches kept across edits
@@ -180,8 +180,9 @@ class StudioController(QObject):
         )  # fmt: skip
 
     def _start_reconstruction(self) -> None:
-        image, iterations = self.state.image, self.state.workflow.iterations
-        if image is None or not self._submit_once("reconstruction", (id(image), iterations)):
+        image, workflow = self.state.image, self.state.workflow
+        settings = tuple(getattr(workflow, f) for f in workflow.RECONSTRUCTION_FIELDS)
+        if image is None or not self._submit_once("reconstruction", (id(image), settings)):
             return
         self._asked.discard("reconstruction")
         self.state.set_convergence((), ())
@@ -350,7 +351,7 @@ class ViewerBinding(QObject):
 
     def _on_image(self, result: ImageResult | None) -> None:
         if result is not None:
-            if hasattr(self.viewer, "show_volume"):  # the phantom, beside the reconstruction (sample space)
+            if hasattr(self.viewer, "show_volume") and result.ground_truth is not None:  # the phantom
                 self._show(
                     result.truth_display,
                     partial(self.viewer.show_volume, result.ground_truth, result.voxel_size, name="phantom"),

@@ -1,12 +1,12 @@
 """The studio's background stages as plain functions ``(ctx, ...) -> result`` (Qt-free).
 
-Each runs on a worker thread (:mod:`lfm_studio.ui.jobs`): it reports through
+Each runs on a worker thread (:mod:`lfm_studio.widgets.jobs`): it reports through
 ``ctx.progress``, stops when ``ctx.cancel`` is set (the engine's cancel token) and
 returns detached CPU tensors in the records of :mod:`lfm_studio.ui.results`.
 
 Stages: design -> PSF stack (a quick preview first for big designs) -> design metrics
-measured on it; PSF -> light-field image of a phantom -> Richardson-Lucy reconstruction
-scored against the phantom (NCC, bead F1, PSNR/SSIM beside the all-zero volume's).
+measured on it; PSF -> light-field image of a phantom -> reconstruction (a method of the engine's
+registry, accelerated Richardson-Lucy by default) scored against the phantom (NCC, bead F1, PSNR/SSIM beside the all-zero volume's).
 """
 
 from __future__ import annotations
@@ -34,7 +34,7 @@ LATERAL_HALF_WIDTH = 20  # pixels either side of the peak in the lateral profile
 
 
 class Context(Protocol):
-    """What a stage needs from :class:`lfm_studio.ui.jobs.JobContext`."""
+    """What a stage needs from :class:`lfm_studio.widgets.jobs.JobContext`."""
 
     cancel: Any
 
@@ -238,7 +238,7 @@ def simulate_image(
 
 
 def reconstruction_available() -> bool:
-    """Whether the engine has Richardson-Lucy (``lfm_studio.engine.reconstruct``) and the metrics."""
+    """Whether the engine has its reconstruction methods (``lfm_studio.engine.reconstruct``) and the metrics."""
     return all(
         importlib.util.find_spec(name) is not None
         for name in ("lfm_studio.engine.reconstruct", "lfm_studio.engine.image_quality")
@@ -251,8 +251,8 @@ def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, flo
     from lfm_studio.engine.io import CameraCalibration, counts_to_photons
 
     camera = design.camera
-    if image.info.get("photons") is None:  # noise-free: already photons
-        return image.counts.clamp_min(0.0), 0.0
+    if image.info.get("photons") is None:  # noise-free, or a calibrated raw frame: already photons
+        return image.counts.clamp_min(0.0), float(image.info.get("noise_floor_photons", 0.0))
     calibration = CameraCalibration(
         camera.baseline_adu,
         camera.gain_adu_per_e,
@@ -267,41 +267,61 @@ def peak_mode(settings: WorkflowSettings) -> bool | None:
     return {"beads": True, "cells": False}.get(settings.phantom)
 
 
+def reconstruction_options(method: Any, settings: WorkflowSettings, floor: float) -> dict[str, Any]:
+    """The options of ``method`` (a registry :class:`~lfm_studio.engine.reconstruct.Method`) from the
+    workflow settings: the camera's noise floor as background, the iterations when it takes them,
+    the panel's other options."""
+    given = {**dict(settings.method_options), "background": floor}
+    if method.option("iterations") is not None:
+        given["iterations"] = settings.iterations
+    return method.resolve({k: v for k, v in given.items() if method.option(k) is not None})
+
+
 def reconstruct(
     ctx: Context, design: Design, image: ImageResult, settings: WorkflowSettings
 ) -> ReconstructionResult:
-    """Accelerated Richardson-Lucy (accelerated_rl_options) of the image, scored against the phantom.
+    """The image reconstructed with the registry's ``settings.method``, scored against the phantom.
 
-    After each iteration: NCC with the truth (handed over with ``ctx.partial`` as
-    ``(ncc per iteration, relative change per iteration)``).
-    At the end: the scorecard (NCC, bead F1, PSNR, SSIM, each beside the all-zero volume's score).
+    A method with iterates (Richardson-Lucy) hands over, after each iteration, the NCC with the
+    truth (``ctx.partial`` of ``(ncc per iteration, relative change per iteration)``); a one-step
+    method (Wiener, Tikhonov, ...) reports its progress only. At the end: the scorecard (NCC, bead
+    F1, PSNR, SSIM, each beside the all-zero volume's score).
     """
     from lfm_studio.engine.image_quality import ncc, scorecard
-    from lfm_studio.engine.reconstruct import (
-        accelerated_rl_options,
-        check_reconstruction,
-        richardson_lucy_iterates,
-    )
+    from lfm_studio.engine.reconstruct import check_reconstruction, get_method
 
+    method = get_method(settings.method)
     projector = image.setup.projector
+    method.check_projector(projector)
     counts, floor = photon_counts(image, design)
+    counts = counts.to(projector.device)
+    options = reconstruction_options(method, settings, floor)
     truth = image.ground_truth
-    total = settings.iterations
+    total = method.steps(options)
     nccs: list[float] = []
     changes: list[float] = []
     estimate = None
-    iterates = richardson_lucy_iterates(
-        projector, counts.to(_device_of(projector)), background=floor, iterations=total, progress=_rl_progress(ctx),
-        cancel=ctx.cancel, **accelerated_rl_options(projector),
-    )  # fmt: skip
-    for it in iterates:
-        estimate = it.estimate.detach().cpu()
-        changes.append(float(it.relative_change))
-        nccs.append(float(ncc(truth, estimate)))
-        ctx.partial((tuple(nccs), tuple(changes)))
+    counts = counts.to(projector.device)
+    if method.iterates is not None:
+        for it in method.iterates(projector, counts, options, _rl_progress(ctx), ctx.cancel):
+            estimate = it.estimate.detach().cpu()
+            changes.append(float(it.relative_change))
+            if truth is not None:  # a measured raw frame has no ground truth
+                nccs.append(float(ncc(truth, estimate)))
+            ctx.partial((tuple(nccs), tuple(changes)))
+    else:
+        estimate = method(projector, counts, options, _rl_progress(ctx), ctx.cancel).detach().cpu()
+        if truth is not None:
+            nccs.append(float(ncc(truth, estimate)))
     if estimate is None:
         raise ValueError("reconstruction ran no iteration. Fix: set iterations >= 1.")
     check_reconstruction(estimate)  # all zero, constant or NaN/Inf: an error, not a result
+    if truth is None:
+        display = volume_display(estimate, image.voxel_size, "reconstruction")
+        summary = "measured frame: no ground truth to score against"
+        return ReconstructionResult(
+            estimate, image.voxel_size, len(changes), tuple(changes), display=display, summary=summary
+        )
     ctx.progress(total, total, "reconstruction: scoring against the phantom")
     card = scorecard(
         truth, estimate, normalize="scale", peaks=peak_mode(settings), voxel_size=image.voxel_size,
@@ -319,15 +339,8 @@ def reconstruct(
         ncc_curve=tuple(nccs),
         scores=card,
         summary=card.summary(noun=noun),
+        method=method.name,
     )
-
-
-def _device_of(projector: Any) -> torch.device:
-    for name in ("otf", "psf", "patterns"):
-        value = getattr(projector, name, None)
-        if isinstance(value, torch.Tensor):
-            return value.device
-    return torch.device("cpu")
 
 
 def _rl_progress(ctx: Context):

@@ -13,6 +13,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.widgets.job_status import JobStatus as JobStatus  # re-exported: lives with the job runner
 
 STAGES = ("psf", "image", "reconstruction")
 """The recompute chain: a stage is stale when anything it depends on changed."""
@@ -73,7 +74,7 @@ class ImageResult:
     ----------
     counts : (Py, Px) camera counts in ADU (the noise-free image when ``photons`` is None).
     expected : (Py, Px) noise-free image.
-    ground_truth : (Z, Y, X) phantom volume.
+    ground_truth : (Z, Y, X) phantom volume, or None for a measured raw frame (nothing to score against).
     voxel_size : (dz, dy, dx) metres.
     pixel_size : sensor pixel pitch, metres.
     setup : the :class:`~lfm_studio.engine.simulation.ImagingSetup` (reused by the reconstruction).
@@ -84,7 +85,7 @@ class ImageResult:
 
     counts: torch.Tensor
     expected: torch.Tensor
-    ground_truth: torch.Tensor
+    ground_truth: torch.Tensor | None
     voxel_size: tuple[float, float, float]
     pixel_size: float
     setup: Any
@@ -109,6 +110,7 @@ class ReconstructionResult:
     scores : the final :class:`~lfm_studio.engine.image_quality.Scorecard` (NCC, F1 for beads, PSNR,
         SSIM with their all-zero floors), or None.
     summary : ``scores`` in one line, NCC and F1 first (what the workflow panel shows).
+    method : the registry name of the method that made it ("" when unknown).
     """
 
     volume: torch.Tensor
@@ -121,6 +123,7 @@ class ReconstructionResult:
     ncc_curve: tuple[float, ...] = ()
     scores: Any = None
     summary: str = ""
+    method: str = ""
 
     @property
     def ncc(self) -> float | None:
@@ -145,7 +148,10 @@ class WorkflowSettings:
     tiff_path : volume TIFF (phantom "tiff").
     photons : expected photons in the image; None = noise-free.
     seed : random seed of phantom and noise.
-    iterations : Richardson-Lucy iterations.
+    iterations : iterations of an iterative method (Richardson-Lucy).
+    method : a reconstruction method of :mod:`lfm_studio.engine.reconstruct.registry`.
+    method_options : its other options as ``(name, value)`` pairs (not iterations, not background:
+        the background is the camera's noise floor).
     auto_update : recompute image and reconstruction when the design changes.
     """
 
@@ -156,35 +162,16 @@ class WorkflowSettings:
     seed: int = 0
     iterations: int = 10
     auto_update: bool = True
+    method: str = "rl-accelerated"
+    method_options: tuple[tuple[str, Any], ...] = ()
 
     IMAGE_FIELDS = ("phantom", "bead_count", "tiff_path", "photons", "seed")
+    RECONSTRUCTION_FIELDS = ("iterations", "method", "method_options")
 
     def image_changed(self, other: WorkflowSettings) -> bool:
         """Whether the image stage depends on something that differs between the two settings."""
         return any(getattr(self, f) != getattr(other, f) for f in self.IMAGE_FIELDS)
 
-
-@dataclass(frozen=True)
-class JobStatus:
-    """State of one named background job (what the status bar shows).
-
-    ``state`` is "idle", "running", "cancelling", "done", "failed" or "cancelled";
-    ``done``/``total`` count units of work (lenslets, depths, iterations).
-    """
-
-    name: str
-    state: str = "idle"
-    done: int = 0
-    total: int = 0
-    message: str = ""
-    generation: int = 0
-
-    @property
-    def active(self) -> bool:
-        """Running or being cancelled."""
-        return self.state in ("running", "cancelling")
-
-    @property
-    def fraction(self) -> float | None:
-        """Progress in [0, 1], None when the total is unknown."""
-        return None if self.total <= 0 else min(1.0, max(0.0, self.done / self.total))
+    def reconstruction_changed(self, other: WorkflowSettings) -> bool:
+        """Whether the reconstruction settings (method, its options, iterations) differ."""
+        return any(getattr(self, f) != getattr(other, f) for f in self.RECONSTRUCTION_FIELDS)

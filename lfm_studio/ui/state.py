@@ -271,7 +271,7 @@ class StudioState:
             return
         if settings.image_changed(old):
             self.mark_stale("image", "reconstruction")
-        elif settings.iterations != old.iterations:
+        elif settings.reconstruction_changed(old):
             self.mark_stale("reconstruction")
         self.workflow_changed.emit(settings)
 

@@ -1,5 +1,10 @@
 """The workflow panel: phantom and photon budget -> light-field image -> reconstruction -> its scores.
 
+The reconstruction methods and their options are the engine's registry
+(:class:`~lfm_studio.widgets.method_options.MethodOptions`): a method registered before the panel
+is built is offered here. The iterations keep their typed field (used by iterative methods); the
+background is the camera's noise floor (not asked).
+
 state -> view: the workflow settings, what is available, the quality of the last
 reconstruction (NCC and bead F1 first, then PSNR/SSIM beside the all-zero volume's, with
 their normalisation named). view -> state: new :class:`~lfm_studio.ui.results.WorkflowSettings`;
@@ -30,6 +35,7 @@ from qtpy.QtWidgets import (
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.method_options import MethodOptions
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
@@ -39,7 +45,8 @@ PHANTOMS = (("beads", "Beads"), ("cells", "Cells (brain-like ellipsoid)"), ("tif
 PHOTONS = NumberRule("Photon budget", 1.0, 1e15, "photons", example=1e6)
 BEADS = NumberRule("Beads", 1, 100_000, integer=True, example=20)
 SEED = NumberRule("Seed", 0, 2**31 - 1, integer=True, example=0)
-ITERATIONS = NumberRule("RL iterations", 1, 10_000, integer=True, example=10)
+ITERATIONS = NumberRule("Iterations", 1, 10_000, integer=True, example=10)
+SHOWN_ELSEWHERE = ("background", "iterations")  # the noise floor; the typed iterations field
 
 
 NO_QUALITY = "NCC: –    F1: –    PSNR: –    SSIM: –"
@@ -50,14 +57,14 @@ def quality_text(result: ReconstructionResult | None) -> str:
     zero floors, the iteration count and, in small print, how PSNR/SSIM were normalised."""
     if result is None or result.psnr is None:
         return NO_QUALITY
+    method = f" ({html.escape(result.method)})" if result.method else ""
+    after = f" after {result.iterations} iterations" if result.iterations else method
     if result.scores is None:  # a result without a scorecard (e.g. read back from elsewhere)
-        return (
-            f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b> after {result.iterations} iterations"
-        )
+        return f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b>{after}"
     parts = [html.escape(part) for part in result.summary.split("  ")]  # Scorecard.summary's separator
     parts = [f"<b>{p}</b>" if p.startswith(("NCC", "F1")) else p for p in parts]
     return (
-        f"{'&nbsp;&nbsp;&nbsp;'.join(parts)} after {result.iterations} iterations"
+        f"{'&nbsp;&nbsp;&nbsp;'.join(parts)}{after}"
         f"<br><small>{html.escape(result.scores.normalization)}</small>"
     )
 
@@ -102,8 +109,11 @@ class WorkflowPanel(QWidget):
         form.addRow("Photon budget", photons)
         self.seed = NumericField(SEED, 0, step=1, parent=self)
         form.addRow("Seed", self.seed)
+        self.method_options = MethodOptions(exclude=SHOWN_ELSEWHERE, parent=self)
+        self.method = self.method_options.method
+        form.addRow(self.method_options)
         self.iterations = NumericField(ITERATIONS, 10, step=1, parent=self)
-        form.addRow("RL iterations", self.iterations)
+        self.method_options.form.insertRow(1, "Iterations", self.iterations)  # under the method box
         self.input_error = ErrorLabel(self)  # why a typed number was refused
         form.addRow(self.input_error)
         self.auto_update = QCheckBox("update image and reconstruction when the design changes", self)
@@ -128,7 +138,8 @@ class WorkflowPanel(QWidget):
         self._on_reconstruction(state.reconstruction)
         for signal in (self.phantom.currentIndexChanged, self.bead_count.committed, self.photons.committed,
                        self.seed.committed, self.iterations.committed, self.noise_free.toggled,
-                       self.auto_update.toggled, self.tiff_path.editingFinished):  # fmt: skip
+                       self.auto_update.toggled, self.tiff_path.editingFinished,
+                       self.method_options.edited):  # fmt: skip
             signal.connect(self._on_edited)
         for field in self.numeric_fields():
             field.refused.connect(self._show_input_errors)
@@ -144,8 +155,14 @@ class WorkflowPanel(QWidget):
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
 
     def numeric_fields(self) -> tuple[NumericField, ...]:
-        """The typed numbers: beads, photons, seed, iterations."""
-        return (self.bead_count, self.photons, self.seed, self.iterations)
+        """The typed numbers: beads, photons, seed, iterations, the method's other options."""
+        return (
+            self.bead_count,
+            self.photons,
+            self.seed,
+            self.iterations,
+            *self.method_options.numeric_fields(),
+        )
 
     # ----- state -> view -----
 
@@ -162,6 +179,8 @@ class WorkflowPanel(QWidget):
         self.photons.setEnabled(settings.photons is not None)
         self.seed.setValue(settings.seed)
         self.iterations.setValue(settings.iterations)
+        self.method_options.display(settings.method, dict(settings.method_options))
+        self.iterations.setEnabled(self._method_takes("iterations"))
         self.auto_update.setChecked(settings.auto_update)
         self.tiff_path.setText(settings.tiff_path or "")
         self.bead_count.setEnabled(settings.phantom == "beads")
@@ -194,9 +213,17 @@ class WorkflowPanel(QWidget):
             seed=self.seed.value(),
             iterations=self.iterations.value(),
             auto_update=self.auto_update.isChecked(),
+            method=self.method_options.method_name(),
+            method_options=tuple(sorted(self.method_options.values().items())),
         )
 
+    def _method_takes(self, name: str) -> bool:
+        from lfm_studio.engine.reconstruct import get_method
+
+        return get_method(self.method_options.method_name()).option(name) is not None
+
     def _on_edited(self, *_: object) -> None:
+        self.iterations.setEnabled(self._method_takes("iterations"))
         self.state.set_workflow(self.settings())
 
     def _show_input_errors(self, *_: object) -> None:

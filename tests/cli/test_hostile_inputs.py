@@ -258,10 +258,10 @@ def test_missing_design_key_and_corrupt_json(files, tmp_path, capsys):
 
 
 def test_a_rejected_reconstruction_writes_nothing(files, tmp_path, monkeypatch, capsys):
-    from lfm_studio.engine.reconstruct import dispatch
+    from lfm_studio.engine.reconstruct import builtin_methods
 
     monkeypatch.setattr(
-        dispatch, "richardson_lucy", lambda projector, frame, **kw: torch.zeros(projector.volume_shape)
+        builtin_methods, "richardson_lucy", lambda projector, frame, **kw: torch.zeros(projector.volume_shape)
     )
     capsys.readouterr()
     assert _reconstruct(files, files["lf"], tmp_path / "vol.tif") == RESULT_REJECTED

@@ -149,3 +149,17 @@ def test_lenslets_without_calibration_is_refused(files, calibrated, tmp_path, ca
     ]
     assert cli.main([*argv, "--lenslets", "4", "4"]) == 2
     assert "--lenslets 4 4 needs --calibration" in capsys.readouterr().err
+
+
+def test_a_bead_psf_with_a_conventional_calibration_is_refused_with_the_fix(
+    files, calibrated, tmp_path, capsys
+):
+    out = tmp_path / "v.tif"
+    argv = ["reconstruct", "--image", files["raw"], "--psf", calibrated["psf"], "--out", str(out)]
+    assert cli.main([*argv, "--calibration", calibrated["calibration"], "--measured"]) == 2
+    err = capsys.readouterr().err
+    assert re.search(
+        r"--measured with --calibration .*conventional-LFM calibration.*one PSF per depth", err
+    ), err
+    assert re.search(r"Fix: drop --measured .*--design-out rectified\.json", err), err
+    assert not out.exists()

@@ -60,7 +60,7 @@ def test_one_step_wiener_gives_a_volume_layer(widget_on_sample, qtbot):
     assert widget.start()
     _wait(qtbot, widget)
     layer = viewer.layers["beads light field wiener"]
-    assert layer.metadata["metadata"]["snr"] == 100.0 and layer.metadata["metadata"]["iterations"] is None
+    assert layer.metadata["metadata"]["snr"] == 100.0 and "iterations" not in layer.metadata["metadata"]
 
 
 def test_cancel_leaves_no_half_layer(widget_on_sample, qtbot, notes):
@@ -107,3 +107,30 @@ def test_missing_psf_layer_is_refused_with_a_notification(make_napari_viewer, no
     assert not widget.start()
     (message,) = notes.errors()
     assert "No PSF stack layer" in message and "Simulate PSF" in message
+
+
+def test_a_registered_method_is_offered_with_its_options_and_runs(
+    make_napari_viewer, bead_layers, qtbot, notes
+):
+    from lfm_studio.engine.image_quality import ncc
+    from tests import toy_method
+
+    with toy_method.registered():
+        viewer = make_napari_viewer()
+        add_layers(viewer, bead_layers)
+        _, widget = viewer.window.add_plugin_dock_widget(PLUGIN, "Reconstruct light field")
+        offered = [widget.method.itemData(i) for i in range(widget.method.count())]
+        assert offered[:4] == ["rl", "rl-accelerated", "wiener", "tikhonov"] and "backprojection" in offered
+        widget.set_method("backprojection")
+        scale = widget.option_field("scale")
+        assert scale.isEnabled() and scale.value() == 1.0
+        assert not widget.iterations.isEnabled() and not widget.snr.isEnabled()
+        scale.setValue(2.0)
+        assert widget.start()
+        _wait(qtbot, widget)
+    assert notes.errors() == []
+    layer = viewer.layers["beads light field backprojection"]
+    meta = layer.metadata["metadata"]
+    assert meta["method"] == "backprojection" and meta["scale"] == 2.0
+    truth = viewer.layers["beads ground truth"].data
+    assert float(ncc(np.asarray(truth), np.asarray(layer.data))) > 0.1  # a constant volume scores 0

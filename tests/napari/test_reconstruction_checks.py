@@ -49,10 +49,11 @@ def test_mismatches_are_refused_with_the_reason(stack, image, settings, expected
     ("settings", "expected"),
     [
         ({"method": "lucy"}, "method must be one of"),
-        ({"iterations": 0}, "iterations must be an integer >= 1"),
-        ({"background": -1.0}, "background must be a finite number >= 0"),
-        ({"background": float("nan")}, "background must be a finite number >= 0"),
-        ({"method": "wiener", "snr": 0.0}, "SNR must be a finite number > 0"),
+        ({"options": {"iterations": 0}}, "iterations must be an integer >= 1"),
+        ({"options": {"background": -1.0}}, "background must be a finite number >= 0"),
+        ({"options": {"background": float("nan")}}, "background must be a finite number >= 0"),
+        ({"method": "wiener", "options": {"snr": 0.0}}, "snr must be a finite number > 0"),
+        ({"method": "wiener", "options": {"iterations": 3}}, "method 'wiener' takes no option 'iterations'"),
     ],
 )
 def test_invalid_settings_name_the_parameter(settings, expected):
@@ -88,7 +89,7 @@ def test_run_converts_counts_with_the_image_camera_metadata():
         "units": "ADU",
         "camera": {"baseline_adu": 100.0, "gain_adu_per_e": 2.0, "quantum_efficiency": 0.8},
     }
-    request = _prepare(stack, LightFieldImage(counts, 6.5 * um, meta), iterations=50)
+    request = _prepare(stack, LightFieldImage(counts, 6.5 * um, meta), options={"iterations": 50})
     volume = run(request, lambda *a: None, None)
     assert volume.metadata["units"] == "photons per voxel" and volume.metadata["notes"] == []
     assert volume.metadata["camera"]["source"] == "image metadata"
@@ -102,7 +103,9 @@ def test_run_estimates_the_baseline_of_a_foreign_image_and_says_so():
 
     stack = _delta_stack()
     _, counts = _camera_frame(stack)
-    volume = run(_prepare(stack, LightFieldImage(counts, 6.5 * um), iterations=5), lambda *a: None, None)
+    volume = run(
+        _prepare(stack, LightFieldImage(counts, 6.5 * um), options={"iterations": 5}), lambda *a: None, None
+    )
     notes = volume.metadata["notes"]
     assert volume.metadata["camera"]["source"] == "estimated" and "estimated the baseline as 100" in notes[0]
 

@@ -12,9 +12,9 @@ import torch
 from qtpy.QtWidgets import QMessageBox, QWidget
 
 from lfm_studio.ui.failure_notices import JobFailureNotices, write_error_text
-from lfm_studio.ui.jobs import JobRunner
 from lfm_studio.ui.results import ImageResult, JobStatus
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.jobs import JobRunner
 from tests.ui.standins import small_fourier_design
 from tests.ui.test_file_menu import Dialogs, design, menu  # noqa: F401 - the File menu's fixtures
 

@@ -14,8 +14,8 @@ from lfm_studio.engine.design import load_design
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.edits import apply_changes
 from lfm_studio.ui.file_menu import RECENT_KEY, FileActions
-from lfm_studio.ui.jobs import JobRunner
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.jobs import JobRunner
 from tests.ui.standins import small_fourier_design
 
 Button = QMessageBox.StandardButton

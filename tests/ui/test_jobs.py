@@ -9,7 +9,7 @@ import pytest
 from qtpy.QtCore import QThreadPool
 
 from lfm_studio.engine.progress import checkpoint
-from lfm_studio.ui.jobs import JobRunner
+from lfm_studio.widgets.jobs import JobRunner
 
 TIMEOUT_MS = 60_000  # generous: only a hang should reach it (CI may share its cores)
 

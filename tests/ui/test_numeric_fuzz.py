@@ -29,10 +29,12 @@ FUZZ = ("nan", "inf", "-1", "0", "1e308", "", "abc", "0,5", "0.5")
 MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": None, "abc": None,
            "0,5": 0.5, "0.5": 0.5}  # fmt: skip
 LOCALES = ("C", "de_DE")
-# Parameter panel 14 fields (two of them pairs) = 16; workflow 4; MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 9  # parameter panel (incl. the two volume-grid settings), workflow, MLA editor
-# Fields that do not apply to the default (Fourier) design are shown disabled and cannot be typed into.
-DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet"}
+# Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
+# (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
+EXPECTED_FIELDS = 18 + 4 + 4 + 9  # parameter panel (incl. the two volume-grid settings), workflow, MLA editor
+# Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
+# are shown disabled and cannot be typed into.
+DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
 
 
 @pytest.fixture
@@ -187,6 +189,14 @@ def _hosts(window):
     for name in ("bead_count", "photons", "seed", "iterations"):
         in_force = lambda name=name: getattr(state.workflow, name)  # noqa: E731
         hosts[getattr(flow, name)] = (name, in_force, lambda: _shown(flow.input_error))
+    for field in flow.method_options.numeric_fields():  # the method's options, from the registry
+        name = next(n for n in flow.method_options.option_names() if flow.method_options.field(n) is field)
+
+        def option_in_force(name=name, field=field):
+            value = dict(state.workflow.method_options).get(name)
+            return field.rule.minimum if value is None else value  # None: "off"
+
+        hosts[field] = (name, option_in_force, lambda: _shown(flow.input_error))
     bar = editor.symmetry_bar
     for field in editor.numeric_fields():
         in_force = (lambda: editor.symmetry().rotation) if field is bar.rotation else field.value

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from dataclasses import replace
 from types import SimpleNamespace
 
 import pytest
@@ -129,3 +130,44 @@ def test_a_result_without_scores_still_shows_psnr_and_ssim():
     assert "PSNR 31.25 dB" in text and "SSIM 0.875" in text
     card = scorecard(volume, volume, peaks=False)
     assert card.score("f1") is None and "F1" not in card.summary()
+
+
+def test_a_registered_method_is_in_the_studio_list_and_runs(psf, qtbot):
+    from lfm_studio.engine.reconstruct import reconstruct_frame
+    from tests import toy_method
+
+    design, result = psf
+    with toy_method.registered():
+        state = StudioState(design)
+        panel = WorkflowPanel(state)
+        qtbot.addWidget(panel)
+        offered = [panel.method.itemData(i) for i in range(panel.method.count())]
+        assert offered[:4] == ["rl", "rl-accelerated", "wiener", "tikhonov"] and "backprojection" in offered
+        assert state.workflow.method == "rl-accelerated" and panel.iterations.isEnabled()
+        panel.method_options.set_method("backprojection")  # the user picks it: the settings follow
+        assert state.workflow.method == "backprojection" and dict(state.workflow.method_options) == {
+            "scale": 1.0
+        }
+        assert not panel.iterations.isEnabled() and panel.method_options.field("scale").isEnabled()
+        assert state.stale >= {"reconstruction"}
+        settings = replace(state.workflow, bead_count=3, photons=None, seed=1)
+        image = pipeline.simulate_image(_ctx([]), design, result.stack, settings)
+        partials: list = []
+        got = pipeline.reconstruct(_ctx(partials), design, image, settings)
+        direct = reconstruct_frame(image.setup.projector, image.counts, method="backprojection")
+    assert got.method == "backprojection" and got.iterations == 0 and partials == []
+    torch.testing.assert_close(got.volume, direct, rtol=1e-5, atol=1e-6 * float(direct.max()))
+    assert got.ncc > 0.1  # measured about 0.2; a constant volume scores 0
+    assert "(backprojection)" in quality_text(got) and "iterations" not in quality_text(got)
+
+
+def test_a_one_step_method_that_needs_a_fourier_projector_is_refused_by_name():
+    from lfm_studio.engine.reconstruct import get_method
+
+    conventional = SimpleNamespace(setup=SimpleNamespace(projector=SimpleNamespace()))  # no OTF
+    settings = WorkflowSettings(method="wiener")
+    with pytest.raises(
+        ValueError, match=r"method 'wiener' .* needs a laterally shift-invariant.*Fix: choose rl"
+    ):
+        pipeline.reconstruct(_ctx([]), None, conventional, settings)
+    assert get_method("rl").supports(conventional.setup.projector)

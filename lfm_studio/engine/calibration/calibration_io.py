@@ -2,7 +2,7 @@
 
 A UTF-8 JSON file (``calib.json``): the format tag and version, a summary a person reads
 first, the fitted lattice or sub-image registration, the per-lenslet table (indices,
-measured centres, residuals, light, outlier flags), the flat-field envelope, the defective
+measured centres, residuals, light, outlier flags), the flat-field envelope (or the per-sub-image gains of a Fourier LFM), the defective
 pixels, and the nominal design. Positions are stored to 1e-6 px. When a dark frame was
 given, it is stored beside the JSON as ``calib.dark.npz`` (float32, compressed), named in
 the JSON with its SHA-256 so that a missing or different file is caught on loading. Both
@@ -28,6 +28,7 @@ from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.calibration.grid_fit import FLAG_NAMES, LatticeFit
 from lfm_studio.engine.calibration.lattice import LensletLattice
 from lfm_studio.engine.calibration.record import CALIBRATION_VERSION, Calibration
+from lfm_studio.engine.calibration.sub_image_flat import SubImageFlat
 from lfm_studio.engine.calibration.sub_images import SubImageFit
 
 FORMAT = "lfm_studio.calibration"
@@ -81,6 +82,12 @@ def calibration_to_dict(calibration: Calibration) -> dict[str, Any]:
             "rotation_rad": fit.rotation,
             "shift_yx_px": list(fit.shift),
         }
+        flat = calibration.sub_image_flat
+        if flat is not None:
+            doc["sub_images"]["flat_field"] = {
+                "radius_px": flat.radius,
+                "coefficients": flat.coefficients.tolist(),
+            }
     return doc
 
 
@@ -121,7 +128,7 @@ def calibration_from_dict(
                 mass=_tensor(table["light"], torch.float64),
                 flags=_tensor(table["flags"], torch.int64),
             )
-        sub = None
+        sub, flat = None, None
         if "sub_images" in doc:
             s = doc["sub_images"]
             sub = SubImageFit(
@@ -134,6 +141,11 @@ def calibration_from_dict(
                 rotation=float(s["rotation_rad"]),
                 shift=tuple(float(v) for v in s["shift_yx_px"]),  # type: ignore[arg-type]
             )
+            if s.get("flat_field") is not None:
+                flat = SubImageFlat(
+                    coefficients=_tensor(s["flat_field"]["coefficients"], torch.float64),
+                    radius=float(s["flat_field"]["radius_px"]),
+                )
         coefficients = doc["flat_field_coefficients"]
         block = doc["lenslet_block"]
         return Calibration(
@@ -148,6 +160,7 @@ def calibration_from_dict(
             grid=grid,
             sub_images=sub,
             dark_frame=dark_frame,
+            sub_image_flat=flat,
             version=version,
         )
     except (KeyError, TypeError, ValueError) as exc:

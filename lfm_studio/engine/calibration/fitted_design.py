@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import math
 
+import torch
+
 from lfm_studio.engine.calibration.record import Calibration
-from lfm_studio.engine.design import Design, LensletSpec, MLASpec
+from lfm_studio.engine.design import Design, LensletSpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.lenslet import overlap_depth_um
 
 
@@ -36,6 +38,40 @@ def _moved(
             shape=lens.shape,
         )
         for lens, centre in zip(lenslets, centres, strict=True)
+    )
+
+
+def _regular_mla(design: Design) -> RegularMLASpec:
+    """The design's MLA, which a fitted lattice describes: it must be a regular array."""
+    if not isinstance(design.mla, RegularMLASpec):
+        raise ValueError(
+            f"a lenslet lattice calibration needs a regular MLA (layout 'regular'); got layout "
+            f"{design.mla.layout!r}. Fix: use the design the calibration was made with."
+        )
+    return design.mla
+
+
+def mla_at_centres(
+    design: Design, centres_yx: torch.Tensor, frame_shape: tuple[int, int]
+) -> tuple[MLASpec, str]:
+    """A Fourier ``design``'s MLA with each lenslet at a sub-image centre ``centres_yx`` (L, 2) px.
+
+    Centres are taken on a frame of ``frame_shape`` whose optical axis is pixel ``(Y // 2, X // 2)``.
+    Returns the MLA and the end of a note for ``assumed`` (". " or the aperture reduction that
+    keeps touching apertures from overlapping).
+    """
+    pixel_um = design.camera.pixel_pitch_um
+    axis_y, axis_x = float(frame_shape[0] // 2), float(frame_shape[1] // 2)
+    centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in centres_yx.tolist()]
+    lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
+    shrink = max(
+        (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
+    )
+    if shrink > 0:  # touching apertures measured a little closer: keep them touching
+        lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
+    mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+    return mla, (
+        f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else "."
     )
 
 
@@ -60,7 +96,7 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
         lattice = calibration.grid.lattice
         pitch_px = math.sqrt(lattice.pitch[0] * lattice.pitch[1])
         oy, ox = lattice.origin
-        shape = design.mla.shape
+        shape = _regular_mla(design).shape
         half = [0.5 if n % 2 == 0 else 0.0 for n in shape]  # an even array is centred between sites
         offset_y = (
             oy + half[0] * lattice.row_vector[0] + half[1] * lattice.col_vector[0] - axis_y
@@ -81,18 +117,10 @@ def fitted_design(design: Design | None, calibration: Calibration) -> Design:
         fit = calibration.sub_images
         if fit is None:  # excluded by Calibration.__post_init__
             raise ValueError("a Fourier calibration needs its sub-image fit.")
-        centres = [((x - axis_x) * pixel_um, (y - axis_y) * pixel_um) for y, x in fit.measured.tolist()]
-        lenslets = _moved(design.mla.lenslets, centres, shrink=0.0)
-        shrink = max(
-            (overlap_depth_um(a, b) for i, a in enumerate(lenslets) for b in lenslets[i + 1 :]), default=0.0
-        )
-        if shrink > 0:  # touching apertures measured a little closer: keep them touching
-            lenslets = _moved(design.mla.lenslets, centres, shrink=shrink + 1e-4)
-        mla = MLASpec(lenslets=lenslets, array_aperture_diameter_um=design.mla.array_aperture_diameter_um)
+        mla, moved = mla_at_centres(design, fit.measured, calibration.frame_shape)
         note = (
-            f"calibrated: {len(lenslets)} lenslet centres from their measured sub-images (similarity to the "
-            f"nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg)"
-            + (f"; apertures reduced by {shrink:.4g} um so that they do not overlap." if shrink > 0 else ".")
+            f"calibrated: {len(mla.lenslets)} lenslet centres from their measured sub-images (similarity to "
+            f"the nominal layout: scale {fit.scale:.5f}, rotation {math.degrees(fit.rotation):.4f} deg){moved}"
         )
     return design.updated(
         name=f"{design.name} (calibrated)", mla=mla, camera=camera, assumed=(*design.assumed, note)
@@ -122,13 +150,11 @@ def rectified_design(
             "Fix: use the design the calibration was made with."
         )
     ni, nj = (calibration.block[1], calibration.block[3]) if lenslets is None else lenslets
-    ratio = design.mla.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
+    regular = _regular_mla(design)
+    ratio = regular.pitch_um / design.camera.pixel_pitch_um  # lenslet pitch on the sensor, px
     # The projector images int(count / ratio) lenslets: half a lenslet of margin keeps rounding away.
     count = (math.ceil((ni + 0.5) * ratio), math.ceil((nj + 0.5) * ratio))
-    shape = design.mla.shape
-    mla = design.mla.model_copy(
-        update={"shape": (max(shape[0], ni), max(shape[1], nj)), "offset_um": (0.0, 0.0)}
-    )
+    mla = regular.model_copy(update={"shape": (ni, nj), "offset_um": (0.0, 0.0)})
     camera = design.camera.model_copy(update={"pixel_count": count})
     lattice = calibration.grid.lattice
     note = (

@@ -62,10 +62,14 @@ def envelope_map(coefficients: torch.Tensor, shape: tuple[int, int]) -> torch.Te
     return (u[:, None] ** powers) @ table @ (w[:, None] ** powers).T
 
 
+def flat_field_map(coefficients: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+    """The envelope a frame of ``shape`` is divided by: values below 5 % of its median clamped there."""
+    return envelope_map(coefficients, shape).clamp_min(0.05)
+
+
 def flat_field(frame: torch.Tensor, coefficients: torch.Tensor) -> torch.Tensor:
-    """``frame`` divided by the envelope (values below 5 % of its median are clamped there)."""
-    envelope = envelope_map(coefficients, tuple(frame.shape)).clamp_min(0.05)
-    return frame.to(torch.float64) / envelope
+    """``frame`` divided by :func:`flat_field_map`."""
+    return frame.to(torch.float64) / flat_field_map(coefficients, (frame.shape[-2], frame.shape[-1]))
 
 
 def _degree_of(terms: int) -> int:

@@ -109,7 +109,7 @@ def refine_lattice(
     lattice = start
     radius = 0.5 * min(min(start.pitch), max(disk_diameter + 2.0, 3.0))
     reach = 0.5 * disk_diameter + 1.0
-    indices = start.indices_inside(tuple(image.shape), margin=0.5)
+    indices = start.indices_inside((image.shape[-2], image.shape[-1]), margin=0.5)
     if indices.shape[0] < 4:
         raise ValueError(
             f"only {indices.shape[0]} whole lenslets fit on the {tuple(image.shape)} frame at pitch "

@@ -139,7 +139,7 @@ def _bright_sites(image: torch.Tensor, lattice: LensletLattice) -> LensletLattic
     puts the phase-derived origin in the gaps; comparing the mean brightness at the
     sites and at the cell corners settles it.
     """
-    indices = lattice.indices_inside(tuple(image.shape), margin=1.0)
+    indices = lattice.indices_inside((image.shape[-2], image.shape[-1]), margin=1.0)
     if indices.shape[0] == 0:
         return lattice
     sites = lattice.centres(indices)

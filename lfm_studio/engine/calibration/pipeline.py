@@ -5,22 +5,27 @@ camera baseline) -> defective pixels (hot in the dark and radiometry frames, dea
 radiometry frame) replaced by their 3 x 3 median ->
 conventional LFM: Fourier lattice, centroid refinement, flat-field envelope, a second
 refinement on the flat-fielded frame (vignetting no longer pulls the centroids) ->
-Fourier LFM: sub-image centres registered to the design. ``rectify_frame`` applies a
-calibration to a raw frame so that the design's projector can reconstruct it.
+Fourier LFM: sub-image centres registered to the design, then a flat field per sub-image.
+``rectify_frame`` applies a calibration to a raw frame so that the design's projector can
+reconstruct it.
 """
 
 from __future__ import annotations
+
+from functools import partial
 
 import torch
 
 from lfm_studio.engine.calibration import defects as defect_pixels
 from lfm_studio.engine.calibration.checks import as_frame, check_frames, check_pitch
+from lfm_studio.engine.calibration.corrections import frame_corrections
 from lfm_studio.engine.calibration.flat_field import fit_envelope, flat_field
 from lfm_studio.engine.calibration.grid_fit import DIM, LatticeFit, refine_lattice
 from lfm_studio.engine.calibration.grid_fourier import fourier_lattice
 from lfm_studio.engine.calibration.nominal import nominal_grid, nominal_sub_images
 from lfm_studio.engine.calibration.record import Calibration
 from lfm_studio.engine.calibration.rectify import lenslet_block, rectify
+from lfm_studio.engine.calibration.sub_image_flat import fit_sub_image_flat
 from lfm_studio.engine.calibration.sub_images import fit_sub_images
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
@@ -57,25 +62,29 @@ def calibrate(
         bad |= defect_pixels.hot_pixels(dark_frame)
     image = defect_pixels.replace_defects(lit, bad)
     shape = (int(frame.shape[0]), int(frame.shape[1]))
-    common = {
-        "frame_shape": shape,
-        "design": design.model_dump(mode="json"),
-        "dark_level": dark_level,
-        "dark_frame": None if dark_frame is None else dark_frame.to(torch.float32),
-        "defects": torch.nonzero(bad),
-    }
+    calibration = partial(
+        Calibration,
+        frame_shape=shape,
+        design=design.model_dump(mode="json"),
+        dark_level=dark_level,
+        dark_frame=None if dark_frame is None else dark_frame.to(torch.float32),
+        defects=torch.nonzero(bad),
+    )
     if design.kind == "fourier":
         checkpoint(cancel, progress, 1, _STEPS, "sub-image centres")
-        fit = fit_sub_images(image, nominal_sub_images(design, shape))
+        nominal_subs = nominal_sub_images(design, shape)
+        fit = fit_sub_images(image, nominal_subs)
+        checkpoint(cancel, progress, 3, _STEPS, "flat field per sub-image")
+        flat = fit_sub_image_flat(image, fit.measured, fit.flags, nominal_subs.diameter)
         checkpoint(cancel, progress, _STEPS, _STEPS, "done")
-        return Calibration(
+        return calibration(
             kind="fourier",
             envelope=None,
             pixels_per_lenslet=None,
             block=None,
             grid=None,
             sub_images=fit,
-            **common,
+            sub_image_flat=flat,
         )
     nominal = nominal_grid(design)
     checkpoint(cancel, progress, 1, _STEPS, "lattice from Fourier peaks")
@@ -89,14 +98,13 @@ def calibrate(
     grid = refine_lattice(flat_field(image, envelope), grid.lattice, disk_diameter=nominal.disk_diameter)
     check_pitch(grid.lattice.pitch, nominal.pitch)
     checkpoint(cancel, progress, _STEPS, _STEPS, "done")
-    return Calibration(
+    return calibration(
         kind="conventional",
         envelope=envelope,
         pixels_per_lenslet=nominal.pixels_per_lenslet,
         block=lenslet_block(grid.lattice, shape, lit=_lit(grid)),
         grid=grid,
         sub_images=None,
-        **common,
     )
 
 
@@ -110,24 +118,9 @@ def _lit(grid: LatticeFit) -> set[tuple[int, int]]:
 
 
 def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
-    """``raw`` (Y, X) minus the dark frame (or level), defects replaced, divided by the flat-field envelope (float64)."""
-    frame = as_frame("raw frame", raw)
-    if tuple(frame.shape) != tuple(calibration.frame_shape):
-        raise ValueError(
-            f"raw frame shape {tuple(frame.shape)} differs from the calibration's frame shape "
-            f"{tuple(calibration.frame_shape)}. Fix: record the raw frame with the same camera region (ROI) "
-            "and binning as the radiometry frame, or calibrate again."
-        )
-    mask = torch.zeros(frame.shape, dtype=torch.bool)
-    if calibration.defects.numel():
-        mask[calibration.defects[:, 0], calibration.defects[:, 1]] = True
-    dark = (
-        calibration.dark_frame.to(torch.float64)
-        if calibration.dark_frame is not None
-        else calibration.dark_level
-    )
-    image = defect_pixels.replace_defects(defect_pixels.subtract_dark(frame, dark), mask)
-    return image if calibration.envelope is None else flat_field(image, calibration.envelope)
+    """``raw`` (Y, X) minus the dark frame (or level), defects replaced, divided by the flat field
+    (the envelope of a conventional LFM, the per-sub-image gains of a Fourier LFM); float64."""
+    return frame_corrections(calibration).apply(raw)
 
 
 def rectify_frame(
@@ -140,18 +133,26 @@ def rectify_frame(
     the calibration's lenslet block, or ``lenslets=(ny, nx)`` centred on the lenslet nearest
     the frame centre. Fourier LFM: corrected only; the measured sub-image centres enter
     through :func:`~lfm_studio.engine.calibration.fitted_design.fitted_design` instead.
-    A time series ``(T, Y, X)`` is rectified frame by frame into ``(T, ...)``.
+    A time series ``(T, Y, X)`` is rectified frame by frame into ``(T, ...)``; the defect mask,
+    dark frame and flat-field map are prepared once for the series (:mod:`.corrections`).
     """
     frames = torch.as_tensor(raw)
-    if frames.ndim == 3:
-        return torch.stack([rectify_frame(frame, calibration, lenslets=lenslets) for frame in frames])
-    image = correct_frame(raw, calibration)
-    if calibration.grid is None:
-        return image
-    lattice = calibration.grid.lattice
-    block = (
-        calibration.block if lenslets is None else lenslet_block(lattice, calibration.frame_shape, lenslets)
-    )
-    if block is None or calibration.pixels_per_lenslet is None:
-        raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
-    return rectify(image, lattice, calibration.pixels_per_lenslet, block)
+    corrections = frame_corrections(calibration)  # once per series: mask, dark frame, flat-field map
+    grid, n = calibration.grid, calibration.pixels_per_lenslet
+    block = None
+    if grid is not None:
+        block = (
+            calibration.block
+            if lenslets is None
+            else lenslet_block(grid.lattice, calibration.frame_shape, lenslets)
+        )
+        if block is None or n is None:
+            raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
+
+    def one(frame: object) -> torch.Tensor:
+        image = corrections.apply(frame)
+        if grid is None or block is None or n is None:  # Fourier LFM: corrected only
+            return image
+        return rectify(image, grid.lattice, n, block)
+
+    return torch.stack([one(frame) for frame in frames]) if frames.ndim == 3 else one(raw)

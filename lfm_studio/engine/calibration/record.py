@@ -9,9 +9,10 @@ from typing import Any
 import torch
 
 from lfm_studio.engine.calibration.grid_fit import LatticeFit
+from lfm_studio.engine.calibration.sub_image_flat import SubImageFlat
 from lfm_studio.engine.calibration.sub_images import SubImageFit
 
-CALIBRATION_VERSION = 1
+CALIBRATION_VERSION = 2  # 2: the Fourier LFM per-sub-image flat field
 
 
 @dataclass(frozen=True)
@@ -32,6 +33,8 @@ class Calibration:
     grid : the lattice fit (conventional) or None.
     sub_images : the sub-image fit (Fourier) or None.
     dark_frame : (Y, X) float32 dark frame subtracted pixel by pixel from raw frames, ADU, or None.
+    sub_image_flat : the per-sub-image gains of a Fourier LFM (:mod:`.sub_image_flat`), or None
+        (conventional LFM, or a version-1 Fourier calibration: no flat field).
     version : :data:`CALIBRATION_VERSION`.
     """
 
@@ -46,6 +49,7 @@ class Calibration:
     grid: LatticeFit | None
     sub_images: SubImageFit | None
     dark_frame: torch.Tensor | None = None
+    sub_image_flat: SubImageFlat | None = None
     version: int = CALIBRATION_VERSION
 
     def __post_init__(self) -> None:
@@ -62,6 +66,11 @@ class Calibration:
             )
         if (self.kind == "fourier") != (self.sub_images is not None):
             raise ValueError("a Fourier calibration has a sub-image fit and a conventional one has none.")
+        if self.sub_image_flat is not None and (
+            self.sub_images is None
+            or self.sub_image_flat.coefficients.shape[0] != self.sub_images.measured.shape[0]
+        ):
+            raise ValueError("a per-sub-image flat field needs one gain polynomial per measured sub-image.")
 
     def summary(self) -> dict[str, Any]:
         """Numbers a person checks first (pitch, rotation, residuals, flagged counts)."""

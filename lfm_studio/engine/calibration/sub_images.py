@@ -1,16 +1,17 @@
 """Fourier LFM / XLFM: the centre of each lenslet's sub-image on a radiometry frame.
 
 A uniform slide fills each sub-image with a disk (the field stop's image). Around each
-nominal centre the disk is thresholded at half its brightness (a soft ramp from 3/8 to
-5/8 of the window's 95th percentile, so vignetting across the disk does not pull the
-centre) and its centroid is iterated inside a window of radius ``min(D/2 + 2 px, s/2)``
-(a sub-image whose disk, plus 1 px, leaves the frame is flagged ``EDGE``)
-(``D`` the nominal diameter, ``s`` the closest nominal spacing). The measured centres are
-then registered to the nominal ones by a least-squares similarity transform (scale,
-rotation, shift); the distance of each measured centre from the registered nominal one
-is its residual. Outliers are flagged: a sub-image with under half the median light, and,
-one at a time, the sub-image whose leave-one-out residual (from the transform fitted to
-the others) exceeds ``max(6 robust sigmas of the others, 1 px)``.
+nominal centre the disk is thresholded at half its brightness (a soft ramp from 3/8 to 5/8
+of the 95th percentile of the disk's core, within ``CORE`` of the nominal radius, so
+vignetting across the disk and a brighter neighbour do not pull the centre) and its
+centroid is iterated inside a window of radius ``min(D/2 + 2 px, s/2)`` (a sub-image whose
+disk, plus 1 px, leaves the frame is flagged ``EDGE``) (``D`` the nominal diameter, ``s``
+the closest nominal spacing). The measured centres are then registered to the nominal ones
+by a least-squares similarity transform (scale, rotation, shift); the distance of each
+measured centre from the registered nominal one is its residual. Outliers are flagged: a
+sub-image with under half the median light, and, one at a time, the sub-image whose
+leave-one-out residual (from the transform fitted to the others) exceeds ``max(6 robust
+sigmas of the others, 1 px)``.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from lfm_studio.engine.calibration.nominal import NominalSubImages, min_spacing
 ITERATIONS = 12
 RESIDUAL_SIGMAS = 6.0
 RESIDUAL_FLOOR = 1.0  # px
+CORE = 0.7  # the threshold's brightness is taken within this fraction of the nominal radius
 
 
 @dataclass(frozen=True)
@@ -83,7 +85,13 @@ def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background
         cy, cx = (round(float(v)) for v in centre)
         y0, x0 = max(cy - reach, 0), max(cx - reach, 0)
         crop = lit[y0 : cy + reach + 1, x0 : cx + reach + 1]
-        peak = float(torch.quantile(crop.reshape(-1)[:: max(1, crop.numel() // 200_000)], 0.95))
+        # The brightness of this sub-image: its core only, so a brighter neighbour (another
+        # vignetting) reaching into the window does not raise the threshold.
+        yy = torch.arange(y0, y0 + crop.shape[0], dtype=torch.float64)[:, None] - float(centre[0])
+        xx = torch.arange(x0, x0 + crop.shape[1], dtype=torch.float64)[None, :] - float(centre[1])
+        core = crop[yy**2 + xx**2 <= (CORE * 0.5 * nominal.diameter) ** 2]
+        core = core if core.numel() else crop.reshape(-1)
+        peak = float(torch.quantile(core[:: max(1, core.numel() // 200_000)], 0.95))
         ramp = ((crop - 0.5 * peak) / (0.25 * peak) + 0.5).clamp(0.0, 1.0) if peak > 0 else crop * 0
         corner = torch.tensor([y0, x0], dtype=torch.float64)
         spot = measure_centroids(ramp, centre[None] - corner, radius=radius, iterations=ITERATIONS)

@@ -147,15 +147,21 @@ def expose(
     return readout(electrons), readout(torch.zeros(shape, dtype=torch.float64)), hot
 
 
-def sub_image_pattern(shape: tuple[int, int], centres: torch.Tensor, diameter: float) -> torch.Tensor:
-    """Coverage (Y, X) in [0, 1] of Fourier-LFM sub-images: disks of ``diameter`` px at ``centres`` (L, 2)."""
+def sub_image_pattern(
+    shape: tuple[int, int], centres: torch.Tensor, diameter: float, gains: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Coverage (Y, X) in [0, 1] of Fourier-LFM sub-images: disks of ``diameter`` px at ``centres`` (L, 2).
+
+    ``gains`` (L,) multiplies each sub-image's disk (a per-sub-image vignetting); default 1.
+    """
     ny, nx = shape
     yy = torch.arange(ny, dtype=torch.float64)[:, None]
     xx = torch.arange(nx, dtype=torch.float64)[None, :]
     out = torch.zeros(shape, dtype=torch.float64)
-    for cy, cx in centres.tolist():
+    factors = [1.0] * len(centres) if gains is None else [float(g) for g in gains]
+    for (cy, cx), factor in zip(centres.tolist(), factors, strict=True):
         r = torch.sqrt((yy - cy) ** 2 + (xx - cx) ** 2)
-        out = torch.maximum(out, (0.5 * diameter - r + 0.5).clamp(0.0, 1.0))
+        out = torch.maximum(out, factor * (0.5 * diameter - r + 0.5).clamp(0.0, 1.0))
     return out
 
 
@@ -192,6 +198,7 @@ def fourier_frames(
     jitter: float = 0.3,
     diameter_fraction: float = 0.97,
     photons: float = 1500.0,
+    gains: torch.Tensor | None = None,
     seed: int = 0,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Radiometry and dark frames (ADU) of a Fourier LFM, and the true sub-image centres (L, 2) px.
@@ -200,6 +207,7 @@ def fourier_frames(
     ``(Y // 2, X // 2)``, scaled by ``scale``, shifted by ``shift`` (y, x) px and jittered by
     ``jitter`` px rms per axis; each sub-image is a disk ``diameter_fraction`` of the nominal
     diameter, with 30 % vignetting, noise, a 100 ADU dark offset and 0.1 % hot pixels.
+    ``gains`` (L,) scales each sub-image's light (a per-sub-image vignetting; default 1).
     """
     nominal = nominal_sub_images(design, shape)
     centre = torch.tensor([shape[0] // 2, shape[1] // 2], dtype=torch.float64)
@@ -210,7 +218,7 @@ def fourier_frames(
     )
     truth = centre + scale * (nominal.centres - centre) @ turn.T + torch.tensor(shift, dtype=torch.float64)
     truth = truth + jitter * noise
-    clean = photons * sub_image_pattern(shape, truth, diameter_fraction * nominal.diameter)
+    clean = photons * sub_image_pattern(shape, truth, diameter_fraction * nominal.diameter, gains)
     radiometry, dark, _ = expose(
         clean * radial_vignetting(shape, 0.3),
         baseline_adu=100.0,

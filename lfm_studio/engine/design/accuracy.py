@@ -154,7 +154,7 @@ class AccuracySpec(SpecModel):
     @classmethod
     def from_preset(cls, name: str) -> AccuracySpec:
         """The knob values of preset ``name``."""
-        return cls(preset=name)
+        return cls.model_validate({"preset": name})
 
     def matches_preset(self) -> bool:
         """Whether every knob still has its preset's value (False for "custom")."""

@@ -93,7 +93,12 @@ def check_design(design: Design) -> None:
 
 
 def _check_pupil(design: Design) -> None:
-    radius = design.pupil_diameter_at_mla / 2.0 / 1e-6  # um
+    relay, diameter = design.relay, design.pupil_diameter_at_mla
+    if (
+        relay is None or diameter is None
+    ):  # no relay, no pupil image (the caller checks kind 'fourier' has one)
+        return
+    radius = diameter / 2.0 / 1e-6  # um
     mla = design.mla
     outside, clipped = [], []
     for i, lens in enumerate(mla.lenslets):
@@ -103,7 +108,7 @@ def _check_pupil(design: Design) -> None:
             clipped.append(f"{lens.describe(i)} reaches {fmt(lens.reach_um)} um")
     where = (
         f"the pupil image at the MLA has radius {fmt(radius)} um (2 NA f_relay / M = 2 x "
-        f"{fmt(design.objective.numerical_aperture)} x {fmt(design.relay.focal_length_mm)} mm / "  # type: ignore[union-attr]
+        f"{fmt(design.objective.numerical_aperture)} x {fmt(relay.focal_length_mm)} mm / "
         f"{fmt(design.objective.magnification)})"
     )
     if outside:

@@ -80,7 +80,7 @@ class Design(SpecModel):
     mla_to_camera_distance_mm: float
     camera: CameraSpec
     depths: DepthSpec
-    accuracy: AccuracySpec = AccuracySpec(preset="standard")
+    accuracy: AccuracySpec = AccuracySpec.from_preset("standard")
 
     @model_validator(mode="after")
     def _check(self) -> Design:

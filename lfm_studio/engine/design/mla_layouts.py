@@ -58,7 +58,7 @@ def hex_rect_sites(
     ny, nx = shape
     ry, rx = limit or shape
     ox, oy = offset_um
-    sites = []
+    sites: list[Point] = []
     for i in range(min(ry, ny)):
         shift = pitch_um / 4.0 * (1.0 if i % 2 else -1.0) if ny > 1 else 0.0
         y = oy + (i - (ny - 1) / 2.0) * pitch_um * SQRT3_2

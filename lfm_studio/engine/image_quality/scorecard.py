@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 from lfm_studio.engine.image_quality.basic import Normalization, as_pair
@@ -145,7 +146,8 @@ class Scorecard:
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready: the PSNR/SSIM report's keys, ``ncc``, ``peaks``, ``scores`` and ``floors``."""
         out = self.report.to_dict()
-        out["ncc"] = self.score("ncc").value
+        ncc_score = self.score("ncc")  # always computed
+        out["ncc"] = None if ncc_score is None else ncc_score.value
         out["normalization"] = self.normalization
         if self.peaks is not None:
             out["peaks"] = self.peaks.to_dict()
@@ -191,7 +193,7 @@ def scorecard(
         use_peaks = looks_point_like(truth, peaks=reference) if peaks is None else True
     else:
         use_peaks = reference is not None if peaks is None else bool(peaks)
-    settings = {"normalize": normalize, "data_range": data_range}
+    measure = partial(compare, truth, normalize=normalize, data_range=data_range)  # PSNR/SSIM against truth
 
     def peak(volume) -> PeakMatch:
         return peak_match(
@@ -206,15 +208,13 @@ def scorecard(
             out["f1"] = match.f1
         return {**out, "psnr_db": report.psnr, "ssim": report.ssim}
 
-    report = compare(truth, estimate, per_depth=per_depth, depths=depths, **settings)
+    report = measure(estimate, per_depth=per_depth, depths=depths)
     match = peak(estimate) if use_peaks else None
     own = values(estimate, report, match)
     floor_values = {}
     for name in floors:
         volume = floor_volume(name, truth)
-        floor_values[name] = values(
-            volume, compare(truth, volume, **settings), peak(volume) if use_peaks else None
-        )
+        floor_values[name] = values(volume, measure(volume), peak(volume) if use_peaks else None)
     scores = tuple(
         Score(key, v, {name: floor_values[name][key] for name in floors}) for key, v in own.items()
     )

@@ -34,7 +34,7 @@ K1, K2 = 0.01, 0.03
 
 
 def _sigmas(sigma: float | Sequence[float], ndim: int) -> tuple[float, ...]:
-    values = tuple(float(s) for s in sigma) if isinstance(sigma, (tuple, list)) else (float(sigma),) * ndim
+    values = tuple(float(s) for s in sigma) if isinstance(sigma, Sequence) else (float(sigma),) * ndim
     if len(values) != ndim or any(not (s >= 0) for s in values):
         raise ValueError(
             f"sigma must be a number >= 0 (samples) or one per axis ({ndim} values); got {sigma!r}."

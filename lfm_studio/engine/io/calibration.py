@@ -53,7 +53,7 @@ def _positive(value: float | None) -> float | None:
 
 
 def _pixel_sizes(page: tifffile.TiffPage, scale: float) -> tuple[float | None, float | None]:
-    sizes = []
+    sizes: list[float | None] = []
     for tag in ("YResolution", "XResolution"):
         item = page.tags.get(tag)
         if item is None:

@@ -11,6 +11,7 @@ voxel ``i`` of an axis with ``N`` voxels sits at ``(i - N // 2) * d``.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -43,6 +44,14 @@ def _check_depths(name: str, depths: Any, n: int) -> tuple[float, ...] | None:
     return values
 
 
+def voxel_triple(values: Sequence[float]) -> tuple[float, float, float]:
+    """``(dz, dy, dx)`` as three floats (metres); ``ValueError`` unless there are exactly three."""
+    sizes = tuple(float(v) for v in values)
+    if len(sizes) != 3:
+        raise ValueError(f"Volume.voxel_size must be (dz, dy, dx) in metres; got {values!r}.")
+    return sizes
+
+
 @dataclass(frozen=True)
 class Volume:
     """A sampled 3D volume (or a time series of them) with its voxel size.
@@ -67,9 +76,7 @@ class Volume:
 
     def __post_init__(self) -> None:
         _require_real_tensor("Volume.data", self.data, (3, 4), "(Z, Y, X) or (T, Z, Y, X)")
-        sizes = tuple(float(v) for v in self.voxel_size)
-        if len(sizes) != 3:
-            raise ValueError(f"Volume.voxel_size must be (dz, dy, dx) in metres; got {self.voxel_size!r}.")
+        sizes = voxel_triple(self.voxel_size)
         for axis, value in zip("zyx", sizes, strict=True):
             require_positive(
                 f"Volume.voxel_size d{axis}", value, "m", "give the voxel size in metres, e.g. 2 * um."
@@ -85,7 +92,8 @@ class Volume:
     @property
     def extent(self) -> tuple[float, float, float]:
         """Physical size ``(Z dz, Y dy, X dx)`` in metres."""
-        return tuple(n * d for n, d in zip(self.data.shape[-3:], self.voxel_size, strict=True))
+        (nz, ny, nx), (dz, dy, dx) = self.data.shape[-3:], self.voxel_size
+        return (nz * dz, ny * dy, nx * dx)
 
     def depth_values(self) -> tuple[float, ...]:
         """Depth of each slice in metres: ``depths`` if given, else ``(i - Z // 2) * dz``."""

@@ -178,7 +178,7 @@ def decode_header(text: str | None, path: str, units: dict[str, str]) -> dict[st
 
 def require_kind(header: dict[str, Any], kind: str, path: str) -> None:
     """Raise :class:`HeaderError` if the file holds another kind of data."""
-    found = header.get("kind")
+    found = str(header.get("kind"))
     if found != kind:
         reader = {"psf_stack": "read_psf_stack", "volume": "read_volume", "image": "read_image"}.get(
             found, "?"

@@ -132,12 +132,9 @@ def read_psf_stack(
             px = object_px * mag
         elif mag is None and px is not None:
             mag = px / object_px
-    values = {
-        "pixel_size": px,
-        "magnification": mag,
-        "wavelength": wavelength if wavelength is not None else stored["wavelength"],
-        "depths": depths if depths is not None else stored["depths"],
-    }
+    wl = wavelength if wavelength is not None else stored["wavelength"]
+    zs = depths if depths is not None else stored["depths"]
+    values = {"pixel_size": px, "magnification": mag, "wavelength": wl, "depths": zs}
     missing = [key for key, value in values.items() if value is None]
     if px is None and mag is None and object_px is not None:
         missing.remove("pixel_size")
@@ -151,12 +148,13 @@ def read_psf_stack(
         }
         hint = "Pass them to read_psf_stack, e.g. " + ", ".join(examples[key] for key in missing) + "."
         raise MissingMetadataError(name, missing, hint)
+    assert px is not None and mag is not None and wl is not None and zs is not None  # else `missing`
     return PSFStack(
         data=hs.to_tensor(array, dtype, device, name=name),
-        depths=tuple(values["depths"]),
-        pixel_size=float(values["pixel_size"]),
-        magnification=float(values["magnification"]),
-        wavelength=float(values["wavelength"]),
+        depths=tuple(zs),
+        pixel_size=float(px),
+        magnification=float(mag),
+        wavelength=float(wl),
         design=design,
         metadata=metadata,
     )

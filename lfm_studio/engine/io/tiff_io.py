@@ -26,7 +26,7 @@ from typing import Any
 import torch
 
 from lfm_studio.engine.io import hyperstack as hs
-from lfm_studio.engine.io.containers import LightFieldImage, Volume
+from lfm_studio.engine.io.containers import LightFieldImage, Volume, voxel_triple
 from lfm_studio.engine.io.metadata import MissingMetadataError, decode_header, encode_header, require_kind
 from lfm_studio.engine.io.psf_tiff import read_psf_stack, write_psf_stack
 
@@ -51,8 +51,8 @@ def write_volume(
     if isinstance(volume, Volume):
         volume = Volume(
             volume.data,
-            volume.voxel_size if voxel_size is None else voxel_size,
-            volume.depths if depths is None else depths,
+            volume.voxel_size if voxel_size is None else voxel_triple(voxel_size),
+            volume.depths if depths is None else tuple(depths),
             volume.metadata if metadata is None else metadata,
         )
     else:
@@ -60,12 +60,18 @@ def write_volume(
             raise TypeError(
                 "write_volume needs voxel_size=(dz, dy, dx) in metres for a tensor, e.g. (2*um,)*3."
             )
-        volume = Volume(torch.as_tensor(volume), voxel_size, depths, metadata or {})
+        volume = Volume(
+            torch.as_tensor(volume),
+            voxel_triple(voxel_size),
+            None if depths is None else tuple(depths),
+            metadata or {},
+        )
     array, source = hs.tiff_array("volume", volume.data)
     dz, dy, dx = volume.voxel_size
+    axes = "TZYX" if array.ndim == 4 else "ZYX"
     fields = {
         "shape": list(array.shape),
-        "axes": "TZYX" if array.ndim == 4 else "ZYX",
+        "axes": axes,
         "source_dtype": source,
         "voxel_size_um": list(volume.voxel_size),
         "depths_um": list(volume.depths) if volume.depths is not None else None,
@@ -75,7 +81,7 @@ def write_volume(
     return hs.write_hyperstack(
         path,
         array,
-        axes=fields["axes"],
+        axes=axes,
         pixel_size=(dy, dx),
         z_spacing=dz,
         labels=hs.depth_labels(volume.depths, frames) if volume.depths is not None else None,
@@ -123,8 +129,8 @@ def read_volume(
         raise MissingMetadataError(name, ["voxel_size"], hint, what=f"voxel size {', '.join(missing)}")
     return Volume(
         data=hs.to_tensor(array, dtype, device, name=name),
-        voxel_size=tuple(stored),
-        depths=depths if depths is not None else stored_depths,
+        voxel_size=voxel_triple(stored),
+        depths=tuple(depths) if depths is not None else stored_depths,
         metadata=metadata,
     )
 

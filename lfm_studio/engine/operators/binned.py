@@ -14,39 +14,49 @@ Px`` are dropped (:func:`~lfm_studio.engine.systems.from_design.fourier_system_o
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
+
+from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.types import Shape2, Shape3
 
 
 class BinnedProjector:
-    """``A = B A_fine``: ``A_fine`` (any projector with ``forward``/``adjoint``) then ``k x k`` sums.
+    """``A = B A_fine``: ``A_fine`` (any :class:`Projector`) then ``k x k`` sums.
 
     Parameters
     ----------
-    inner : projector with ``forward``, ``adjoint`` and ``image_shape`` (at least ``factor``
-        pixels per axis); the camera has ``image_shape // factor`` pixels.
+    inner : Projector
+        The fine projector (at least ``factor`` pixels per axis); the camera has
+        ``image_shape // factor`` pixels. Dtype and device are the inner projector's.
     factor : int
         Virtual pixels per camera pixel along each axis (>= 1).
     """
 
-    def __init__(self, inner: Any, factor: int) -> None:
+    def __init__(self, inner: Projector, factor: int) -> None:
         if not (isinstance(factor, int) and factor >= 1):
             raise ValueError(f"factor must be an integer >= 1 (virtual pixels per pixel); got {factor!r}.")
         py, px = inner.image_shape
         if py < factor or px < factor:
             raise ValueError(f"the inner image {(py, px)} is smaller than one block of {factor} x {factor}.")
         self.inner, self.factor = inner, factor
-        self.dtype = getattr(inner, "dtype", None)
-        self.device = getattr(inner, "device", None)
 
     @property
-    def volume_shape(self) -> tuple[int, int, int]:
+    def dtype(self) -> torch.dtype:
+        """The inner projector's dtype."""
+        return self.inner.dtype
+
+    @property
+    def device(self) -> torch.device:
+        """The inner projector's device."""
+        return self.inner.device
+
+    @property
+    def volume_shape(self) -> Shape3:
         """``(Z, Vy, Vx)`` of the (fine) volumes :meth:`forward` accepts."""
-        return tuple(self.inner.volume_shape)
+        return self.inner.volume_shape
 
     @property
-    def image_shape(self) -> tuple[int, int]:
+    def image_shape(self) -> Shape2:
         """Lateral shape of the camera image."""
         py, px = self.inner.image_shape
         return (py // self.factor, px // self.factor)

@@ -87,6 +87,7 @@ class LensletLatticeProjector:
             channels = x[indices].reshape(1, -1, *self.lenslets)
             term = nnf.conv2d(channels, weight, padding=weight.shape[-1] // 2)
             out = term if out is None else out + term
+        assert out is not None  # the groups cover every depth (checked in __init__)
         return nnf.pixel_shuffle(out, self.q)[0, 0]
 
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:

@@ -15,11 +15,14 @@ that keep the working set cache-sized (batching all depths at once was measured
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+
 import torch
 
 from lfm_studio.engine import fft
 from lfm_studio.engine.errors import require_finite_tensor
 from lfm_studio.engine.operators.fft_sizes import next_fast_length
+from lfm_studio.engine.types import DepthSlice
 
 _CPU_CHUNK_BYTES = 24 * 2**20  # about the 32 MB L3 of this CPU, leaving room for the output
 
@@ -97,7 +100,7 @@ class ShiftInvariantProjector:
         """
         fy, fx = self.fft_shape
         otf_t = None
-        for part in self._chunks():
+        for part in self.depth_chunks():
             rows = fft.rfft_along(psf[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Py), a view
             spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
             if otf_t is None:
@@ -129,7 +132,8 @@ class ShiftInvariantProjector:
         """Lateral shape of the camera image, ``(Py, Px)``."""
         return self.psf_shape
 
-    def _chunks(self):
+    def depth_chunks(self) -> Iterator[DepthSlice]:
+        """Depth slices of ``depth_chunk`` depths (the last one may be shorter), in order."""
         for start in range(0, self.depths, self.depth_chunk):
             yield slice(start, min(self.depths, start + self.depth_chunk))
 
@@ -147,7 +151,7 @@ class ShiftInvariantProjector:
         volume = volume.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
         total = None
-        for part in self._chunks():
+        for part in self.depth_chunks():
             rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Vy), a view
             spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
             if total is None:
@@ -194,7 +198,7 @@ class ShiftInvariantProjector:
             spectrum, filters_t = spectrum.conj().resolve_conj(), filters_t.conj()
         scale = 1.0 / (fy * fx)
         out, parts = spectrum.real.new_empty(self.volume_shape), []
-        for part in self._chunks():
+        for part in self.depth_chunks():
             product = spectrum * filters_t[part]  # (c, Kx, Fy)
             if flipped:
                 columns = fft.fft_along(product, fy, dim=-1)[..., :vy].conj()  # (c, Kx, Vy)

@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from typing import Literal, overload
 
 import torch
 
@@ -93,6 +94,34 @@ def _depths(z: Scalar | torch.Tensor, device: Device) -> tuple[torch.Tensor, boo
         )
     require_finite_tensor("z (depth, m)", zt.detach())
     return zt.reshape(-1), zt.ndim == 0
+
+
+@overload
+def debye_integral(
+    objective: ObjectiveLens,
+    wavelength: float,
+    radius: torch.Tensor,
+    z: Scalar | torch.Tensor,
+    *,
+    apodization: Apodization = ...,
+    n_quadrature: int | None = ...,
+    derivative: Literal[False] = ...,
+    model: str = ...,
+) -> torch.Tensor: ...
+
+
+@overload
+def debye_integral(
+    objective: ObjectiveLens,
+    wavelength: float,
+    radius: torch.Tensor,
+    z: Scalar | torch.Tensor,
+    *,
+    apodization: Apodization = ...,
+    n_quadrature: int | None = ...,
+    derivative: Literal[True],
+    model: str = ...,
+) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
 def debye_integral(
@@ -251,7 +280,6 @@ def debye_psf(
     if image_side:
         y, x = -y / m, -x / m
     r2 = (x[None, :] - x0) ** 2 + (y[:, None] - y0) ** 2
-    options = {"apodization": apodization, "n_quadrature": n_quadrature, "model": model}
     scale = m if image_side else 1.0  # grid metres per object-side metre
     if radial_sampling == "auto":
         na = _value(objective.numerical_aperture)
@@ -269,11 +297,17 @@ def debye_psf(
     r = torch.sqrt(r2).reshape(-1)
     count = 0 if step is None else int(float(r.max()) / step) + 2
     if step is None or (radial_sampling == "auto" and radii_sq.numel() <= count):
-        radial = debye_integral(objective, wavelength, torch.sqrt(radii_sq), z, **options)
+        radial = debye_integral(
+            objective, wavelength, torch.sqrt(radii_sq), z,
+            apodization=apodization, n_quadrature=n_quadrature, model=model,
+        )  # fmt: skip
         data = radial[..., inverse].reshape(*radial.shape[:-1], *grid.shape)
     else:
         table_r = torch.arange(count, device=r.device, dtype=torch.float64) * step
-        values, slopes = debye_integral(objective, wavelength, table_r, z, derivative=True, **options)
+        values, slopes = debye_integral(
+            objective, wavelength, table_r, z,
+            apodization=apodization, n_quadrature=n_quadrature, model=model, derivative=True,
+        )  # fmt: skip
         data = _hermite(values, slopes * step, r / step).reshape(*values.shape[:-1], *grid.shape)
     if image_side:
         data = data / m

@@ -134,5 +134,10 @@ def fresnel_ir_factors(
     if include_constant_phase:
         out_y = out_y + (2.0 * math.pi / wavelength) * z
     amplitude = grid.dy * grid.dx / (wavelength * (z.abs() if isinstance(z, torch.Tensor) else abs(z)))
-    factors = (_unit(in_y), _unit(in_x), _unit(out_y, amplitude), _unit(out_x))
-    return tuple(f.to(dtype)[:, None] if i % 2 == 0 else f.to(dtype)[None, :] for i, f in enumerate(factors))
+    # y factors as columns, x factors as rows.
+    return (
+        _unit(in_y).to(dtype)[:, None],
+        _unit(in_x).to(dtype)[None, :],
+        _unit(out_y, amplitude).to(dtype)[:, None],
+        _unit(out_x).to(dtype)[None, :],
+    )

@@ -221,9 +221,9 @@ def _place_group(
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Flat grid indices, complex values and coverages of all in-grid aperture pixels of one group."""
     dy, dx = grid.spacing
-    f64 = dict(dtype=torch.float64, device=device)
-    centers = torch.tensor([mla[i].center for i in members], **f64)  # (G, 2) as (x, y)
-    half_widths = torch.tensor([mla[i].half_width for i in members], **f64)
+    f64 = torch.float64
+    centers = torch.tensor([mla[i].center for i in members], dtype=f64, device=device)  # (G, 2) as (x, y)
+    half_widths = torch.tensor([mla[i].half_width for i in members], dtype=f64, device=device)
     ix0 = torch.round(centers[:, 0] / dx).long()  # nearest pixel, relative to the axis
     iy0 = torch.round(centers[:, 1] / dy).long()
     sub_x = centers[:, 0] - ix0.to(torch.float64) * dx  # long * float would round to float32
@@ -250,8 +250,8 @@ def _place_group(
         rep = rep.scatter(0, inverse, torch.arange(len(members), device=device))
 
     # Patch coordinates relative to the true centres: (U, 1, Px) and (U, Py, 1).
-    px = torch.arange(-hx, hx + 1, **f64) * dx
-    py = torch.arange(-hy, hy + 1, **f64) * dy
+    px = torch.arange(-hx, hx + 1, dtype=f64, device=device) * dx
+    py = torch.arange(-hy, hy + 1, dtype=f64, device=device) * dy
     xr = px[None, None, :] - sub_x[rep][:, None, None]
     yr = py[None, :, None] - sub_y[rep][:, None, None]
     half_width = half_widths[rep][:, None, None]

@@ -123,14 +123,17 @@ def pad_field(field: Field, factor: float | None = None, *, shape: Shape | None 
     -------
     Field on ``field.grid.with_shape(new_shape)``; the optical axis stays at index ``M // 2``.
     """
-    if (factor is None) == (shape is None):
+    if factor is not None and shape is None:
+        new_shape = padded_shape(field.grid.shape, factor)
+    elif shape is not None and factor is None:
+        new_shape = shape
+    else:
         raise ValueError("pad_field needs exactly one of factor or shape; got both or neither.")
-    new_shape = padded_shape(field.grid.shape, factor) if factor is not None else shape
     data = pad_to(field.data, new_shape)
-    return field.with_data(data, grid=field.grid.with_shape(tuple(data.shape[-2:])))
+    return field.with_data(data, grid=field.grid.with_shape((data.shape[-2], data.shape[-1])))
 
 
 def crop_field(field: Field, shape: Shape) -> Field:
     """Centred crop of ``field`` to ``shape = (ny, nx)``; spacing unchanged (inverse of :func:`pad_field`)."""
     data = crop_to(field.data, shape)
-    return field.with_data(data, grid=field.grid.with_shape(tuple(data.shape[-2:])))
+    return field.with_data(data, grid=field.grid.with_shape((data.shape[-2], data.shape[-1])))

@@ -105,18 +105,32 @@ def _build_kernel(
     the cache); otherwise they stay 1D (O(M) to build and to store).
     """
     wavelength, dtype, device = field.medium_wavelength, field.dtype, field.device
-    common = {"include_constant_phase": include_constant_phase, "dtype": dtype, "device": device}
+    constant_phase = include_constant_phase
     scale = 1.0 / (grid.ny * grid.nx)  # the inverse DFT's 1/M, see the module docstring
     if method == "fresnel_ir":
-        in_y, in_x, out_y, out_x = fresnel_ir_factors(grid, wavelength, distance, **common)
+        in_y, in_x, out_y, out_x = fresnel_ir_factors(
+            grid, wavelength, distance, include_constant_phase=constant_phase, dtype=dtype, device=device
+        )
         # The input chirp only ever multiplies the unpadded field (the padding is zero): crop it.
         in_y, in_x = crop_to(in_y, (field.grid.ny, 1)), crop_to(in_x, (1, field.grid.nx))
         return (in_y * in_x, out_y * out_x) if combine else (in_y, in_x, out_y, out_x)
     if method == "fresnel_tf":
-        hy, hx = fresnel_transfer_factors(grid, wavelength, distance, scale=scale, **common)
+        hy, hx = fresnel_transfer_factors(
+            grid,
+            wavelength,
+            distance,
+            scale=scale,
+            include_constant_phase=constant_phase,
+            dtype=dtype,
+            device=device,
+        )
         return (hy * hx,) if combine else (hy, hx)
     bandlimit = method == "bandlimited_asm"
-    return (asm_transfer_function(grid, wavelength, distance, bandlimit=bandlimit, scale=scale, **common),)
+    kernel = asm_transfer_function(
+        grid, wavelength, distance, bandlimit=bandlimit, scale=scale,
+        include_constant_phase=constant_phase, dtype=dtype, device=device,
+    )  # fmt: skip
+    return (kernel,)
 
 
 def _kernel(method, grid, field, distance, z, *, cache, include_constant_phase) -> tuple[torch.Tensor, ...]:
@@ -137,9 +151,10 @@ def _kernel(method, grid, field, distance, z, *, cache, include_constant_phase) 
         dtype=field.dtype,
         options=(include_constant_phase,),
     )
-    return store.get_or_build(
+    kernel = store.get_or_build(
         key, lambda: _build_kernel(method, grid, field, z, include_constant_phase, combine=True)
     )
+    return kernel if isinstance(kernel, tuple) else (kernel,)  # the cache holds what was built: a tuple
 
 
 def _apply(data: torch.Tensor, factors: tuple[torch.Tensor, ...], in_place: bool) -> torch.Tensor:

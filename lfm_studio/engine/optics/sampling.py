@@ -28,6 +28,8 @@ import math
 import os
 import sys
 import warnings
+from collections.abc import Sequence
+from types import FrameType
 
 import torch
 
@@ -56,14 +58,15 @@ def _round_to_print(x: float, *, up: bool) -> float:
     return (math.ceil(x / step - 1e-9) if up else math.floor(x / step + 1e-9)) * step
 
 
-def describe_grid(shape: tuple[int, int], spacing: tuple[float, float]) -> str:
+def describe_grid(shape: Sequence[int], spacing: Sequence[float]) -> str:
     """``Grid(shape=(ny, nx), spacing=(dy um, dx um))`` for messages."""
     return f"Grid(shape=({shape[0]}, {shape[1]}), spacing=({_um(spacing[0])}, {_um(spacing[1])}))"
 
 
 def _stacklevel() -> int:
     """``stacklevel`` of the first frame outside ``lfm_studio.engine`` (the user's call)."""
-    level, frame = 1, sys._getframe(2)
+    level = 1
+    frame: FrameType | None = sys._getframe(2)  # f_back is None at the top of the stack
     while frame is not None and frame.f_code.co_filename.startswith(_ENGINE_DIR):
         frame, level = frame.f_back, level + 1
     return level + 1

@@ -85,7 +85,10 @@ def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") ->
         "conventional LFM: lateral resolution is the native-plane limit (lenslet pitch at the sample); "
         "3-D deconvolution does better away from the native focal plane (Broxton 2013).",
     ]
-    pupil_image = 2.0 * design.sub_image_radius
+    sub_image_radius = design.sub_image_radius
+    if sub_image_radius is None:  # only a Fourier design (relay, unlimited field) has none
+        raise ValueError("conventional_closed_forms needs the sub-image radius; the design has none.")
+    pupil_image = 2.0 * sub_image_radius
     filled = pupil_image >= p
     spot = max(camera.pixel_pitch, 2.0 * SPARROW * lam * d / p)
     n_u = min(pupil_image, p) / spot

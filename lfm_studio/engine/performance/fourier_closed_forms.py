@@ -44,8 +44,9 @@ side of a square) centred at radius ``r_i`` from the axis on the MLA.
 from __future__ import annotations
 
 import math
+from typing import NoReturn
 
-from lfm_studio.engine.design import Design, LensletSpec
+from lfm_studio.engine.design import Design, LensletSpec, RelayLensSpec
 from lfm_studio.engine.performance.closed_form_record import (
     ClosedFormMetrics,
     criterion_factor,
@@ -56,16 +57,38 @@ RAYLEIGH = 1.22
 """Rayleigh factor of a circular aperture: first Airy zero at ``1.22 lambda / (2 NA)``."""
 
 
+def _no_relay(design: Design) -> NoReturn:
+    raise ValueError(
+        f"Fourier closed forms need a relay (Fourier) lens; design {design.name!r} (kind {design.kind!r}) "
+        "has relay None. Fix: use conventional_closed_forms, or add relay={'focal_length_mm': ...}."
+    )
+
+
+def relay_of(design: Design) -> RelayLensSpec:
+    """The relay (Fourier) lens of a Fourier design; ``ValueError`` for a design without one."""
+    if design.relay is None:
+        _no_relay(design)
+    return design.relay
+
+
+def pupil_diameter_of(design: Design) -> float:
+    """Diameter of the pupil image on the MLA, m (:attr:`Design.pupil_diameter_at_mla` of a Fourier design)."""
+    diameter = design.pupil_diameter_at_mla
+    if diameter is None:
+        _no_relay(design)
+    return diameter
+
+
 def views(design: Design) -> tuple[LensletSpec, ...]:
     """Lenslets whose centre lies inside the pupil image on the MLA (each records one view)."""
-    radius = design.pupil_diameter_at_mla / 2.0
+    radius = pupil_diameter_of(design) / 2.0
     return tuple(lens for lens in design.mla.lenslets if math.hypot(*lens.center) < radius)
 
 
 def focus_depth(design: Design, focal_length: float) -> float:
     """Depth (m) that a lenslet of ``focal_length`` (m) focuses onto the camera (paraxial)."""
     objective = design.objective
-    scale = objective.immersion_index * design.relay.focal_length**2 / objective.magnification**2
+    scale = objective.immersion_index * relay_of(design).focal_length ** 2 / objective.magnification**2
     return scale * (1.0 / design.mla_to_camera_distance - 1.0 / focal_length)
 
 
@@ -79,7 +102,7 @@ def axial_resolution_of(design: Design, lens: LensletSpec) -> float | None:
         RAYLEIGH
         * design.wavelength
         * objective.immersion_index
-        * design.relay.focal_length**2
+        * relay_of(design).focal_length ** 2
         / (lens.aperture_diameter * r * objective.magnification**2)
     )
 
@@ -121,15 +144,13 @@ def fourier_closed_forms(design: Design, *, criterion: str = "rayleigh") -> Clos
         raise ValueError(f"fourier_closed_forms needs a design of kind 'fourier'; got {design.kind!r}.")
     objective, camera = design.objective, design.camera
     m_t = design.magnification
-    pupil = design.pupil_diameter_at_mla
+    pupil, field_stop = pupil_diameter_of(design), relay_of(design).field_stop_diameter
     seen = views(design)
     notes = ["axial resolution: thesis eq. 3.24 with the immersion index (paraxial parallax)."]
     sampling = 2.0 * camera.pixel_pitch / m_t
     fov_limits: dict[str, float | None] = {
         "field number": objective.field_of_view_diameter,
-        "field stop": None
-        if design.relay.field_stop_diameter is None
-        else design.relay.field_stop_diameter / objective.magnification,
+        "field stop": None if field_stop is None else field_stop / objective.magnification,
         "sensor": min(camera.sensor_size) / m_t,
     }
     if not seen:

@@ -120,16 +120,17 @@ def measurement_psf(
     # Both stacks share the sensor crop only if it came out the same: place each on the larger one.
     ny = max(s.data.shape[-2] for s in stacks)
     nx = max(s.data.shape[-1] for s in stacks)
-    slices, depths = [], []
+    slices: list[torch.Tensor] = []
+    all_depths: list[float] = []
     for stack in stacks:
         pad_y, pad_x = (ny - stack.data.shape[-2]) // 2, (nx - stack.data.shape[-1]) // 2
         slices.append(torch.nn.functional.pad(stack.data, (pad_x, pad_x, pad_y, pad_y)))
-        depths.extend(stack.depths)
+        all_depths.extend(stack.depths)
     data = torch.cat(slices)
-    order = sorted(range(len(depths)), key=depths.__getitem__)
+    order = sorted(range(len(all_depths)), key=all_depths.__getitem__)
     return replace(
         stacks[0],
         data=data[order],
-        depths=tuple(depths[i] for i in order),
+        depths=tuple(all_depths[i] for i in order),
         metadata={**stacks[0].metadata, "purpose": "design metrics (fine + coarse depths)"},
     )

@@ -24,7 +24,7 @@ lowers that floor.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
@@ -142,8 +142,8 @@ def linear_profile(values: torch.Tensor) -> Callable[[torch.Tensor], torch.Tenso
 
 def _pair_dip(
     setup: ImagingSetup,
-    first: tuple[int, int, int],
-    second: tuple[int, int, int],
+    first: Sequence[int],
+    second: Sequence[int],
     axis: int,
     *,
     photons: float | None,
@@ -153,10 +153,10 @@ def _pair_dip(
     """Dip ratio of the RL reconstruction of two unit emitters at voxels ``first`` and ``second``
     (which differ along ``axis`` only), read along that axis."""
     projector = setup.projector
-    dtype = getattr(projector, "dtype", None) or torch.float32
+    dtype = projector.dtype
     volume = torch.zeros(setup.volume_shape, dtype=dtype)
-    volume[first] = 1.0
-    volume[second] = 1.0
+    volume[tuple(first)] = 1.0
+    volume[tuple(second)] = 1.0
     expected = projector.forward(volume).clamp_min(0.0).to(device="cpu", dtype=torch.float64)
     if photons is not None:  # Poisson shot noise, ``photons`` detected per emitter
         expected = expected * (2.0 * photons / float(expected.sum()))
@@ -164,7 +164,7 @@ def _pair_dip(
     else:
         image = expected
     estimate = richardson_lucy(projector, image.to(dtype), iterations=iterations)
-    line = list(first)
+    line: list[int | slice] = [*first]
     line[axis] = slice(None)
     return dip_ratio(linear_profile(estimate[tuple(line)]), float(first[axis]), float(second[axis]))
 
@@ -189,7 +189,7 @@ def _scan(
             first[axis] -= s // 2
             second = list(first)
             second[axis] += s
-            tried[s] = _pair_dip(setup, tuple(first), tuple(second), axis, **options)
+            tried[s] = _pair_dip(setup, first, second, axis, **options)
         return tried[s]
 
     largest = min(largest, setup.volume_shape[axis] - 1)
@@ -253,7 +253,8 @@ def reconstructed_resolution(
     generator = torch.Generator().manual_seed(seed)
     axial_steps = max(2, math.ceil(max_axial / dz - 1e-9))
     half = axial_steps // 2 + 1  # depths on each side: the axial pair is centred on z
-    results, voxel = [], None
+    results: list[DepthResolution] = []
+    voxel = math.nan  # set at the first depth (depths is not empty)
     for index, z in enumerate(depths):
         checkpoint(cancel, None, index, len(depths), f"depth {index + 1}/{len(depths)}")
         grid = tuple(z + (j - half) * dz for j in range(2 * half + 1))

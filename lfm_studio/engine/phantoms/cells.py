@@ -98,9 +98,11 @@ def cells_in_ellipsoid(
     origin = tuple(float(c) for c in centre)
     if len(origin) != 3 or not all(math.isfinite(c) for c in origin):
         raise ValueError(f"centre must be three finite lengths (z, y, x) in metres; got {centre!r}.")
-    if shape is None:
-        shape = tuple(2 * math.ceil((abs(c) + a) / s) + 3 for c, a, s in zip(origin, axes, d, strict=True))
-    shape = check_shape(shape)
+    shape = check_shape(
+        shape
+        if shape is not None
+        else tuple(2 * math.ceil((abs(c) + a) / s) + 3 for c, a, s in zip(origin, axes, d, strict=True))
+    )
     if not (0 <= size_spread <= 0.5):
         raise ValueError(f"size_spread must be in [0, 0.5]; got {size_spread!r}.")
     low, high = (float(b) for b in brightness)

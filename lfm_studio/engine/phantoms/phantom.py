@@ -81,7 +81,7 @@ def check_shape(shape: Any) -> tuple[int, int, int]:
     values = tuple(shape) if isinstance(shape, (tuple, list, torch.Size)) else (shape,)
     if len(values) != 3 or not all(isinstance(n, int) and not isinstance(n, bool) and n >= 1 for n in values):
         raise ValueError(f"shape must be three positive ints (Z, Y, X); got {shape!r}.")
-    return values  # type: ignore[return-value]
+    return values
 
 
 def check_triple(
@@ -99,7 +99,7 @@ def check_triple(
         if not ok:
             limit = ">= 0" if allow_zero else "> 0"
             raise ValueError(f"{name} {axis} must be finite and {limit} m; got {value:.6g} m. Fix: {hint}")
-    return triple  # type: ignore[return-value]
+    return triple
 
 
 def check_count(count: Any) -> int:

@@ -86,7 +86,11 @@ def stamp_ellipsoids(
         axes = (semi_axes[start : start + chunk] / unit).to(device=device, dtype=work)
         val = values[start : start + chunk].to(device=device, dtype=work)
         n = fractional.shape[0]
-        sq, sq_scaled, proj, flat, valid, clip_sq = 0, 0, 0, 0, True, 0
+        # Sums over the three axes, broadcast up from 0-d starts to (n, 2kz+1, 2ky+1, 2kx+1).
+        zero = torch.zeros((), device=device, dtype=work)
+        sq, sq_scaled, proj, clip_sq = zero, zero, zero, zero
+        flat = torch.zeros((), device=device, dtype=torch.int64)
+        valid = torch.ones((), device=device, dtype=torch.bool)
         for i, k in enumerate(half):
             view = [n, 1, 1, 1]
             view[i + 1] = 2 * k + 1

@@ -21,17 +21,25 @@ Example::
     fast = richardson_lucy(setup.projector, image, backprojector=bp, iterations=3)
     stack = wiener(setup.projector, image, snr=100.0)           # per-depth Wiener (eq. 4.5)
     solution = tikhonov(setup.projector, image, mu=1e-3)        # per-frequency 3D Tikhonov
+
+    volume = reconstruct_frame(setup.projector, image, method="wiener", snr=100.0)  # by name
+    for method in methods():                                     # the registry every front end reads
+        print(method.name, method.description, [o.name for o in method.options])
 """
 
 from lfm_studio.engine.reconstruct.backprojectors import (
     FilteredBackProjector,
     wiener_butterworth_backprojector,
 )
-from lfm_studio.engine.reconstruct.dispatch import METHODS, reconstruct_frame
+from lfm_studio.engine.reconstruct.builtin_methods import register_builtin
+from lfm_studio.engine.reconstruct.dispatch import reconstruct_frame
 from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
+from lfm_studio.engine.reconstruct.registry import Method, Option, default_method, methods, register
+from lfm_studio.engine.reconstruct.registry import get as get_method
 from lfm_studio.engine.reconstruct.result_check import ReconstructionRejectedError, check_reconstruction
 from lfm_studio.engine.reconstruct.richardson_lucy import (
     Iterate,
+    RLOptions,
     poisson_nll,
     richardson_lucy,
     richardson_lucy_iterates,
@@ -40,14 +48,21 @@ from lfm_studio.engine.reconstruct.tikhonov import tikhonov
 from lfm_studio.engine.reconstruct.wiener import wiener
 
 __all__ = [
-    "METHODS",
     "FilteredBackProjector",
     "Iterate",
+    "Method",
+    "Option",
+    "RLOptions",
     "ReconstructionRejectedError",
     "accelerated_rl_options",
     "check_reconstruction",
+    "default_method",
+    "get_method",
+    "methods",
     "poisson_nll",
     "reconstruct_frame",
+    "register",
+    "register_builtin",
     "richardson_lucy",
     "richardson_lucy_iterates",
     "tikhonov",

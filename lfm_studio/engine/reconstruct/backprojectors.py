@@ -41,11 +41,10 @@ unmatched back projector there raises ``NotImplementedError`` (no silent fallbac
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
 from lfm_studio.engine.errors import require_positive
+from lfm_studio.engine.operators.protocol import FourierProjector, PrunedFourierProjector
 from lfm_studio.engine.reconstruct.fourier_geometry import (
     filter_to_volume,
     image_spectrum,
@@ -53,21 +52,22 @@ from lfm_studio.engine.reconstruct.fourier_geometry import (
     require_fourier_projector,
 )
 from lfm_studio.engine.reconstruct.tikhonov import otf_power
+from lfm_studio.engine.types import Shape2, Shape3
 
 
 class FilteredBackProjector:
     """A back projector ``image (Py, Px) -> volume (Z, Vy, Vx)`` with its own per-depth filters.
 
     ``B y = crop(irfft2(filters[z] * rfft2(embed(y))))`` on the projector's FFT window;
-    ``filters = conj(projector.otf)`` gives exactly ``projector.adjoint``. With a projector
-    that has ``filtered_adjoint`` (:class:`ShiftInvariantProjector`), ``B`` runs through its
+    ``filters = conj(projector.otf)`` gives exactly ``projector.adjoint``. With a
+    :class:`PrunedFourierProjector` (:class:`ShiftInvariantProjector`), ``B`` runs through its
     pruned transforms and costs what ``A^T`` costs.
     """
 
     uses_adjoint_sensitivity = True  # RL divides by A^T 1: the filters have the DC gain of A^T
 
-    def __init__(self, projector: Any, filters: torch.Tensor) -> None:
-        require_fourier_projector(projector, "a filtered back projector")
+    def __init__(self, projector: FourierProjector, filters: torch.Tensor) -> None:
+        projector = require_fourier_projector(projector, "a filtered back projector")
         if tuple(filters.shape) != tuple(projector.otf.shape) or not filters.is_complex():
             raise ValueError(
                 f"filters must be complex with the projector's OTF shape {tuple(projector.otf.shape)}; "
@@ -75,24 +75,27 @@ class FilteredBackProjector:
             )
         self.projector = projector
         self.filters = filters
-        # The projector's transposed layout (Z, Fx//2+1, Fy), made contiguous once.
-        self._filters_t = (
-            filters.transpose(-2, -1).contiguous() if hasattr(projector, "filtered_adjoint") else None
-        )
+        # A pruned projector and the filters in its transposed layout (Z, Fx//2+1, Fy), made contiguous once.
+        self._pruned: tuple[PrunedFourierProjector, torch.Tensor] | None = None
+        if isinstance(projector, PrunedFourierProjector):
+            self._pruned = (projector, filters.transpose(-2, -1).contiguous())
 
     @property
-    def volume_shape(self) -> tuple[int, int, int]:
-        return tuple(self.projector.volume_shape)
+    def volume_shape(self) -> Shape3:
+        """``(Z, Vy, Vx)`` of the volumes it returns (the projector's)."""
+        return self.projector.volume_shape
 
     @property
-    def image_shape(self) -> tuple[int, int]:
-        return tuple(self.projector.image_shape)
+    def image_shape(self) -> Shape2:
+        """``(Py, Px)`` of the images it accepts (the projector's)."""
+        return self.projector.image_shape
 
     def __call__(self, image: torch.Tensor) -> torch.Tensor:
         """Back-project ``image`` ``(Py, Px)`` to a volume ``(Z, Vy, Vx)``."""
         image = image.to(device=self.filters.device, dtype=self.projector.otf.real.dtype)
-        if self._filters_t is not None:
-            return self.projector.filtered_adjoint(image, self._filters_t)
+        if self._pruned is not None:
+            pruned, filters_t = self._pruned
+            return pruned.filtered_adjoint(image, filters_t)
         return filter_to_volume(self.projector, image_spectrum(self.projector, image), self.filters)
 
 
@@ -103,7 +106,7 @@ def _ring_maximum(values: torch.Tensor, bins: torch.Tensor, count: int) -> torch
 
 
 def wiener_butterworth_backprojector(
-    projector: Any,
+    projector: FourierProjector,
     *,
     alpha: float = 1.0,
     beta: float = 1e-2,
@@ -114,7 +117,7 @@ def wiener_butterworth_backprojector(
 
     Parameters
     ----------
-    projector : ShiftInvariantProjector (anything with ``otf``, ``fft_shape``, ``full_shape``)
+    projector : FourierProjector (e.g. ShiftInvariantProjector); others raise ``NotImplementedError``
     alpha : float > 0
         Wiener parameter, relative to ``max_k P(k)`` (dimensionless). The filter boosts the
         matched back projection by at most ``(1 + alpha) / alpha``; the default 1 keeps that
@@ -132,7 +135,7 @@ def wiener_butterworth_backprojector(
     FilteredBackProjector
         Use as ``richardson_lucy(..., backprojector=bp)``.
     """
-    require_fourier_projector(projector, "the Wiener-Butterworth back projector")
+    projector = require_fourier_projector(projector, "the Wiener-Butterworth back projector")
     require_positive(
         "alpha",
         alpha,
@@ -165,7 +168,7 @@ def wiener_butterworth_backprojector(
     eps2 = max(at_cutoff**2 / beta**2 - 1.0, 0.0)
     butterworth = 1.0 / torch.sqrt(1.0 + eps2 * (radius / k_c) ** (2 * order))
     scale = (gain * butterworth / (gain[0, 0] * butterworth[0, 0])).to(otf.real.dtype)  # DC gain of A^T
-    transposed = getattr(projector, "otf_t", None)
-    if transposed is not None:  # build in the projector's contiguous (Z, Kx, Fy) layout: no copy later
-        return FilteredBackProjector(projector, (transposed.detach().conj() * scale.T).transpose(-2, -1))
+    if isinstance(projector, PrunedFourierProjector):  # built in its contiguous (Z, Kx, Fy) layout: no copy
+        transposed = projector.otf_t.detach()
+        return FilteredBackProjector(projector, (transposed.conj() * scale.T).transpose(-2, -1))
     return FilteredBackProjector(projector, (otf.conj() * scale).resolve_conj())

@@ -1,65 +1,38 @@
-"""One entry point for the apps: reconstruct a camera frame with a method named by string.
+"""One entry point for scripts: reconstruct a camera frame with a method named by string.
 
-The command line (``lfm-studio reconstruct --method``), the napari plugin and scripts
-share it, so "rl-accelerated" means the same everywhere (:func:`accelerated_rl_options`).
+A thin call into :mod:`.registry` (the CLI, the napari plugin and the studio read the same
+registry), so "rl-accelerated" means the same everywhere (:func:`accelerated_rl_options`).
 """
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
+from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
-from lfm_studio.engine.reconstruct.recommended import accelerated_rl_options
-from lfm_studio.engine.reconstruct.richardson_lucy import richardson_lucy
-from lfm_studio.engine.reconstruct.tikhonov import tikhonov
-from lfm_studio.engine.reconstruct.wiener import wiener
-
-#: Method names and what they run.
-METHODS = {
-    "rl": "Richardson-Lucy",
-    "rl-accelerated": "accelerated Richardson-Lucy (geometric extrapolation with a likelihood safeguard)",
-    "wiener": "Wiener deconvolution per depth",
-    "tikhonov": "multi-depth Tikhonov per spatial frequency",
-}
-ITERATIVE = ("rl", "rl-accelerated")
+from lfm_studio.engine.reconstruct import registry
+from lfm_studio.engine.types import OptionValue
 
 
 def reconstruct_frame(
-    projector: Any,
+    projector: Projector,
     frame: torch.Tensor,
     *,
     method: str = "rl",
-    iterations: int = 30,
-    background: float = 0.0,
-    snr: float | None = None,
-    rtol: float | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
+    **options: OptionValue,
 ) -> torch.Tensor:
-    """Volume ``(Z, Y, X)`` from one camera frame ``(Py, Px)`` in counts.
+    """Volume ``(Z, Y, X)`` from one camera frame ``(Py, Px)`` in photons (baseline removed).
 
     Parameters
     ----------
-    method : one of :data:`METHODS`.
-    iterations, rtol : Richardson-Lucy iterations and early-stop tolerance (RL methods).
-    background : expected background counts per pixel (RL models it; Wiener and Tikhonov
-        subtract it and clip at 0).
-    snr : Wiener power SNR (default 100); Tikhonov uses ``mu = 1 / snr`` (default 1e-3).
-    progress, cancel : as in :func:`richardson_lucy_iterates` (RL methods).
+    method : a registered method name (:func:`.registry.names`: "rl", "rl-accelerated",
+        "wiener", "tikhonov", ...).
+    progress, cancel : as in :func:`richardson_lucy_iterates` (iterative methods).
+    **options : the method's options (its :class:`~.registry.Option` schema, e.g.
+        ``iterations=30, background=2.0`` for RL, ``snr=100.0`` for Wiener); the rest take their
+        defaults. An option the method does not take, or a value out of bounds, is a ``ValueError``
+        naming it.
     """
-    if method not in METHODS:
-        raise ValueError(
-            f"method must be one of {list(METHODS)}; got {method!r}. Fix: e.g. 'rl-accelerated'."
-        )
-    if method in ITERATIVE:
-        faster = accelerated_rl_options(projector) if method == "rl-accelerated" else {}
-        return richardson_lucy(
-            projector, frame, background=background, iterations=iterations, rtol=rtol,
-            progress=progress, cancel=cancel, **faster,
-        )  # fmt: skip
-    signal = (frame - background).clamp_min(0.0)
-    if method == "wiener":
-        return wiener(projector, signal, **({} if snr is None else {"snr": snr}))
-    return tikhonov(projector, signal, **({} if snr is None else {"mu": 1.0 / snr}))
+    return registry.get(method)(projector, frame, options, progress, cancel)

@@ -12,42 +12,47 @@ so they act on the same grids as the projector (a test checks that the matched f
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable, Iterator
+from typing import TypeAlias
 
 import torch
 
 from lfm_studio.engine import fft
+from lfm_studio.engine.operators.protocol import FourierProjector, missing_members
+from lfm_studio.engine.types import DepthSlice, Shape2
 
-_REQUIRED = ("otf", "fft_shape", "full_shape", "image_shape", "volume_shape")
+#: Per-depth filters: a ``(Z, Fy, Fx//2+1)`` tensor, or ``slice -> filters[slice]`` built on demand.
+Filters: TypeAlias = torch.Tensor | Callable[[DepthSlice], torch.Tensor]
 
 
-def require_fourier_projector(projector: Any, method: str) -> None:
-    """Raise ``NotImplementedError`` unless ``projector`` carries OTFs (a shift-invariant projector)."""
-    missing = [name for name in _REQUIRED if not hasattr(projector, name)]
-    if missing:
+def require_fourier_projector(projector: object, method: str) -> FourierProjector:
+    """``projector`` as a :class:`FourierProjector`; ``NotImplementedError`` naming what it lacks if not."""
+    if not isinstance(projector, FourierProjector):
         raise NotImplementedError(
             f"{method} needs a laterally shift-invariant projector with cached OTFs (Fourier LFM, "
-            f"ShiftInvariantProjector); {type(projector).__name__} has no {', '.join(missing)}. "
+            f"ShiftInvariantProjector); {type(projector).__name__} has no "
+            f"{', '.join(missing_members(projector, FourierProjector))}. "
             "Fix: use Richardson-Lucy (plain or Biggs-Andrews accelerated), which works with any projector."
         )
+    return projector
 
 
-def centre_offsets(projector: Any) -> tuple[int, int]:
+def centre_offsets(projector: FourierProjector) -> Shape2:
     """Start of the sensor window inside the full convolution (as the projector crops it)."""
     (fy, fx), (py, px) = projector.full_shape, projector.image_shape
     return (fy - py + 1) // 2, (fx - px + 1) // 2
 
 
-def image_spectrum(projector: Any, image: torch.Tensor) -> torch.Tensor:
+def image_spectrum(projector: FourierProjector, image: torch.Tensor) -> torch.Tensor:
     """``rfft2`` of the image embedded in the FFT window at the sensor offset, shape ``(Fy, Fx//2+1)``."""
     oy, ox = centre_offsets(projector)
     py, px = projector.image_shape
-    embedded = torch.zeros(tuple(projector.fft_shape), dtype=image.dtype, device=image.device)
+    embedded = torch.zeros(projector.fft_shape, dtype=image.dtype, device=image.device)
     embedded[oy : oy + py, ox : ox + px] = image
     return fft.rfft2(embedded)
 
 
-def volume_spectrum(projector: Any, volume: torch.Tensor) -> torch.Tensor:
+def volume_spectrum(projector: FourierProjector, volume: torch.Tensor) -> torch.Tensor:
     """``rfft2`` of each depth zero-padded into the FFT window (top-left), shape ``(Z, Fy, Fx//2+1)``."""
     _, vy, vx = projector.volume_shape
     padded = torch.zeros((volume.shape[0], *projector.fft_shape), dtype=volume.dtype, device=volume.device)
@@ -55,15 +60,12 @@ def volume_spectrum(projector: Any, volume: torch.Tensor) -> torch.Tensor:
     return fft.rfft2(padded)
 
 
-def depth_chunks(projector: Any):
-    """Depth slices of the projector's cache-sized chunk (all depths when it has none)."""
-    depths = projector.volume_shape[0]
-    step = int(getattr(projector, "depth_chunk", None) or depths)
-    for start in range(0, depths, step):
-        yield slice(start, min(depths, start + step))
+def depth_chunks(projector: FourierProjector) -> Iterator[DepthSlice]:
+    """Depth slices of the projector's cache-sized chunks."""
+    return projector.depth_chunks()
 
 
-def filter_to_volume(projector: Any, spectrum: torch.Tensor, filters) -> torch.Tensor:
+def filter_to_volume(projector: FourierProjector, spectrum: torch.Tensor, filters: Filters) -> torch.Tensor:
     """``crop(irfft2(filters[z] * spectrum))`` per depth -> volume ``(Z, Vy, Vx)``.
 
     ``filters`` is a ``(Z, Fy, Fx//2+1)`` complex tensor or a callable ``slice -> filters[slice]``
@@ -72,19 +74,19 @@ def filter_to_volume(projector: Any, spectrum: torch.Tensor, filters) -> torch.T
     _, vy, vx = projector.volume_shape
     parts = []
     for part in depth_chunks(projector):
-        block = filters(part) if callable(filters) else filters[part]
-        full = fft.irfft2(block * spectrum, s=tuple(projector.fft_shape))
+        block = filters[part] if isinstance(filters, torch.Tensor) else filters(part)
+        full = fft.irfft2(block * spectrum, s=projector.fft_shape)
         parts.append(full[:, :vy, :vx])
     return torch.cat(parts, dim=0)
 
 
-def spectra_to_volume(projector: Any, spectra: torch.Tensor) -> torch.Tensor:
+def spectra_to_volume(projector: FourierProjector, spectra: torch.Tensor) -> torch.Tensor:
     """``crop(irfft2(spectra))`` for per-depth spectra ``(Z, Fy, Fx//2+1)`` -> ``(Z, Vy, Vx)``."""
     _, vy, vx = projector.volume_shape
-    return fft.irfft2(spectra, s=tuple(projector.fft_shape))[:, :vy, :vx]
+    return fft.irfft2(spectra, s=projector.fft_shape)[:, :vy, :vx]
 
 
-def radial_frequency(projector: Any) -> torch.Tensor:
+def radial_frequency(projector: FourierProjector) -> torch.Tensor:
     """``|k|`` in cycles per sensor pixel on the rfft grid, shape ``(Fy, Fx//2+1)``, float64."""
     fy, fx = projector.fft_shape
     ky = torch.fft.fftfreq(fy, dtype=torch.float64, device=projector.otf.device)
@@ -92,6 +94,6 @@ def radial_frequency(projector: Any) -> torch.Tensor:
     return torch.sqrt(ky[:, None] ** 2 + kx[None, :] ** 2)
 
 
-def otf_peaks(projector: Any) -> torch.Tensor:
+def otf_peaks(projector: FourierProjector) -> torch.Tensor:
     """Largest ``|otf|`` per depth, shape ``(Z,)`` (the DC gain = PSF sum for a non-negative PSF)."""
     return projector.otf.abs().flatten(1).amax(dim=1)

@@ -13,11 +13,11 @@ anything below that floor is rounding noise, not signal.
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
 from lfm_studio.engine.errors import require_finite_tensor
+from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.types import Scalar, Shape2, Shape3, TensorLike
 
 RELATIVE_FLOOR_ULPS = 16.0  # FFT rounding of a 2400^2 transform: log2(N) ~ 22 ulps at most, ~4 typical
 
@@ -27,7 +27,7 @@ def relative_floor(dtype: torch.dtype) -> float:
     return RELATIVE_FLOOR_ULPS * torch.finfo(dtype).eps
 
 
-def as_real_tensor(name: str, value: Any, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+def as_real_tensor(name: str, value: object, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
     """``value`` (tensor or array-like) as a real floating tensor on ``device`` with ``dtype``."""
     tensor = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
     if tensor.is_complex():
@@ -59,7 +59,7 @@ def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
 
 
 def check_image(
-    image: Any, shape: tuple[int, int], *, dtype: torch.dtype, device: torch.device, non_negative: bool = True
+    image: TensorLike, shape: Shape2, *, dtype: torch.dtype, device: torch.device, non_negative: bool = True
 ) -> torch.Tensor:
     """The camera image as a checked ``(Py, Px)`` tensor: finite, right shape and (for RL) non-negative.
 
@@ -84,7 +84,7 @@ def check_image(
 
 
 def check_background(
-    background: float | torch.Tensor, shape: tuple[int, int], *, dtype: torch.dtype, device: torch.device
+    background: Scalar, shape: Shape2, *, dtype: torch.dtype, device: torch.device
 ) -> torch.Tensor:
     """Background ``b`` (counts per pixel; a number or a tensor broadcastable to ``shape``), >= 0."""
     tensor = as_real_tensor("background", background, dtype=dtype, device=device)
@@ -122,7 +122,9 @@ def check_sensitivity(sensitivity: torch.Tensor, what: str = "A^T 1") -> None:
         )
 
 
-def check_estimate(name: str, value: Any, shape: tuple[int, int, int], *, dtype, device) -> torch.Tensor:
+def check_estimate(
+    name: str, value: TensorLike, shape: Shape3, *, dtype: torch.dtype, device: torch.device
+) -> torch.Tensor:
     """A starting volume ``(Z, Y, X)``: finite, non-negative and not all zero (a fixed point of RL)."""
     tensor = as_real_tensor(name, value, dtype=dtype, device=device)
     require_shape(name, tensor, shape, "(Z, Y, X) voxels")
@@ -140,7 +142,7 @@ def floored(denominator: torch.Tensor, scale: float, dtype: torch.dtype) -> torc
     return denominator.clamp_min(relative_floor(dtype) * scale)
 
 
-def check_iterations(iterations: Any) -> int:
+def check_iterations(iterations: object) -> int:
     """A positive int iteration count."""
     if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iterations must be an int >= 1; got {iterations!r}. Fix: e.g. iterations=30.")
@@ -160,14 +162,9 @@ def check_rtol(rtol: float | None) -> float | None:
     return value
 
 
-def working_dtype_device(projector: Any, image: Any) -> tuple[torch.dtype, torch.device]:
-    """dtype and device of the projector (its attributes, else the image's, else float32 on the CPU)."""
-    dtype = getattr(projector, "dtype", None)
-    device = getattr(projector, "device", None)
-    if isinstance(image, torch.Tensor):
-        dtype = dtype or (image.dtype if image.is_floating_point() else None)
-        device = device or image.device
-    dtype = dtype or torch.float32
+def working_dtype_device(projector: Projector) -> tuple[torch.dtype, torch.device]:
+    """dtype and device of the projector, where every reconstruction runs (float32 or float64)."""
+    dtype = projector.dtype
     if dtype not in (torch.float32, torch.float64):
         raise ValueError(f"reconstruction runs in float32 or float64; the projector has {dtype}.")
-    return dtype, torch.device(device or "cpu")
+    return dtype, torch.device(projector.device)

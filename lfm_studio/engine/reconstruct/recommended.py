@@ -16,10 +16,11 @@ all zero by iteration 25).
 
 from __future__ import annotations
 
-from typing import Any
+from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.reconstruct.richardson_lucy import RLOptions
 
 
-def accelerated_rl_options(projector: Any) -> dict[str, Any]:
+def accelerated_rl_options(projector: Projector) -> RLOptions:
     """Keyword arguments for :func:`richardson_lucy_iterates` that reach plain RL's quality fastest.
 
     Returns ``{"acceleration": "geometric"}`` for every projector (``projector`` is accepted so

@@ -38,12 +38,13 @@ its first step when ``b = 0``).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Literal, TypedDict
 
 import torch
 
+from lfm_studio.engine.operators.protocol import Projector, missing_members
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.reconstruct.accelerated import NLL_SLACK, BiggsAndrews, GeometricExtrapolation
 from lfm_studio.engine.reconstruct.guards import (
@@ -58,8 +59,36 @@ from lfm_studio.engine.reconstruct.guards import (
     working_dtype_device,
 )
 from lfm_studio.engine.reconstruct.total_variation import check_tv_weight, tv_denominator
+from lfm_studio.engine.types import Scalar, Shape3, TensorLike
 
-ACCELERATIONS = {None: None, "biggs-andrews": BiggsAndrews, "geometric": GeometricExtrapolation}
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
+Acceleration = Literal["biggs-andrews", "geometric"]
+#: Extrapolation state per ``acceleration`` name (no entry for ``None``: plain RL).
+ACCELERATIONS: dict[str, Callable[[], BiggsAndrews]] = {
+    "biggs-andrews": BiggsAndrews,
+    "geometric": GeometricExtrapolation,
+}
+#: A back projector ``image (Py, Px) -> volume (Z, Y, X)`` replacing ``A^T`` (e.g.
+#: :class:`~.backprojectors.FilteredBackProjector`); one with ``uses_adjoint_sensitivity = True``
+#: has the DC gain of ``A^T`` and is applied in residual form (module notes).
+BackProjector = Callable[[torch.Tensor], torch.Tensor]
+
+
+class RLOptions(TypedDict, total=False):
+    """Keyword options of :func:`richardson_lucy_iterates` (all optional; see its parameters)."""
+
+    background: Scalar
+    initial: torch.Tensor | None
+    iterations: int
+    rtol: float | None
+    acceleration: Acceleration | None
+    backprojector: BackProjector | None
+    tv_weight: float
+    track_nll: bool
+    progress: ProgressCallback | None
+    cancel: CancelToken
 
 
 @dataclass(frozen=True)
@@ -90,16 +119,19 @@ class Iterate:
 class _Problem:
     """Checked inputs of one reconstruction: image, background, back projector, sensitivity."""
 
-    def __init__(self, projector: Any, image: Any, background: Any, backprojector: Any) -> None:
-        for name in ("forward", "adjoint", "volume_shape", "image_shape"):
-            if not hasattr(projector, name):
-                raise TypeError(
-                    f"projector must have forward, adjoint, volume_shape and image_shape; "
-                    f"{type(projector).__name__} has no {name}."
-                )
+    def __init__(
+        self, projector: Projector, image: TensorLike, background: Scalar, backprojector: BackProjector | None
+    ) -> None:
+        if not isinstance(projector, Projector):
+            raise TypeError(
+                "projector must have forward, adjoint, volume_shape, image_shape, device and dtype "
+                f"(the Projector protocol); {type(projector).__name__} has no "
+                f"{', '.join(missing_members(projector, Projector))}. Fix: pass setup.projector "
+                "(lfm_studio.engine.simulation.imaging_setup) or another engine projector."
+            )
         self.projector = projector
-        self.dtype, self.device = working_dtype_device(projector, image)
-        shape = tuple(projector.image_shape)
+        self.dtype, self.device = working_dtype_device(projector)
+        shape = projector.image_shape
         image = check_image(image, shape, dtype=self.dtype, device=self.device)
         background = check_background(background, shape, dtype=self.dtype, device=self.device)
         check_signal(image, background)
@@ -108,8 +140,8 @@ class _Problem:
         self.background = self.from_data_units(background)
         self.signal = float((self.image.double() - self.background.double()).sum())
         self.nll_slack = NLL_SLACK * float(self.image.double().sum())  # likelihood safeguard
-        self.volume_shape = tuple(projector.volume_shape)
-        self.backproject = backprojector if backprojector is not None else projector.adjoint
+        self.volume_shape: Shape3 = projector.volume_shape
+        self.backproject: BackProjector = backprojector if backprojector is not None else projector.adjoint
         ones = torch.ones(shape, dtype=self.dtype, device=self.device)
         matched = backprojector is None or getattr(backprojector, "uses_adjoint_sensitivity", False)
         self.residual_form = backprojector is not None and matched
@@ -221,7 +253,9 @@ def _norm(tensor: torch.Tensor) -> float:
     return value
 
 
-def poisson_nll(projector: Any, volume: Any, image: Any, *, background: Any = 0.0) -> float:
+def poisson_nll(
+    projector: Projector, volume: TensorLike, image: TensorLike, *, background: Scalar = 0.0
+) -> float:
     """Poisson negative log-likelihood ``sum(A x + b - y log(A x + b))`` of ``volume`` given ``image``.
 
     The constant ``sum(log y!)`` is dropped; ``A x + b`` is floored as in the RL update.
@@ -232,15 +266,15 @@ def poisson_nll(projector: Any, volume: Any, image: Any, *, background: Any = 0.
 
 
 def richardson_lucy_iterates(
-    projector: Any,
-    image: Any,
+    projector: Projector,
+    image: TensorLike,
     *,
-    background: float | torch.Tensor = 0.0,
+    background: Scalar = 0.0,
     initial: torch.Tensor | None = None,
     iterations: int = 30,
     rtol: float | None = None,
-    acceleration: str | None = None,
-    backprojector: Any = None,
+    acceleration: Acceleration | None = None,
+    backprojector: BackProjector | None = None,
     tv_weight: float = 0.0,
     track_nll: bool = False,
     progress: ProgressCallback | None = None,
@@ -250,8 +284,9 @@ def richardson_lucy_iterates(
 
     Parameters
     ----------
-    projector : object with ``forward``, ``adjoint``, ``volume_shape`` ``(Z, Y, X)``, ``image_shape``
-        Any projector (shift-invariant Fourier LFM, conventional lenslet lattice, ...); the
+    projector : Projector
+        Any projector (``forward``, ``adjoint``, ``volume_shape`` ``(Z, Y, X)``, ``image_shape``,
+        ``device``, ``dtype``) (shift-invariant Fourier LFM, conventional lenslet lattice, ...); the
         reconstruction runs on its device and in its dtype (float32 or float64).
     image : tensor or array ``(Py, Px)``
         Camera image in photon counts (>= 0, baseline removed).
@@ -283,7 +318,7 @@ def richardson_lucy_iterates(
         Inputs are checked when this function is called (errors surface here, not at the
         first ``next``); the updates run as the iterator is consumed.
     """
-    if acceleration not in ACCELERATIONS:
+    if acceleration is not None and acceleration not in ACCELERATIONS:
         raise ValueError(
             f"acceleration must be None, 'biggs-andrews' or 'geometric'; got {acceleration!r}. "
             "Fix: acceleration='geometric' for the fastest convergence."
@@ -308,7 +343,7 @@ def _iterate(
     x: torch.Tensor,
     iterations: int,
     rtol: float | None,
-    acceleration: str | None,
+    acceleration: Acceleration | None,
     tv_weight: float,
     track_nll: bool,
     progress: ProgressCallback | None,
@@ -330,7 +365,7 @@ def _iterate(
         change = _norm(update - x) / max(_norm(x), 1e-300)
         x, done = update, k
         known = problem.predicted(x) if track_nll else None
-        nll = problem.nll(known) if track_nll else None
+        nll = problem.nll(known) if known is not None else None
         yield Iterate(k, problem.to_data_units(x), change, nll, extrapolation.alpha if extrapolation else 0.0)
         if rtol is not None and change < rtol:
             break
@@ -360,7 +395,7 @@ def _safeguarded(
     return point, predicted
 
 
-def richardson_lucy(projector: Any, image: Any, **options: Any) -> torch.Tensor:
+def richardson_lucy(projector: Projector, image: TensorLike, **options: Unpack[RLOptions]) -> torch.Tensor:
     """The last estimate of :func:`richardson_lucy_iterates` (same arguments), shape ``(Z, Y, X)``."""
     estimate = None
     for iterate in richardson_lucy_iterates(projector, image, **options):

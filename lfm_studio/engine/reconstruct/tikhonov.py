@@ -26,10 +26,9 @@ per-frequency inverse ``(conj(H) H^T + mu)^-1 = (I - u u^H / (mu + |u|^2)) / mu`
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
+from lfm_studio.engine.operators.protocol import FourierProjector, PrunedFourierProjector
 from lfm_studio.engine.reconstruct.fourier_geometry import (
     depth_chunks,
     filter_to_volume,
@@ -39,22 +38,24 @@ from lfm_studio.engine.reconstruct.fourier_geometry import (
     volume_spectrum,
 )
 from lfm_studio.engine.reconstruct.guards import check_image, relative_floor
+from lfm_studio.engine.types import TensorLike
 
 
-def otf_power(projector: Any) -> torch.Tensor:
+def otf_power(projector: FourierProjector) -> torch.Tensor:
     """``|H_k|^2 = sum_z |H_z(k)|^2`` on the rfft grid ``(Fy, Fx//2+1)``, float64.
 
-    Reads the projector's contiguous transposed spectra ``otf_t`` when it has them (a
+    Reads the contiguous transposed spectra ``otf_t`` of a :class:`PrunedFourierProjector` (a
     strided pass over the ``otf`` view was 5x slower) and returns a transposed view then.
     """
-    transposed = getattr(projector, "otf_t", None)
-    spectra = transposed if transposed is not None else projector.otf
-    total = None
+    transposed = isinstance(projector, PrunedFourierProjector)
+    spectra = projector.otf_t if isinstance(projector, PrunedFourierProjector) else projector.otf
+    total: torch.Tensor | None = None
     for part in depth_chunks(projector):
         h = spectra[part]
         term = (h.real.square() + h.imag.square()).sum(dim=0).double()  # squares in the OTF's precision
         total = term if total is None else total + term
-    return total.transpose(0, 1) if transposed is not None else total
+    assert total is not None  # at least one depth
+    return total.transpose(0, 1) if transposed else total
 
 
 def check_mu(mu: float, *, refine: int) -> float:
@@ -69,12 +70,15 @@ def check_mu(mu: float, *, refine: int) -> float:
     return value
 
 
-def tikhonov(projector: Any, image: Any, *, mu: float = 1e-3, refine: int = 0) -> torch.Tensor:
+def tikhonov(
+    projector: FourierProjector, image: TensorLike, *, mu: float = 1e-3, refine: int = 0
+) -> torch.Tensor:
     """Multi-depth Tikhonov reconstruction ``(Z, Vy, Vx)`` of ``image`` for a shift-invariant projector.
 
     Parameters
     ----------
-    projector : ShiftInvariantProjector
+    projector : FourierProjector
+        Cached OTFs (e.g. ShiftInvariantProjector); any other projector raises ``NotImplementedError``.
     image : tensor or array ``(Py, Px)``, counts (finite; negative noise values are fine)
     mu : float
         Regularisation weight relative to ``max_k |H_k|^2`` (>= 0).
@@ -82,13 +86,13 @@ def tikhonov(projector: Any, image: Any, *, mu: float = 1e-3, refine: int = 0) -
         Conjugate-gradient steps on the projector's exact normal equations (0: closed form only).
         Each costs about two RL iterations and keeps ``Z`` spectra in memory.
     """
-    require_fourier_projector(projector, "Tikhonov reconstruction")
+    projector = require_fourier_projector(projector, "Tikhonov reconstruction")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
         raise ValueError(f"refine must be an int >= 0 (conjugate-gradient steps); got {refine!r}.")
     mu = check_mu(mu, refine=refine)
     otf = projector.otf
     dtype = otf.real.dtype
-    y = check_image(image, tuple(projector.image_shape), dtype=dtype, device=otf.device, non_negative=False)
+    y = check_image(image, projector.image_shape, dtype=dtype, device=otf.device, non_negative=False)
     power = otf_power(projector)
     peak = float(power.max())
     mu_abs = mu * peak
@@ -102,7 +106,9 @@ def tikhonov(projector: Any, image: Any, *, mu: float = 1e-3, refine: int = 0) -
     return x
 
 
-def _precondition(projector: Any, residual: torch.Tensor, mu: float, power: torch.Tensor) -> torch.Tensor:
+def _precondition(
+    projector: FourierProjector, residual: torch.Tensor, mu: float, power: torch.Tensor
+) -> torch.Tensor:
     """``E^T (conj(H) H^T + mu)^-1 E r``: the per-frequency Sherman-Morrison inverse on a volume."""
     spectra = volume_spectrum(projector, residual)
     otf = projector.otf
@@ -111,7 +117,9 @@ def _precondition(projector: Any, residual: torch.Tensor, mu: float, power: torc
     return spectra_to_volume(projector, inverse)
 
 
-def _refine(projector: Any, y: torch.Tensor, x: torch.Tensor, mu: float, power, steps: int) -> torch.Tensor:
+def _refine(
+    projector: FourierProjector, y: torch.Tensor, x: torch.Tensor, mu: float, power: torch.Tensor, steps: int
+) -> torch.Tensor:
     """Preconditioned CG on ``(A^T A + mu I) x = A^T y`` from ``x``."""
 
     def normal(v: torch.Tensor) -> torch.Tensor:

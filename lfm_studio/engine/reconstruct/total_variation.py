@@ -59,8 +59,13 @@ def tv_divergence(x: torch.Tensor) -> torch.Tensor:
     grads = [_forward_difference(x, dim) for dim in range(3)]
     scale = float(x.detach().abs().max()) or 1.0
     eps = relative_floor(x.dtype) * scale
-    magnitude = torch.sqrt(sum(g * g for g in grads) + eps * eps)
-    return sum(_backward_difference(g / magnitude, dim) for dim, g in enumerate(grads))
+    gz, gy, gx = grads
+    magnitude = torch.sqrt(gz * gz + gy * gy + gx * gx + eps * eps)
+    return (
+        _backward_difference(gz / magnitude, 0)
+        + _backward_difference(gy / magnitude, 1)
+        + _backward_difference(gx / magnitude, 2)
+    )
 
 
 def tv_denominator(x: torch.Tensor, weight: float) -> torch.Tensor:

@@ -24,10 +24,10 @@ division, so the two agree as SNR grows).
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import torch
 
+from lfm_studio.engine.operators.protocol import FourierProjector
 from lfm_studio.engine.reconstruct.fourier_geometry import (
     filter_to_volume,
     image_spectrum,
@@ -35,6 +35,7 @@ from lfm_studio.engine.reconstruct.fourier_geometry import (
     require_fourier_projector,
 )
 from lfm_studio.engine.reconstruct.guards import check_image, relative_floor
+from lfm_studio.engine.types import DepthSlice, TensorLike
 
 
 def check_snr(snr: float) -> float:
@@ -48,13 +49,14 @@ def check_snr(snr: float) -> float:
     return value
 
 
-def wiener(projector: Any, image: Any, *, snr: float = 100.0) -> torch.Tensor:
+def wiener(projector: FourierProjector, image: TensorLike, *, snr: float = 100.0) -> torch.Tensor:
     """Wiener deconvolution of ``image`` at every depth of a shift-invariant ``projector``.
 
     Parameters
     ----------
-    projector : ShiftInvariantProjector
-        Fourier LFM projector (cached OTFs); its dtype and device are used.
+    projector : FourierProjector
+        Fourier LFM projector (cached OTFs, e.g. ShiftInvariantProjector); its dtype and device
+        are used. Any other projector raises ``NotImplementedError``.
     image : tensor or array ``(Py, Px)``
         Camera image (finite; a linear method, so zero-mean noise may be negative), counts.
     snr : float
@@ -65,16 +67,16 @@ def wiener(projector: Any, image: Any, *, snr: float = 100.0) -> torch.Tensor:
     tensor ``(Z, Vy, Vx)``
         One deconvolved slice per depth, on the projector's volume grid.
     """
-    require_fourier_projector(projector, "Wiener deconvolution")
+    projector = require_fourier_projector(projector, "Wiener deconvolution")
     snr = check_snr(snr)
     otf = projector.otf
     dtype = otf.real.dtype
-    y = check_image(image, tuple(projector.image_shape), dtype=dtype, device=otf.device, non_negative=False)
+    y = check_image(image, projector.image_shape, dtype=dtype, device=otf.device, non_negative=False)
     peaks2 = otf_peaks(projector).double() ** 2  # (Z,)
     threshold2 = (relative_floor(dtype) ** 2 * peaks2)[:, None, None]
     regulariser = (peaks2 / snr)[:, None, None] if math.isfinite(snr) else torch.zeros_like(threshold2)
 
-    def filters(part: slice) -> torch.Tensor:
+    def filters(part: DepthSlice) -> torch.Tensor:
         h = otf[part]
         denominator = h.real.double() ** 2 + h.imag.double() ** 2 + regulariser[part]
         keep = denominator > threshold2[part]

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import torch
 
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
@@ -84,7 +85,7 @@ def conventional_psf_stack(
     device: torch.device | str = "cpu",
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
-    design: object | None = None,
+    design: Design | None = None,
 ) -> PSFStack:
     """All patterns of ``system`` as one :class:`PSFStack` with data ``(S, S, Z, H, H)``.
 
@@ -142,8 +143,8 @@ def conventional_psf_stack(
             "kind": "conventional",
             "pixels_per_lenslet": q,
             "voxels_per_lenslet": s,
-            "reach": reach_of,
-            "lenslets": list(system.lenslets),
+            "reach": [*reach_of],
+            "lenslets": [*system.lenslets],
         },
     )
 
@@ -156,12 +157,14 @@ def lattice_projector(stack: PSFStack, lenslets: tuple[int, int] | None = None) 
             "stack is not a conventional-LFM pattern stack (expected data (S, S, Z, H, H) and "
             f"metadata kind 'conventional'); got shape {tuple(stack.data.shape)}, kind {meta.get('kind')!r}."
         )
-    q = int(meta["pixels_per_lenslet"])
-    lenslets = tuple(lenslets or meta["lenslets"])
+    q = stack.metadata_int("pixels_per_lenslet")
+    if lenslets is None:
+        ly, lx = stack.metadata_ints("lenslets")
+        lenslets = (ly, lx)
     width = stack.data.shape[-1]
     grouped: dict[int, list[int]] = defaultdict(list)
-    for index, reach in enumerate(meta["reach"]):
-        grouped[int(reach)].append(index)
+    for index, reach in enumerate(stack.metadata_ints("reach")):
+        grouped[reach].append(index)
     built = []
     for reach, indices in sorted(grouped.items()):
         h = (2 * reach + 3) * q

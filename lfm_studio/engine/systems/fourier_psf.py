@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.dtypes import complex_dtype
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
@@ -168,7 +169,7 @@ def fourier_psf_stack(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     report: FourierPSFReport | None = None,
-    design: object | None = None,
+    design: Design | None = None,
     source_position: tuple[float, float] = (0.0, 0.0),
 ) -> PSFStack:
     """PSF stack of a Fourier LFM: power per sensor pixel of a unit-power on-axis emitter per depth.

@@ -32,7 +32,7 @@ volume_oversampling volume voxels per sensor pixel ``k``: the   n/a
 
 from __future__ import annotations
 
-from lfm_studio.engine.design import Design
+from lfm_studio.engine.design import Design, RegularMLASpec
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
@@ -82,13 +82,16 @@ def fourier_system_of(design: Design, *, refine: int = 1) -> FourierLFMSystem:
         raise ValueError(
             f"refine must be an odd integer >= 1 (virtual pixels per camera pixel); got {refine!r}."
         )
+    if design.relay is None:
+        raise ValueError("a Fourier LFM needs a relay (Fourier) lens; the design has relay None.")
+    ny, nx = design.camera.pixel_count
     return FourierLFMSystem(
         objective=objective_of(design),
         fourier_focal_length=design.relay.focal_length,
         mla=microlens_array_of(design),
         mla_to_camera=design.mla_to_camera_distance,
         pixel_pitch=design.camera.pixel_pitch / refine,
-        sensor_shape=tuple(virtual_pixel_count(n, refine) for n in design.camera.pixel_count),
+        sensor_shape=(virtual_pixel_count(ny, refine), virtual_pixel_count(nx, refine)),
         wavelength=design.wavelength,
     )
 
@@ -153,13 +156,12 @@ def conventional_system_of(
     if design.kind != "conventional":
         raise ValueError(f"design kind must be 'conventional' for a conventional LFM; got {design.kind!r}.")
     mla = design.mla
-    pitch = getattr(mla, "pitch_um", None)
-    if pitch is None or getattr(mla, "lattice", None) != "square":
+    if not isinstance(mla, RegularMLASpec) or mla.lattice != "square":
         raise ValueError(
             "conventional LFM needs a regular square MLA (layout 'regular', lattice 'square'); "
             f"got layout {mla.layout!r}. Fix: use MLASpec square_grid / a RegularMLASpec."
         )
-    pitch_m = pitch * 1e-6
+    pitch_m = mla.pitch_um * 1e-6
     camera = design.camera
     if voxels_per_lenslet is None:
         voxels_per_lenslet = design.accuracy.voxels_per_lenslet

@@ -51,8 +51,12 @@ def test_round_trip_keeps_every_measurement(tmp_path, calibrated):
         rectify_frame(frames.radiometry, loaded), rectify_frame(frames.radiometry, calibration), rtol=1e-9
     )
     doc = json.loads(path.read_text())
-    assert doc["format"] == "lfm_studio.calibration" and doc["version"] == 1
+    assert doc["format"] == "lfm_studio.calibration" and doc["version"] == 2
     assert doc["summary"]["pitch_yx_px"] == pytest.approx([17.21, 17.21], abs=0.01)
+    # A version-1 file (before the Fourier per-sub-image flat field) still loads, as version 1.
+    old = tmp_path / "old.json"
+    old.write_text(json.dumps({**doc, "version": 1}))
+    assert load_calibration(old).version == 1
 
 
 def test_no_overwrite_without_asking(tmp_path, calibrated):

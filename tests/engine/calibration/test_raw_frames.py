@@ -67,3 +67,30 @@ def test_dark_subtracted_frames_convert_with_baseline_zero(calibrated):
     assert floor > 3.0 and float(photons.mean()) == pytest.approx(floor, abs=1.0)
     twice = dataclasses.replace(camera, baseline_adu=calibration.dark_level)
     assert float(counts_to_photons(dark, twice, name="dark")[0].mean()) < 0.1 * floor
+
+
+def test_a_series_prepares_its_corrections_once(calibrated, monkeypatch):
+    """Defect mask, dark frame and flat-field map are built once per series, not once per frame."""
+    import torch
+
+    from lfm_studio.engine.calibration import corrections, pipeline
+
+    _, frames, calibration = calibrated
+    single = rectify_frame(frames.radiometry, calibration)
+    calls = []
+    original = corrections.frame_corrections
+
+    def counted(calibration):
+        calls.append(1)
+        return original(calibration)
+
+    monkeypatch.setattr(pipeline, "frame_corrections", counted)
+    series = torch.stack((frames.radiometry, 0.5 * frames.radiometry, frames.radiometry))
+    out = rectify_frame(series, calibration)
+    assert len(calls) == 1
+    assert out.shape == (3, *single.shape)
+    assert torch.allclose(out[0], single) and torch.allclose(out[2], single)
+    # Frame 1 is half the light above the same dark frame: the dark is subtracted from each frame.
+    half = rectify_frame(0.5 * frames.radiometry, calibration)
+    assert torch.allclose(out[1], half)
+    assert not torch.allclose(out[1], 0.5 * single, rtol=1e-3)  # 0.5 x raw still carries the full dark

@@ -10,10 +10,10 @@ from __future__ import annotations
 import math
 
 import pytest
-from lfm_studio.engine.performance.fourier_closed_forms import focus_depth, union_length
 
 from lfm_studio.engine.design import DesignWarning, MLASpec, evolve, load_preset
 from lfm_studio.engine.performance import closed_form_metrics
+from lfm_studio.engine.performance.fourier_closed_forms import focus_depth, union_length
 from lfm_studio.engine.units import mm, um
 
 EXACT = 1e-9

@@ -7,10 +7,10 @@ import warnings
 
 import pytest
 import torch
-from lfm_studio.engine.performance.reconstructed import linear_profile, reconstructed_resolution
-from lfm_studio.engine.performance.two_point import dip_ratio
 
 from lfm_studio.engine.design import DepthSpec, DesignError, LensletSpec, MLASpec, load_preset
+from lfm_studio.engine.performance.reconstructed import linear_profile, reconstructed_resolution
+from lfm_studio.engine.performance.two_point import dip_ratio
 from lfm_studio.engine.simulation import imaging_setup, simulate_psf
 from lfm_studio.engine.units import um
 

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import pytest
-from lfm_studio.engine.performance.requirements import check, overall
 
 from lfm_studio.engine.performance import ZEBRAFISH_LARVA, Requirement, check_requirements
+from lfm_studio.engine.performance.requirements import check, overall
 from lfm_studio.engine.units import um
 
 

@@ -13,6 +13,7 @@ class _ZeroProjector:
     """A projector whose PSF is all zero (nothing reaches the camera)."""
 
     volume_shape, image_shape = (2, 4, 4), (6, 6)
+    device, dtype = torch.device("cpu"), torch.float32
 
     def forward(self, volume):
         return torch.zeros(self.image_shape)
@@ -105,7 +106,11 @@ def test_all_zero_psf_is_a_clear_error_not_nans():
 
 
 def test_objects_without_the_projector_interface_are_a_type_error(image):
-    with pytest.raises(TypeError, match="projector must have forward, adjoint, volume_shape and image_shape"):
+    with pytest.raises(
+        TypeError,
+        match=r"projector must have forward, adjoint, volume_shape, image_shape, device and dtype "
+        r"\(the Projector protocol\); object has no volume_shape, image_shape, device, dtype, forward, adjoint",
+    ):
         richardson_lucy(object(), image)
 
 

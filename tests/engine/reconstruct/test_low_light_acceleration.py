@@ -21,6 +21,7 @@ class CountingProjector:
     def __init__(self, projector) -> None:
         self.projector = projector
         self.volume_shape, self.image_shape = projector.volume_shape, projector.image_shape
+        self.device, self.dtype = projector.device, projector.dtype
         self.forwards = self.adjoints = 0
 
     def forward(self, volume):

@@ -1,4 +1,7 @@
-"""The studio's one worker mechanism: named background jobs on superqt workers.
+"""The one worker mechanism of both Qt front ends: named background jobs on superqt workers (qtpy).
+
+The studio runs its stages with :class:`JobRunner`; the napari plugin's
+:class:`~lfm_studio.napari_plugin.background.BackgroundTask` is one job of a runner.
 
 A job is a plain function ``func(ctx, *args) -> result`` run on a thread of the Qt
 thread pool (:func:`superqt.utils.create_worker`). It reports with
@@ -31,7 +34,7 @@ from qtpy.QtCore import QObject, QThreadPool, Signal
 from superqt.utils import create_worker
 
 from lfm_studio.engine.progress import CancelledError
-from lfm_studio.ui.results import JobStatus
+from lfm_studio.widgets.job_status import JobStatus
 
 
 class JobContext:
@@ -126,10 +129,14 @@ class JobRunner(QObject):
     -------
     status_changed(JobStatus) : a job started, progressed or ended.
     result_dropped(str, int) : a superseded job of that name and generation delivered late.
+    progressed(str, int, int, int, str) : ``(name, generation, done, total, message)`` of a current job.
+    ended(JobOutcome) : a current job ended ("done", "failed" or "cancelled"), after its callbacks.
     """
 
     status_changed = Signal(object)
     result_dropped = Signal(str, int)
+    progressed = Signal(str, int, int, int, str)
+    ended = Signal(object)
 
     def __init__(self, parent: QObject | None = None) -> None:
         super().__init__(parent)
@@ -206,6 +213,7 @@ class JobRunner(QObject):
         job = self._current(name, generation)
         if job is not None and job.status.state == "running":
             self._set_status(job, JobStatus(name, "running", done, total, message, generation))
+            self.progressed.emit(name, generation, done, total, message)
 
     def _on_partial(self, name: str, generation: int, value: Any) -> None:
         job = self._current(name, generation)
@@ -250,6 +258,7 @@ class JobRunner(QObject):
             self._set_status(job, JobStatus(outcome.name, "failed", 0, 0, message, outcome.generation))
             if job.on_error is not None:
                 job.on_error(outcome)
+        self.ended.emit(outcome)
 
     def _set_status(self, job: _Job, status: JobStatus) -> None:
         job.status = status

@@ -1,0 +1,232 @@
+"""``lfm-studio optimize`` (a stored, resumable design search) and ``lfm-studio study show``.
+
+``optimize DESIGN --space space.json --objective NAME[,NAME] --study sqlite:///study.db --out best.json``
+evaluates the space's points (grid by default, or an Optuna sampler) on the objectives,
+stores every candidate in the study database, prints the best design and writes it as a
+design file. ``--resume`` continues a stored study without evaluating any stored candidate
+again; ``--workers N`` evaluates on a local Dask cluster. ``study show STUDY`` prints the
+trials and the best candidate (one objective) or the Pareto front (several).
+See docs/optimize.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from lfm_studio.cli.progress import progress_bar
+
+DEFAULT_STUDY = "sqlite:///lfm_study.db"
+
+
+def _floats(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(f"expected comma-separated numbers; got {text!r}") from error
+
+
+def _seeds(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(
+            f"--task-seeds must be comma-separated integers; got {text!r}"
+        ) from error
+
+
+def _study_file(url: str) -> str | None:
+    """The database file of a SQLite study URL or path (an output the --out must not be)."""
+    if url.startswith("sqlite:///"):
+        return url.removeprefix("sqlite:///")
+    return None if "://" in url else url
+
+
+def _objectives(args: argparse.Namespace) -> list:
+    from lfm_studio.engine.optimize import objective_named
+
+    options = {
+        "phantom": args.phantom,
+        "method": args.method,
+        "iterations": args.iterations,
+        "photons": args.photons,
+        "seeds": args.task_seeds,
+    }
+    names = [n.strip() for n in args.objective.split(",") if n.strip()]
+    if not names:
+        raise ValueError(
+            "--objective names no objective. Fix: e.g. --objective task_ncc (see docs/optimize.md)."
+        )
+    return [objective_named(name, options) for name in names]
+
+
+def _constraints(args: argparse.Namespace, design) -> tuple:
+    from lfm_studio.engine.optimize import DEFAULT_CONSTRAINTS, MinimumLensletSize, RequirementsConstraint
+
+    found = list(DEFAULT_CONSTRAINTS) if design.kind == "fourier" else []
+    if args.min_lenslet_um is not None:
+        found.append(MinimumLensletSize(args.min_lenslet_um))
+    if args.require_zebrafish:
+        found.append(RequirementsConstraint())
+    return tuple(found)
+
+
+def run_optimize(args: argparse.Namespace) -> int:
+    from lfm_studio.cli.simulate import _design_file, parse_depths, resolve_device
+    from lfm_studio.engine.design import resolve_design, save_design
+    from lfm_studio.engine.design.design_io import design_from_json
+    from lfm_studio.engine.io import check_output
+    from lfm_studio.engine.optimize import EvaluationSettings, Evaluator, FocalLengthCatalogue, load_space
+    from lfm_studio.engine.optimize.study import local_client, record_of, run_study
+    from lfm_studio.engine.optimize.study_report import format_front, pareto_front, summary
+    from lfm_studio.engine.simulation import depth_grid
+
+    out = check_output(
+        args.out,
+        overwrite=args.overwrite,
+        inputs=[_design_file(args.design), args.space, _study_file(args.study)],
+    )
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1; got {args.workers}.")
+    design = resolve_design(args.design)
+    space = load_space(args.space)
+    depths = parse_depths(args.depths)
+    settings = EvaluationSettings(
+        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
+        crop=args.crop,
+        device=resolve_device(args.device),
+    )
+    evaluator = Evaluator(
+        design,
+        space,
+        _objectives(args),
+        constraints=_constraints(args, design),
+        catalogue=FocalLengthCatalogue(args.catalogue) if args.catalogue else None,
+        settings=settings,
+        seed=args.seed,
+    )
+    client = None
+    if args.scheduler:
+        from dask.distributed import Client
+
+        client = Client(args.scheduler)
+    elif args.workers > 1:
+        client = local_client(args.workers)
+    try:
+        with progress_bar(f"optimise ({args.sampler})") as progress:
+            study = run_study(
+                evaluator, args.study, study_name=args.study_name, sampler=args.sampler, n_trials=args.trials,
+                resume=args.resume, client=client, progress=progress,
+            )  # fmt: skip
+    finally:
+        if client is not None:
+            cluster = getattr(client, "cluster", None) if not args.scheduler else None
+            client.close()
+            if cluster is not None:  # the local cluster --workers started
+                cluster.close()
+    counts = summary(study)
+    print(", ".join(f"{k} {v}" for k, v in counts.items()))
+    print(format_front(study))
+    front = pareto_front(study)
+    if not front:
+        raise ValueError(
+            "no candidate was feasible, nothing to write (see 'lfm-studio study show' for the reasons). "
+            "Fix: widen the space or relax the constraints."
+        )
+    best = _best(front, evaluator.objectives)
+    chosen = design_from_json(record_of(best)["design_json"], origin=f"study trial {best.number}")
+    chosen = chosen.updated(
+        name=f"{design.name} (optimised, trial {best.number})",
+        description=f"{design.description} Optimised by lfm-studio optimize: study {args.study_name!r} in "
+        f"{args.study}, trial {best.number}, objectives {[o.name for o in evaluator.objectives]}, "
+        f"values {list(best.values)}, parameters {best.params}.".strip(),
+    )
+    save_design(chosen, out, overwrite=args.overwrite)
+    print(f"best design (trial {best.number}): {', '.join(f'{k}={v}' for k, v in best.params.items())}")
+    print(f"wrote {out}")
+    return 0
+
+
+def _best(front: list, objectives) -> object:
+    """The front's best candidate on the first objective (the whole front is printed)."""
+    first = objectives[0]
+    key = (lambda t: t.values[0]) if first.direction == "minimize" else (lambda t: -t.values[0])
+    return min(front, key=key)
+
+
+def run_study_show(args: argparse.Namespace) -> int:
+    from lfm_studio.engine.optimize.study import load_study
+    from lfm_studio.engine.optimize.study_report import format_front, format_table, summary
+
+    study = load_study(args.study, args.study_name)
+    print(f"study {study.study_name!r}: {', '.join(f'{k} {v}' for k, v in summary(study).items())}")
+    print(format_table(study, limit=args.limit))
+    print(format_front(study))
+    return 0
+
+
+def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
+    """Register ``optimize`` and ``study`` (``study show``)."""
+    from lfm_studio.cli.simulate import allow_negative_values
+
+    opt = allow_negative_values(
+        sub.add_parser(
+            "optimize",
+            help="search a design space (stored, resumable study) and write the best design",
+            description=__doc__,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+    )
+    opt.add_argument("design", help="starting design file (.json) or preset name")
+    opt.add_argument("--space", required=True, help="design space JSON (docs/optimize.md)")
+    opt.add_argument(
+        "--objective", required=True, help="objective name, or several comma-separated (a Pareto front)"
+    )
+    opt.add_argument(
+        "--study", default=DEFAULT_STUDY, help=f"study database URL or file (default {DEFAULT_STUDY})"
+    )
+    opt.add_argument("--study-name", default="lfm_study", help="study name inside the database")
+    opt.add_argument(
+        "--resume", action="store_true", help="continue a stored study (no candidate is evaluated twice)"
+    )
+    opt.add_argument("--sampler", choices=("grid", "tpe", "cmaes", "random"), default="grid")
+    opt.add_argument("--trials", type=int, default=None, help="total trials (default: the whole grid, or 20)")
+    opt.add_argument("--workers", type=int, default=1, help="evaluate on a local Dask cluster of N processes")
+    opt.add_argument(
+        "--scheduler", default=None, help="Dask scheduler address (a cluster) instead of --workers"
+    )
+    opt.add_argument("--seed", type=int, default=0, help="sampler seed (recorded with every trial)")
+    opt.add_argument(
+        "--crop", type=int, default=256, help="camera pixels simulated about the axis (default 256)"
+    )
+    opt.add_argument("--depths", type=str, default=None, help="START:STOP:STEP in um (default: the design's)")
+    opt.add_argument("--device", choices=("cpu", "cuda"), default="cpu")
+    task = opt.add_argument_group("task score (task_* objectives)")
+    task.add_argument("--phantom", choices=("beads", "cells"), default="beads")
+    task.add_argument(
+        "--method", default="rl", help="reconstruction method (rl, rl-accelerated, wiener, tikhonov)"
+    )
+    task.add_argument("--iterations", type=int, default=20)
+    task.add_argument("--photons", type=float, default=1e5, help="expected photons per image")
+    task.add_argument("--task-seeds", type=_seeds, default=(1000, 1001), help="held-out phantom seeds")
+    cons = opt.add_argument_group("constraints")
+    cons.add_argument(
+        "--catalogue", type=_floats, default=None, help="stock lenslet focal lengths in mm (snap)"
+    )
+    cons.add_argument("--min-lenslet-um", type=float, default=None, help="smallest lenslet aperture, um")
+    cons.add_argument(
+        "--require-zebrafish", action="store_true", help="refuse designs failing the zebrafish spec"
+    )
+    opt.add_argument("--out", required=True, help="best design file to write (.json)")
+    opt.add_argument("--overwrite", "--force", action="store_true", help="replace an existing --out")
+    opt.set_defaults(handler=run_optimize)
+
+    study = sub.add_parser("study", help="inspect stored optimisation studies")
+    actions = study.add_subparsers(dest="study_command", metavar="ACTION", required=True)
+    show = actions.add_parser("show", help="print a study's trials and its best candidate / Pareto front")
+    show.add_argument("study", help="study database file or URL")
+    show.add_argument("--study-name", default=None, help="the study (default: the only one in the database)")
+    show.add_argument("--limit", type=int, default=None, help="show only the last N trials")
+    show.set_defaults(handler=run_study_show)
+
+
+__all__ = ["add_optimize_parsers"]

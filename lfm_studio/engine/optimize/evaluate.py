@@ -1,0 +1,166 @@
+"""Evaluate one point of a design space: build, repair, check, score; record everything.
+
+:class:`Evaluator` turns a point into an :class:`EvaluationRecord`: the parameters, the
+objective values (by objective name), the seconds per stage, the candidate's design JSON,
+the seed, the design warnings, and for an infeasible point its :class:`Infeasible` reason
+(nothing is scored then). It keeps one per-lenslet PSF cache across calls.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.design_io import design_to_json
+from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.memory import MemoryBudgetError
+from lfm_studio.engine.optimize.candidate import Candidate, EvaluationSettings
+from lfm_studio.engine.optimize.constraints import (
+    DEFAULT_CONSTRAINTS,
+    Constraint,
+    FocalLengthCatalogue,
+    Infeasible,
+    first_violation,
+    infeasible_from_error,
+)
+from lfm_studio.engine.optimize.objectives import Objective
+from lfm_studio.engine.optimize.space import DesignSpace, Point
+from lfm_studio.engine.systems.lenslet_cache import LensletCache
+
+DEFAULT_CACHE_BYTES = 512 * 2**20
+
+
+@dataclass
+class EvaluationRecord:
+    """What one evaluation found (stored with every trial of a study).
+
+    values : objective name -> value in the objective's unit (None when infeasible).
+    timing : seconds per stage (``psf_s``, ``simulate_s``, ``reconstruct_s``, ``score_s``,
+        ``total_s`` and ``overhead_s`` = total minus the stages).
+    """
+
+    params: Point
+    values: dict[str, float] | None
+    infeasible: Infeasible | None
+    timing: dict[str, float]
+    design_json: str | None
+    seed: int
+    warnings: tuple[str, ...] = ()
+    cache: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def feasible(self) -> bool:
+        return self.infeasible is None
+
+    def attrs(self) -> dict[str, Any]:
+        """JSON-ready user attributes of the trial."""
+        return {
+            "values": self.values,
+            "infeasible_reason": None if self.infeasible is None else self.infeasible.reason,
+            "infeasible_message": None if self.infeasible is None else self.infeasible.message,
+            "timing": self.timing,
+            "design_json": self.design_json,
+            "seed": self.seed,
+            "warnings": list(self.warnings),
+            "cache": self.cache,
+        }
+
+
+class Evaluator:
+    """Scores points of ``space`` applied to ``base`` (picklable for Dask: the cache is rebuilt).
+
+    Parameters
+    ----------
+    base : the starting design.
+    space : the free parameters.
+    objectives : what to score (names must be distinct).
+    constraints : checks of a built design (default: inside the pupil, sub-images on the
+        sensor and apart; Fourier designs only).
+    catalogue : optional focal-length catalogue applied before the checks.
+    settings : how candidates are simulated.
+    seed : recorded with every trial (task scores use their own held-out seeds).
+    """
+
+    def __init__(
+        self,
+        base: Design,
+        space: DesignSpace,
+        objectives: Sequence[Objective],
+        *,
+        constraints: Sequence[Constraint] | None = None,
+        catalogue: FocalLengthCatalogue | None = None,
+        settings: EvaluationSettings | None = None,
+        seed: int = 0,
+        cache_bytes: int = DEFAULT_CACHE_BYTES,
+    ) -> None:
+        names = [o.name for o in objectives]
+        if not objectives or len(set(names)) != len(names):
+            raise ValueError(f"objectives must be at least one, with distinct names; got {names}.")
+        space.check_paths(base)
+        self.base, self.space, self.objectives = base, space, tuple(objectives)
+        if constraints is None:
+            constraints = DEFAULT_CONSTRAINTS if base.kind == "fourier" else ()
+        self.constraints = tuple(constraints)
+        self.catalogue = catalogue
+        self.settings = settings or EvaluationSettings()
+        self.seed = seed
+        self.cache_bytes = cache_bytes
+        self.cache = LensletCache(cache_bytes)
+        self.evaluations = 0  # points scored (not counting infeasible ones)
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["cache"] = None
+        return state
+
+    def __setstate__(self, state: Mapping[str, Any]) -> None:
+        self.__dict__.update(state)
+        self.cache = LensletCache(self.cache_bytes)
+
+    def build(self, point: Mapping[str, Any]) -> tuple[Design | None, Infeasible | None, tuple[str, ...]]:
+        """``(design, None, warnings)`` or ``(None, reason, warnings)`` for ``point``."""
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", DesignWarning)
+            try:
+                design = self.space.apply(self.base, point)
+                if self.catalogue is not None:
+                    design = self.catalogue.snap(design)
+            except ValueError as error:
+                return None, infeasible_from_error(error), ()
+            found = first_violation(design, self.constraints)
+        notes = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DesignWarning)))
+        return (None, found, notes) if found is not None else (design, None, notes)
+
+    def __call__(self, point: Mapping[str, Any]) -> EvaluationRecord:
+        start = time.perf_counter()
+        design, infeasible, notes = self.build(point)
+        values = None
+        timing: dict[str, float] = {}
+        hits, misses = self.cache.hits, self.cache.misses
+        if design is not None:
+            candidate = Candidate(design, self.settings, seed=self.seed, cache=self.cache)
+            try:
+                values = {o.name: float(o(candidate)) for o in self.objectives}
+                self.evaluations += 1
+            except MemoryBudgetError:
+                raise
+            except ValueError as error:  # a named refusal while scoring (e.g. a rejected reconstruction)
+                infeasible, values = Infeasible("evaluation_refused", str(error)), None
+            timing = dict(candidate.timing)
+        total = time.perf_counter() - start
+        timing["total_s"] = total
+        timing["overhead_s"] = max(0.0, total - sum(v for k, v in timing.items() if k not in ("total_s",)))
+        return EvaluationRecord(
+            params=dict(point),
+            values=values,
+            infeasible=infeasible,
+            timing=timing,
+            design_json=None if design is None else design_to_json(design),
+            seed=self.seed,
+            warnings=notes,
+            cache={"hits": self.cache.hits - hits, "misses": self.cache.misses - misses},
+        )

@@ -1,0 +1,245 @@
+"""File > Open raw light field…: a real instrument's camera frame as the studio's light-field image.
+
+The dialog asks for the raw camera TIFF and either a calibration file (``lfm-studio
+calibrate``) or a radiometry frame (plus an optional dark frame, and an optional file to save
+the new calibration to) to calibrate against the current design; "Use the calibration's
+design" (on by default) offers the design fitted to the calibration: the rectified design of a
+conventional LFM, the fitted design of a Fourier LFM, whose PSF images the rectified frame.
+
+:class:`RawFrameActions` runs :func:`~lfm_studio.ui.raw_frames.load_raw_frame` as the job
+"raw frame" (progress in the status bar, Cancel stops it; a cancelled or failed load leaves
+the studio as it was, a failure gets a dialog). On success, with the calibration's design
+accepted, the design is replaced (its PSF is computed as for any edit) and the frame is put
+in the studio as the light-field image once that PSF is there, exactly where a simulated
+image goes: "Reconstruct" then reconstructs the raw frame (no ground truth to score against).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from qtpy.QtCore import QObject
+from qtpy.QtGui import QAction
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QDialog,
+    QDialogButtonBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QMessageBox,
+    QPushButton,
+    QRadioButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from lfm_studio.ui.failure_notices import show_failure
+from lfm_studio.ui.jobs import JobOutcome, JobRunner
+from lfm_studio.ui.raw_frames import RawFrame, RawFrameRequest, load_raw_frame, raw_image_result
+from lfm_studio.ui.state import StudioState
+
+JOB = "raw frame"
+TIFF_FILTER = "TIFF frames (*.tif *.tiff)"
+CALIBRATION_FILTER = "Calibration files (*.json)"
+
+
+class RawFrameDialog(QDialog):
+    """The raw frame and its calibration (a file, or a radiometry + dark frame to make one)."""
+
+    def __init__(self, parent: QWidget | None = None, *, folder: str = "") -> None:
+        super().__init__(parent)
+        self.setWindowTitle("Open raw light field")
+        self.folder = folder
+        self.raw_edit = QLineEdit(self)
+        self.use_file = QRadioButton("Calibration file", self)
+        self.make_new = QRadioButton("Make a calibration against the current design", self)
+        self.use_file.setChecked(True)
+        self.calibration_edit = QLineEdit(self)
+        self.radiometry_edit = QLineEdit(self)
+        self.dark_edit = QLineEdit(self)
+        self.dark_edit.setPlaceholderText("optional: same exposure, light blocked")
+        self.save_edit = QLineEdit(self)
+        self.save_edit.setPlaceholderText("optional: keep the calibration for next time")
+        self.use_fitted = QCheckBox("Use the calibration's design (its PSF images the rectified frame)", self)
+        self.use_fitted.setChecked(True)
+        self.error_label = QLabel(self)
+        self.error_label.setStyleSheet("QLabel { color: #ff6b6b; }")
+        self.error_label.setWordWrap(True)
+        form = QFormLayout()
+        form.addRow("Raw camera frame", self._row(self.raw_edit, "Raw camera frame", TIFF_FILTER))
+        form.addRow(self.use_file)
+        form.addRow("Calibration", self._row(self.calibration_edit, "Calibration file", CALIBRATION_FILTER))
+        form.addRow(self.make_new)
+        form.addRow("Radiometry frame", self._row(self.radiometry_edit, "Radiometry frame", TIFF_FILTER))
+        form.addRow("Dark frame", self._row(self.dark_edit, "Dark frame", TIFF_FILTER))
+        form.addRow("Save calibration as", self._row(self.save_edit, "Save calibration as", None))
+        buttons = QDialogButtonBox(
+            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
+        )
+        buttons.accepted.connect(self.accept)
+        buttons.rejected.connect(self.reject)
+        self.ok_button = buttons.button(QDialogButtonBox.StandardButton.Ok)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(self.use_fitted)
+        layout.addWidget(self.error_label)
+        layout.addWidget(buttons)
+        self.use_file.toggled.connect(self._update)
+        self._update()
+
+    def _row(self, edit: QLineEdit, title: str, filter_: str | None) -> QWidget:
+        row = QWidget(self)
+        layout = QHBoxLayout(row)
+        layout.setContentsMargins(0, 0, 0, 0)
+        button = QPushButton("Browse…", row)
+        button.clicked.connect(lambda: self._browse(edit, title, filter_))
+        layout.addWidget(edit, 1)
+        layout.addWidget(button)
+        return row
+
+    def _browse(self, edit: QLineEdit, title: str, filter_: str | None) -> None:
+        if filter_ is None:  # the calibration to write: the dialog asks before replacing a file
+            path, _ = QFileDialog.getSaveFileName(self, title, self.folder, CALIBRATION_FILTER)
+        else:
+            path, _ = QFileDialog.getOpenFileName(self, title, self.folder, filter_)
+        if path:
+            edit.setText(path)
+            self.folder = str(Path(path).parent)
+
+    def _update(self, *_: Any) -> None:
+        from_file = self.use_file.isChecked()
+        self.calibration_edit.setEnabled(from_file)
+        for edit in (self.radiometry_edit, self.dark_edit, self.save_edit):
+            edit.setEnabled(not from_file)
+
+    @staticmethod
+    def _path(edit: QLineEdit) -> Path | None:
+        text = edit.text().strip()
+        return Path(text).expanduser() if text else None
+
+    def problem(self) -> str | None:
+        """What is missing or wrong (a file that does not exist, named with its field), or None."""
+        raw = self._path(self.raw_edit)
+        needed = [("Raw camera frame", raw)]
+        if self.use_file.isChecked():
+            needed.append(("Calibration", self._path(self.calibration_edit)))
+        else:
+            needed.append(("Radiometry frame", self._path(self.radiometry_edit)))
+            dark = self._path(self.dark_edit)
+            if dark is not None:
+                needed.append(("Dark frame", dark))
+        for label, path in needed:
+            if path is None:
+                return f"{label}: choose a file."
+            if not path.is_file():
+                return f"{label}: {path} does not exist. Fix: choose an existing file."
+        return None
+
+    def accept(self) -> None:
+        """Close only when every file is there; otherwise say which is not."""
+        problem = self.problem()
+        if problem is not None:
+            self.error_label.setText(problem)
+            return
+        super().accept()
+
+    def request(self, design: Any) -> RawFrameRequest:
+        """The load the dialog describes, against ``design``."""
+        raw = self._path(self.raw_edit)
+        if raw is None:
+            raise ValueError("Raw camera frame: choose a file.")
+        if self.use_file.isChecked():
+            return RawFrameRequest(raw=raw, design=design, calibration=self._path(self.calibration_edit))
+        return RawFrameRequest(
+            raw=raw,
+            design=design,
+            radiometry=self._path(self.radiometry_edit),
+            dark=self._path(self.dark_edit),
+            save_calibration=self._path(self.save_edit),
+        )
+
+
+class RawFrameActions(QObject):
+    """The "Open raw light field…" action: dialog, load job, design offer, image installation."""
+
+    def __init__(self, state: StudioState, window: QWidget, runner: JobRunner) -> None:
+        super().__init__(window)
+        self.state, self.window, self.runner = state, window, runner
+        self.action = QAction("Open &raw light field…", self)
+        self.action.triggered.connect(self.open)
+        self.dialog: RawFrameDialog | None = None  # the open dialog (tests fill it in)
+        self.pending: RawFrame | None = None  # loaded, waiting for the PSF of its design
+        self.last_failure: QMessageBox | None = None
+        self.use_fitted = True
+        state.psf_changed.connect(self._on_psf)
+
+    def disconnect_state(self) -> None:
+        self.state.psf_changed.disconnect(self._on_psf)
+
+    def open(self, *_: Any) -> bool:
+        """Ask for the raw frame and its calibration, then load it on a worker."""
+        folder = str(self.state.file_path.parent) if self.state.file_path is not None else str(Path.home())
+        self.dialog = RawFrameDialog(self.window, folder=folder)
+        try:
+            if self.dialog.exec() != QDialog.DialogCode.Accepted:
+                return False
+            request = self.dialog.request(self.state.design)
+            use_fitted = self.dialog.use_fitted.isChecked()
+        finally:
+            self.dialog.deleteLater()
+            self.dialog = None
+        self.load(request, use_fitted=use_fitted)
+        return True
+
+    def load(self, request: RawFrameRequest, *, use_fitted: bool = True) -> None:
+        """Start the load job; the studio changes only when it succeeds."""
+        self.use_fitted = use_fitted
+        self.runner.submit(JOB, load_raw_frame, request, on_result=self._on_loaded, on_error=self._on_failed)
+
+    def _on_loaded(self, frame: RawFrame) -> None:
+        self.pending = frame
+        if self.use_fitted and frame.psf_design != self.state.design:
+            self.state.set_design(frame.psf_design)  # its PSF follows; _on_psf installs the frame
+            return
+        psf = self.state.psf
+        if psf is not None and psf.design == self.state.design and "psf" not in self.state.stale:
+            self._install(psf.stack)
+
+    def _on_psf(self, result: Any) -> None:
+        frame = self.pending
+        if frame is None or result is None or result.preview or result.design != self.state.design:
+            return
+        if self.use_fitted and result.design != frame.psf_design:  # edited while its PSF was computed
+            self.pending = None
+            self.last_failure = show_failure(
+                self.window,
+                "Cannot open raw light field",
+                f"the design changed before the PSF of the calibration's design was ready, so "
+                f"{frame.request.raw.name} was not opened. Fix: open it again (File > Open raw light field…).",
+            )
+            return
+        self._install(result.stack)
+
+    def _install(self, stack: Any) -> None:
+        frame, self.pending = self.pending, None
+        if frame is None:
+            return
+        try:
+            image = raw_image_result(frame, stack)
+        except ValueError as error:
+            self.last_failure = show_failure(self.window, "Cannot open raw light field", str(error))
+            return
+        self.state.set_reconstruction(None)
+        self.state.set_image(image)
+        self.state.mark_fresh("image")
+        self.state.mark_stale("reconstruction")
+
+    def _on_failed(self, outcome: JobOutcome) -> None:
+        error = outcome.error
+        self.last_failure = show_failure(
+            self.window, "Cannot open raw light field", str(error), details=outcome.details or ""
+        )

@@ -1,0 +1,122 @@
+"""``lfm-studio optimize`` and ``lfm-studio study show`` on a toy space with a known optimum."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from lfm_studio.cli import main
+from lfm_studio.engine.design import load_design
+
+pytest.importorskip("optuna")
+
+
+@pytest.fixture
+def space(tmp_path):
+    """Lenslet apertures 400-700 um on the FLFM's 600 um pitch: 700 overlaps, 600 has the largest NA."""
+    path = tmp_path / "space.json"
+    path.write_text(
+        json.dumps(
+            {
+                "parameters": [
+                    {"path": "mla.lenslets[*].aperture_diameter_um", "low": 400, "high": 700, "step": 100}
+                ]
+            }
+        )
+    )
+    return path
+
+
+def _run(tmp_path, space, *extra):
+    return main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "effective_numerical_aperture",
+            "--study", f"sqlite:///{tmp_path / 'study.db'}", "--out", str(tmp_path / "best.json"), *extra,
+        ]
+    )  # fmt: skip
+
+
+def test_optimize_writes_the_best_design_and_refuses_to_overwrite(tmp_path, space, capsys):
+    assert _run(tmp_path, space) == 0
+    out = capsys.readouterr().out
+    assert "complete 3, infeasible 1" in out and "lenslet_overlap" in out
+    assert "best design (trial 2): mla.lenslets[*].aperture_diameter_um=600.0" in out
+    best = load_design(tmp_path / "best.json")
+    assert {lens.aperture_diameter_um for lens in best.mla.lenslets} == {600.0}
+    assert "optimised, trial 2" in best.name
+    before = (tmp_path / "best.json").read_bytes()
+    assert _run(tmp_path, space, "--resume") == 3  # --out exists: refused before any work
+    assert "pass --overwrite" in capsys.readouterr().err
+    assert (tmp_path / "best.json").read_bytes() == before
+    assert _run(tmp_path, space) == 3  # still refused: the output check comes first
+    capsys.readouterr()
+    assert _run(tmp_path, space, "--overwrite") == 2  # the study exists: --resume needed
+    assert "--resume" in capsys.readouterr().err
+    assert _run(tmp_path, space, "--resume", "--overwrite") == 0  # nothing left to evaluate
+    assert load_design(tmp_path / "best.json").mla.lenslets[0].aperture_diameter_um == 600.0
+
+
+def test_study_show_prints_the_table_and_the_pareto_front(tmp_path, space, capsys):
+    code = main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space),
+            "--objective", "effective_numerical_aperture,depth_of_field",
+            "--study", str(tmp_path / "two.db"), "--out", str(tmp_path / "best.json"),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    capsys.readouterr()
+    assert main(["study", "show", str(tmp_path / "two.db")]) == 0
+    out = capsys.readouterr().out
+    assert "effective_numerical_aperture [-] (max)" in out and "depth_of_field [um] (max)" in out
+    assert "Pareto front (3 candidates)" in out
+    assert out.count("complete") >= 3 and "lenslet_overlap" in out
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--objective", "sharpness"], "objective must be one of"),
+        (["--objective", "effective_numerical_aperture", "--sampler", "cmaes"], None),
+    ],
+)
+def test_bad_input_is_refused_with_a_reason(tmp_path, space, capsys, args, message):
+    code = main(
+        ["optimize", "flfm_guo2019", "--space", str(space), "--study", str(tmp_path / "s.db"),
+         "--out", str(tmp_path / "best.json"), "--trials", "2", *args]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    if message is None:  # cmaes: runs where the cmaes package is installed, else a named refusal
+        assert code == 0 or (code == 2 and "pip install cmaes" in err)
+    else:
+        assert code == 2 and message in err
+    assert code == 0 or not (tmp_path / "best.json").exists()
+
+
+def test_missing_space_and_study_files(tmp_path, capsys):
+    code = main(["optimize", "flfm_guo2019", "--space", str(tmp_path / "none.json"), "--objective",
+                 "depth_of_field", "--out", str(tmp_path / "b.json"), "--study", str(tmp_path / "s.db")])  # fmt: skip
+    assert code == 2 and "no such file" in capsys.readouterr().err
+    assert main(["study", "show", str(tmp_path / "none.db")]) == 2
+    assert "no such study database" in capsys.readouterr().err
+
+
+def test_task_objective_through_the_cli(tmp_path, capsys):
+    """A task score (RL of held-out beads) from the command line, on a 128 px crop and 3 depths."""
+    space = tmp_path / "space.json"
+    space.write_text(
+        json.dumps({"parameters": [{"path": "relay.field_stop_diameter_mm", "choices": [2.66, 3.0]}]})
+    )
+    code = main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "task_ncc,task_f1",
+            "--study", str(tmp_path / "task.db"), "--out", str(tmp_path / "best.json"), "--crop", "128",
+            "--depths", "-10:10:10", "--iterations", "5", "--task-seeds", "1000", "--photons", "1e4",
+        ]
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0
+    assert "complete 1, infeasible 1" in out and "sub_image_overlap" in out  # 3.0 mm: sub-images overlap
+    assert "task_ncc" in out and "best design (trial 0)" in out
+    assert load_design(tmp_path / "best.json").relay.field_stop_diameter_mm == 2.66

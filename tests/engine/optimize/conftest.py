@@ -1,0 +1,44 @@
+"""Small designs for the optimiser tests (crops of the shipped presets, few depths)."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+import torch
+
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.design.errors import DesignWarning
+
+
+def small(name: str, pixels: int | None, depth_range_um: tuple[float, float], step_um: float):
+    """Preset ``name`` with a ``pixels``-square sensor (None: unchanged) and a few depths."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        design = load_preset(name)
+        changes = {"depths": type(design.depths)(depth_range_um=depth_range_um, depth_step_um=step_um)}
+        if pixels is not None:
+            changes["camera"] = type(design.camera)(
+                **{**design.camera.model_dump(), "pixel_count": (pixels, pixels)}
+            )
+        return design.updated(**changes)
+
+
+@pytest.fixture(scope="package")
+def flfm():
+    """FLFM (Guo 2019), 9 square lenslets of 600 um, full sensor for the constraints, 3 depths."""
+    return small("flfm_guo2019", None, (-20.0, 20.0), 20.0)
+
+
+@pytest.fixture(scope="package")
+def xlfm():
+    """XLFM (Cong 2017), 27 lenslets (per-lenslet PSF path), 3 depths."""
+    return small("xlfm_cong2017", None, (-20.0, 20.0), 20.0)
+
+
+@pytest.fixture(scope="package", autouse=True)
+def _one_torch_thread():
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)
