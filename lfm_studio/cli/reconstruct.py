@@ -157,6 +157,10 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         stack = _prepare_stack(args, stack, image)
     fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
     setup = imaging_setup(stack, field_of_view=fov)
+    if method.name == "learned" and isinstance(options.get("model"), str):
+        from lfm_studio.engine.learned import check_checkpoint_for_stack  # the design hash and depths, too
+
+        check_checkpoint_for_stack(str(options["model"]), stack, setup)
     if not method.supports(setup.projector):
         others = " or ".join(m.name for m in registry.methods() if m.projectors == "any")
         raise ValueError(

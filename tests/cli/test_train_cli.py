@@ -40,3 +40,33 @@ def test_train_writes_a_checkpoint_tied_to_the_design_and_resumes(design_file, t
         assert main(["train", str(design_file), "--steps", "2", "--out", str(out), "--resume"]) == 0
     assert read_checkpoint(out)[0].training["steps"] == 5
     torch.set_num_threads(threads)
+
+
+def test_reconstruct_applies_a_trained_checkpoint_and_refuses_one_for_another_design(
+    design_file, tmp_path, capsys
+):
+    from lfm_studio.engine.image_quality import ncc
+    from lfm_studio.engine.io import read_volume
+
+    paths = {name: tmp_path / f"{name}.tif" for name in ("psf", "lf", "truth", "vol")}
+    model = tmp_path / "model.safetensors"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        assert main(["simulate", str(design_file), "--out", str(paths["psf"])]) == 0
+        assert main(["image", str(design_file), "--psf", str(paths["psf"]), "--count", "3", "--photons", "1e6",
+                     "--out", str(paths["lf"]), "--truth", str(paths["truth"])]) == 0  # fmt: skip
+        assert main(["--threads", "1", "train", str(design_file), "--psf", str(paths["psf"]), "--steps", "2",
+                     "--out", str(model)]) == 0  # fmt: skip
+        base = ["reconstruct", "--psf", str(paths["psf"]), "--image", str(paths["lf"]), "--method", "learned"]
+        assert main([*base, "--out", str(paths["vol"])]) == 2
+        assert "needs a checkpoint: --model" in capsys.readouterr().err
+        assert main([*base, "--model", str(model), "--out", str(paths["vol"])]) == 0
+        volume, truth = read_volume(paths["vol"]).data, read_volume(paths["truth"]).data
+        assert float(ncc(truth, volume)) > 0.3 and float(volume.std()) > 0
+        other = tmp_path / "other.json"
+        save_design(_shrink("flfm_guo2019", 256, (-10.0, 10.0), 10.0).updated(wavelength_nm=600.0), other)
+        foreign = tmp_path / "foreign.safetensors"
+        assert main(["train", str(other), "--steps", "1", "--out", str(foreign)]) == 0
+        capsys.readouterr()
+        assert main([*base, "--model", str(foreign), "--out", str(tmp_path / "v2.tif")]) == 2
+    assert "trained for another design" in capsys.readouterr().err

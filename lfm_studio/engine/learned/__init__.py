@@ -9,3 +9,26 @@ early stopping; :mod:`.checkpoint` stores it as safetensors with a JSON header t
 the design and its sampling. The loss (:mod:`.losses`) is an energy-normalised MSE plus a
 high-pass term; every prediction is checked to be neither all zero nor constant.
 """
+
+from lfm_studio.engine.learned.checkpoint import load_model, load_model_for, read_checkpoint, save_checkpoint
+from lfm_studio.engine.learned.data import TrainingDataSpec, make_sample, make_samples
+from lfm_studio.engine.learned.design_setup import check_checkpoint_for_stack, stack_identity
+from lfm_studio.engine.learned.models import DEFAULT_MODEL, MODELS, build_model
+from lfm_studio.engine.learned.train import TrainingResult, train
+
+__all__ = [
+    "DEFAULT_MODEL",
+    "MODELS",
+    "TrainingDataSpec",
+    "TrainingResult",
+    "build_model",
+    "check_checkpoint_for_stack",
+    "load_model",
+    "load_model_for",
+    "make_sample",
+    "make_samples",
+    "read_checkpoint",
+    "save_checkpoint",
+    "stack_identity",
+    "train",
+]

@@ -126,26 +126,47 @@ def _metadata(data: bytes) -> dict[str, str]:
     return json.loads(data[8 : 8 + length]).get("__metadata__", {}) or {}
 
 
-def check_matches(header: CheckpointHeader, setup: Any, design_hash: str | None, source: str) -> None:
-    """Refuse a checkpoint trained for another design or sampling than ``setup``."""
+def check_matches(
+    header: CheckpointHeader,
+    projector: Any,
+    source: str,
+    *,
+    voxel_size: tuple[float, float, float] | None = None,
+    design_hash: str | None = None,
+    depths: tuple[float, ...] | None = None,
+) -> None:
+    """Refuse a checkpoint trained for another design or sampling than ``projector`` (and, where the
+    caller knows them, the voxel size in m, the design's optics hash and the PSF depths in m)."""
     if header.design_hash is not None and design_hash is not None and header.design_hash != design_hash:
         raise ValueError(
             f"checkpoint {source} was trained for another design (optics hash {header.design_hash[:12]}..., "
             f"this design {design_hash[:12]}...). Fix: train a model for this design (`lfm-studio train`)."
         )
-    mine = header_for(header.model, header.config, setup, design_hash, header.depths)
-    for name in ("volume_shape", "image_shape"):
-        if getattr(mine, name) != getattr(header, name):
+    mine = {"volume_shape": tuple(int(n) for n in projector.volume_shape),
+            "image_shape": tuple(int(n) for n in projector.image_shape)}  # fmt: skip
+    for name, value in mine.items():
+        if value != getattr(header, name):
             raise ValueError(
                 f"checkpoint {source} was trained for {name} {getattr(header, name)}, this setup has "
-                f"{getattr(mine, name)}. Fix: use the same design, depths and field of view as in training."
+                f"{value}. Fix: use the same design, depths and field of view as in training."
             )
-    if not all(
-        math.isclose(a, b, rel_tol=1e-6) for a, b in zip(mine.voxel_size, header.voxel_size, strict=True)
+    if voxel_size is not None and not all(
+        math.isclose(a, b, rel_tol=1e-6) for a, b in zip(voxel_size, header.voxel_size, strict=True)
     ):
         raise ValueError(
             f"checkpoint {source} was trained for voxel size {header.voxel_size} m, this setup has "
-            f"{mine.voxel_size} m. Fix: use the same design and sampling as in training."
+            f"{tuple(voxel_size)} m. Fix: use the same design and sampling as in training."
+        )
+    if depths is not None and (
+        len(depths) != len(header.depths)
+        or not all(
+            math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
+            for a, b in zip(depths, header.depths, strict=True)
+        )
+    ):
+        raise ValueError(
+            f"checkpoint {source} was trained for depths {header.depths} m, this PSF has {tuple(depths)} m. "
+            "Fix: simulate the PSF at the training depths."
         )
 
 
@@ -156,21 +177,23 @@ def load_model(
     design_hash: str | None = None,
     depths: tuple[float, ...] | None = None,
 ) -> tuple[torch.nn.Module, CheckpointHeader]:
-    """The model of checkpoint ``path`` rebuilt on ``setup``'s projector, in eval mode."""
+    """The model of checkpoint ``path`` rebuilt on ``setup``'s projector (an ImagingSetup), in eval mode."""
+    return load_model_for(path, setup.projector, voxel_size=tuple(setup.voxel_size), design_hash=design_hash,
+                          depths=depths)  # fmt: skip
+
+
+def load_model_for(
+    path: str | os.PathLike,
+    projector: Any,
+    *,
+    voxel_size: tuple[float, float, float] | None = None,
+    design_hash: str | None = None,
+    depths: tuple[float, ...] | None = None,
+) -> tuple[torch.nn.Module, CheckpointHeader]:
+    """The model of checkpoint ``path`` rebuilt on ``projector``, in eval mode (checks as :func:`check_matches`)."""
     header, tensors = read_checkpoint(path)
-    check_matches(header, setup, design_hash, str(path))
-    if (
-        depths is not None
-        and not all(
-            math.isclose(a, b, rel_tol=1e-6, abs_tol=1e-12)
-            for a, b in zip(depths, header.depths, strict=False)
-        )
-    ) or (depths is not None and len(depths) != len(header.depths)):
-        raise ValueError(
-            f"checkpoint {path} was trained for depths {header.depths} m, this PSF has {tuple(depths or ())} m. "
-            "Fix: simulate the PSF at the training depths."
-        )
-    model = build_model(header.model, setup.projector, **header.config)
-    model.load_state_dict({k: v.to(next(iter(model.state_dict().values())).dtype) if v.is_floating_point() else v
-                           for k, v in tensors.items()})  # fmt: skip
+    check_matches(header, projector, str(path), voxel_size=voxel_size, design_hash=design_hash, depths=depths)
+    model = build_model(header.model, projector, **header.config)
+    dtype = next(iter(model.parameters())).dtype
+    model.load_state_dict({k: v.to(dtype) if v.is_floating_point() else v for k, v in tensors.items()})
     return model.eval(), header

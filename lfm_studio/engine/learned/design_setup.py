@@ -20,3 +20,13 @@ def stack_identity(stack: PSFStack) -> tuple[str | None, tuple[float, ...]]:
     return (optics_hash(design) if design is not None and hasattr(design, "model_dump") else None), tuple(
         stack.depths
     )
+
+
+def check_checkpoint_for_stack(path: str, stack: PSFStack, setup: Any) -> None:
+    """Refuse checkpoint ``path`` unless it was trained for ``stack``'s design, depths and ``setup``'s grid."""
+    from lfm_studio.engine.learned.checkpoint import check_matches, read_checkpoint
+
+    header, _ = read_checkpoint(path)
+    design_hash, depths = stack_identity(stack)
+    check_matches(header, setup.projector, path, voxel_size=tuple(setup.voxel_size), design_hash=design_hash,
+                  depths=depths)  # fmt: skip

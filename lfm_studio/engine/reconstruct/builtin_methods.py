@@ -180,10 +180,10 @@ BUILTIN = (
 
 def register_builtin() -> None:
     """Register :data:`BUILTIN` (idempotent: already registered names are left as they are)."""
-    from lfm_studio.engine.reconstruct.registry import names
+    from lfm_studio.engine.reconstruct.registry import is_registered
 
     for method in BUILTIN:
-        if method.name not in names():
+        if not is_registered(method.name):
             register(method)
 
 

@@ -23,6 +23,7 @@ The built-in methods (Richardson-Lucy, its accelerated form, Wiener, Tikhonov) a
 
 from __future__ import annotations
 
+import importlib
 import math
 import numbers
 from collections.abc import Iterator, Mapping
@@ -314,6 +315,18 @@ class Method:
 _REGISTRY: dict[str, Method] = {}
 _DEFAULT = ["rl-accelerated"]
 
+PROVIDERS = ["lfm_studio.engine.learned.method"]
+"""Modules that register more methods (engine plug-ins: the learned models), imported by name the
+first time a front end asks for the methods, so the registry does not import its own clients."""
+_PROVIDERS_LOADED: list[str] = []
+
+
+def _load_providers() -> None:
+    for module in PROVIDERS:
+        if module not in _PROVIDERS_LOADED:
+            _PROVIDERS_LOADED.append(module)  # first: a provider that asks for the methods does not recurse
+            importlib.import_module(module)
+
 
 def register(method: Method, *, overwrite: bool = False) -> Method:
     """Add ``method`` (with :data:`BACKGROUND` prepended to its options) and return the stored entry.
@@ -349,8 +362,14 @@ def unregister(name: str) -> None:
     del _REGISTRY[name]
 
 
+def is_registered(name: str) -> bool:
+    """Whether ``name`` is registered now (providers not loaded: what registration itself asks)."""
+    return name in _REGISTRY
+
+
 def get(name: str) -> Method:
     """The method ``name``; a ``ValueError`` listing the registered names otherwise."""
+    _load_providers()
     try:
         return _REGISTRY[name]
     except (KeyError, TypeError):
@@ -361,11 +380,13 @@ def get(name: str) -> Method:
 
 def methods() -> tuple[Method, ...]:
     """Every registered method, in registration order."""
+    _load_providers()
     return tuple(_REGISTRY.values())
 
 
 def names() -> list[str]:
     """The registered method names, in registration order."""
+    _load_providers()
     return list(_REGISTRY)
 
 
@@ -378,7 +399,7 @@ def all_options() -> dict[str, Option]:
     """Every option name over all methods, each with the first method's :class:`Option` (same kind
     and units everywhere, :func:`register`); what a front end builds one field or flag for."""
     found: dict[str, Option] = {}
-    for method in _REGISTRY.values():
+    for method in methods():
         for option in method.options:
             found.setdefault(option.name, option)
     return found

@@ -111,3 +111,29 @@ def test_a_collapsed_model_is_refused_and_writes_nothing(fourier, tmp_path, monk
             fourier.setup, model="collapsing", data=DATA, max_steps=2, checkpoint=tmp_path / "m.safetensors"
         )
     assert not (tmp_path / "m.safetensors").exists()
+
+
+def test_the_registrys_learned_method_runs_a_checkpoint_and_is_differentiable(tmp_path):
+    from lfm_studio.engine.operators import ShiftInvariantProjector
+    from lfm_studio.engine.reconstruct import registry
+
+    g = torch.Generator().manual_seed(0)
+    projector = ShiftInvariantProjector(torch.rand(2, 12, 12, generator=g, dtype=torch.float64), (6, 6))
+    setup = type("Setup", (), {"projector": projector, "volume_shape": projector.volume_shape,
+                               "voxel_size": (1e-6, 1e-6, 1e-6)})()  # fmt: skip
+    model = _perturbed(setup)
+    path = save_checkpoint(
+        tmp_path / "m.safetensors", model, header_for("unrolled-rl", model.config, setup, None, (0.0, 1e-6))
+    )
+    method = registry.get("learned")
+    assert "learned" in registry.names() and method.differentiable
+    frame = (
+        projector.forward(torch.rand(projector.volume_shape, generator=g, dtype=torch.float64)).detach() + 0.5
+    )
+    with torch.no_grad():
+        torch.testing.assert_close(method(projector, frame, {"model": str(path)}), model(frame))
+    weights = torch.linspace(0.5, 1.5, 72, dtype=torch.float64).reshape(projector.volume_shape)
+    assert torch.autograd.gradcheck(
+        lambda y: (method(projector, y, {"model": str(path)}) * weights).sum(), (frame.clone().requires_grad_(True),),
+        eps=1e-6, atol=1e-5,
+    )  # fmt: skip

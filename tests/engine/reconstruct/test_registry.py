@@ -91,7 +91,8 @@ def test_resolve_fills_defaults_and_converts():
 def test_differentiable_claims_hold(small):
     """A method that says it is differentiable passes gradcheck from the frame to the volume."""
     projector, frame = small
-    claimed = [m for m in registry.methods() if m.differentiable]
+    # "learned" needs a checkpoint for this projector: its gradcheck is in tests/engine/learned.
+    claimed = [m for m in registry.methods() if m.differentiable and m.name != "learned"]
     assert {m.name for m in claimed} >= {"rl", "wiener", "tikhonov"}
     weights = torch.linspace(0.5, 1.5, math.prod(projector.volume_shape), dtype=torch.float64)
     for method in claimed:

@@ -48,6 +48,7 @@ class MultiWienerNet(nn.Module):
             self.radial_gain = nn.Parameter(torch.ones(depths, bins))
         else:
             self.depth_gain = nn.Parameter(torch.ones(depths))
+            self.norm: torch.Tensor
             self.register_buffer("norm", adjoint_normaliser(projector), persistent=False)
         self.net = SmallUNet(depths, depths, width)
         self.to(projector_dtype(projector))

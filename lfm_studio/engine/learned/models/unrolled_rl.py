@@ -32,7 +32,8 @@ class _Correction(nn.Module):
         self.inner = nn.Conv3d(1, hidden, 3, padding=1)
         self.outer = nn.Conv3d(hidden, 1, 3, padding=1)
         nn.init.zeros_(self.outer.weight)
-        nn.init.zeros_(self.outer.bias)
+        if self.outer.bias is not None:
+            nn.init.zeros_(self.outer.bias)
         self.max_log_change = max_log_change
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -68,6 +69,7 @@ class UnrolledRL(nn.Module):
         self.projector = projector
         self.config = {"iterations": iterations, "hidden": hidden, "max_log_change": max_log_change,
                        "background": background}  # fmt: skip
+        self.norm: torch.Tensor
         self.register_buffer("norm", adjoint_normaliser(projector), persistent=False)
         self.steps = nn.ModuleList(_Correction(hidden, max_log_change) for _ in range(iterations))
         self.log_exponents = nn.Parameter(torch.zeros(iterations))
@@ -79,7 +81,7 @@ class UnrolledRL(nn.Module):
         y = y / scale
         background = self.config["background"] / scale
         tiny = torch.finfo(y.dtype).eps
-        x = torch.full_like(self.norm, float(y.sum() / self.norm.sum()))
+        x = torch.ones_like(self.norm) * (y.sum() / self.norm.sum())  # flat start (keeps the graph to y)
         for step, log_exponent in zip(self.steps, self.log_exponents, strict=True):
             estimate = self.projector.forward(x) + background
             ratio = self.projector.adjoint(y / estimate.clamp_min(tiny)) / self.norm
