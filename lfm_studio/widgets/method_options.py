@@ -2,7 +2,7 @@
 
 :class:`MethodOptions` lists every registered method (:mod:`lfm_studio.engine.reconstruct.registry`)
 in a combo box and shows one field per option of any method (:class:`NumericField` for numbers,
-check box for true/false, combo box for choices); the fields the chosen method does not take are disabled.
+check box for true/false, combo box for choices, a path with a browse button for a file); the fields the chosen method does not take are disabled.
 Switching methods moves a field still at the old method's default to the new method's default
 (Wiener's SNR 100 -> Tikhonov's 1000) and keeps a value the user typed. The napari plugin and
 the studio both use it, so a newly registered method appears in both without editing them.
@@ -13,7 +13,16 @@ from __future__ import annotations
 from typing import Any
 
 from qtpy.QtCore import Qt, Signal
-from qtpy.QtWidgets import QCheckBox, QComboBox, QFormLayout, QWidget
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QComboBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLineEdit,
+    QToolButton,
+    QWidget,
+)
 
 from lfm_studio.engine.reconstruct import registry
 from lfm_studio.widgets.numeric_field import NumericField
@@ -148,6 +157,8 @@ class MethodOptions(QWidget):
     def _make_field(self, option: registry.Option) -> QWidget:
         if option.kind is bool:
             return QCheckBox()
+        if option.kind is str and option.file_filter is not None:
+            return PathField(option.file_filter)
         if option.kind is str:
             box = QComboBox()
             for choice in option.choices or ():
@@ -161,6 +172,8 @@ class MethodOptions(QWidget):
             return field.isChecked()
         if isinstance(field, QComboBox):
             return field.currentData()
+        if isinstance(field, PathField):
+            return field.value()
         assert isinstance(field, NumericField)
         if option.optional and field.value() <= field.rule.minimum:
             return None
@@ -172,6 +185,8 @@ class MethodOptions(QWidget):
             field.setChecked(bool(value))
         elif isinstance(field, QComboBox):
             field.setCurrentIndex(max(0, field.findData(value)))
+        elif isinstance(field, PathField):
+            field.setValue(None if value is None else str(value))
         elif isinstance(field, NumericField):
             field.setValue(field.rule.minimum if value is None else value)
 
@@ -193,6 +208,41 @@ class MethodOptions(QWidget):
 
     def _on_field_edited(self, *_: Any) -> None:
         self.edited.emit()
+
+
+class PathField(QWidget):
+    """A file path typed or picked with a browse button (a ``str`` option with a ``file_filter``);
+    ``committed`` when editing ends or a file is picked. An empty field is None."""
+
+    committed = Signal()
+
+    def __init__(self, file_filter: str, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.file_filter = file_filter
+        self.line = QLineEdit()
+        self.line.setPlaceholderText("none")
+        self.line.editingFinished.connect(self.committed)
+        browse = QToolButton()
+        browse.setText("…")
+        browse.setToolTip(f"Choose a file ({file_filter})")
+        browse.clicked.connect(self._browse)
+        layout = QHBoxLayout(self)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(self.line, 1)
+        layout.addWidget(browse)
+
+    def value(self) -> str | None:
+        text = self.line.text().strip()
+        return text or None
+
+    def setValue(self, value: str | None) -> None:
+        self.line.setText(value or "")
+
+    def _browse(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Choose a file", self.line.text(), self.file_filter)
+        if path:
+            self.setValue(path)
+            self.committed.emit()
 
 
 def _change_signal(field: QWidget) -> Any:

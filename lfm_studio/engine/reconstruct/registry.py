@@ -98,6 +98,8 @@ class Option:
     exclusive_minimum, exclusive_maximum : whether the bound itself is refused.
     optional : ``None`` is a valid value (e.g. no early-stop tolerance).
     choices : the allowed values of a ``str`` option, or ``None``.
+    file_filter : a ``str`` option that names an input file: the file dialog's filter (e.g.
+        ``"Checkpoints (*.safetensors)"``); the apps show a path field with a browse button.
     """
 
     name: str
@@ -111,6 +113,7 @@ class Option:
     exclusive_maximum: bool = False
     optional: bool = False
     choices: tuple[str, ...] | None = None
+    file_filter: str | None = None
 
     def __post_init__(self) -> None:
         if not self.name.isidentifier():
