@@ -38,9 +38,9 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.ui.failure_notices import show_failure
-from lfm_studio.ui.jobs import JobOutcome, JobRunner
 from lfm_studio.ui.raw_frames import RawFrame, RawFrameRequest, load_raw_frame, raw_image_result
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 JOB = "raw frame"
 TIFF_FILTER = "TIFF frames (*.tif *.tiff)"

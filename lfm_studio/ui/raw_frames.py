@@ -1,6 +1,6 @@
 """A raw camera frame of a real instrument, made ready for the studio's reconstruction (Qt-free).
 
-:func:`load_raw_frame` runs on a worker thread (:mod:`lfm_studio.ui.jobs`): it reads the raw
+:func:`load_raw_frame` runs on a worker thread (:mod:`lfm_studio.widgets.jobs`): it reads the raw
 TIFF, loads the calibration file or makes a calibration from a radiometry (and dark) frame
 against the studio's design (``lfm_studio.engine.calibration``, with progress and cancel),
 optionally saves it, corrects and rectifies the frame, converts it to photons (baseline 0:

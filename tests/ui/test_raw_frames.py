@@ -27,7 +27,7 @@ from lfm_studio.ui.results import WorkflowSettings
 
 
 class Ctx:
-    """A job context that records progress (what :class:`lfm_studio.ui.jobs.JobContext` offers)."""
+    """A job context that records progress (what :class:`lfm_studio.widgets.jobs.JobContext` offers)."""
 
     def __init__(self) -> None:
         self.cancel = threading.Event()
@@ -131,12 +131,12 @@ def test_the_frame_waits_for_its_design_psf_and_an_edit_meanwhile_drops_it(qtbot
     """The slots of RawFrameActions, driven as the controller drives them (psf_changed)."""
     from types import SimpleNamespace
 
-    from lfm_studio.ui.jobs import JobRunner
     from qtpy.QtWidgets import QMainWindow
 
     from lfm_studio.ui.edits import apply_changes
     from lfm_studio.ui.raw_frame_dialog import RawFrameActions
     from lfm_studio.ui.state import StudioState
+    from lfm_studio.widgets.jobs import JobRunner
 
     truth_scene, paths, _ = scene
     window = QMainWindow()
