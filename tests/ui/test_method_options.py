@@ -49,3 +49,22 @@ def test_an_optional_option_reads_off_as_none_and_display_emits_nothing(form):
     form.field("tv_weight").setText("0.5")  # above the TV bound (0.211): refused by the field
     assert not form.field("tv_weight").commit() and form.values()["tv_weight"] == 0.0
     registry.get("rl").resolve(form.values())  # what the form gives passes the schema
+
+
+def test_the_learned_method_takes_a_checkpoint_path_typed_or_browsed(form, monkeypatch, tmp_path):
+    from lfm_studio.widgets import method_options
+
+    form.set_method("learned")
+    field = form.field("model")
+    assert isinstance(field, method_options.PathField) and field.isEnabled()
+    assert not form.field("iterations").isEnabled()
+    assert form.values() == {"model": None}  # empty: None, and the method then names the missing file
+    field.line.setText(str(tmp_path / "typed.safetensors"))
+    field.line.editingFinished.emit()
+    assert form.values() == {"model": str(tmp_path / "typed.safetensors")}
+    picked = str(tmp_path / "picked.safetensors")
+    monkeypatch.setattr(method_options.QFileDialog, "getOpenFileName", lambda *a, **k: (picked, ""))
+    edits = []
+    form.edited.connect(lambda: edits.append(1))
+    field._browse()
+    assert form.values() == {"model": picked} and edits

@@ -22,7 +22,10 @@ from lfm_studio.engine.learned.checkpoint import load_model_for
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.reconstruct.registry import Method, Option, register
 
-MODEL = Option("model", str, None, "checkpoint written by `lfm-studio train` (.safetensors)", optional=True)
+MODEL = Option(
+    "model", str, None, "checkpoint written by `lfm-studio train` (.safetensors)", optional=True,
+    file_filter="Checkpoints (*.safetensors)",
+)  # fmt: skip
 _LOADED: dict[tuple[str, int, int], torch.nn.Module] = {}
 _KEEP = 2  # models kept loaded (a video reuses one; switching back and forth reuses two)
 
