@@ -1,0 +1,130 @@
+"""Camera frames ``(T, Y, X)`` read lazily from a multi-page TIFF, a folder of TIFFs or a Zarr array.
+
+A :class:`FrameSource` is a small picklable description (path and shape): each Dask task
+opens it and reads only its own frames, so frame data never travels through the task graph
+and a long video is never held in memory. :meth:`FrameSource.to_dask` gives the lazy
+``dask.array`` view of the same frames.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lfm_studio.engine.batch.extras import require_scale
+
+require_scale()
+
+import dask  # noqa: E402
+import dask.array as da  # noqa: E402
+import tifffile  # noqa: E402
+import zarr  # noqa: E402
+
+TIFF_SUFFIXES = (".tif", ".tiff")
+KINDS = ("tiff", "tiff-folder", "zarr")
+
+
+def _zarr_array(path: Path) -> zarr.Array:
+    """The array at ``path``: a Zarr array, or level 0 of an OME-Zarr image group."""
+    node = zarr.open(str(path), mode="r")
+    if isinstance(node, zarr.Array):
+        return node
+    attributes = dict(node.attrs)
+    multiscales = attributes.get("ome", attributes).get("multiscales")
+    if not multiscales:
+        raise ValueError(
+            f"{path} is a Zarr group without OME 'multiscales' metadata, so it names no frame array. "
+            "Fix: pass the array inside it (e.g. path/to/group/0)."
+        )
+    return node[multiscales[0]["datasets"][0]["path"]]
+
+
+def _folder_files(path: Path) -> list[Path]:
+    files = sorted(p for p in path.iterdir() if p.suffix.lower() in TIFF_SUFFIXES and p.is_file())
+    if not files:
+        raise ValueError(f"frames folder {path} holds no .tif/.tiff files. Fix: point at the frames' folder.")
+    return files
+
+
+@dataclass(frozen=True)
+class FrameSource:
+    """Frames ``(T, Y, X)`` at ``path`` (``kind`` one of :data:`KINDS`), read on demand."""
+
+    path: str
+    kind: str
+    shape: tuple[int, int, int]
+    dtype: str
+
+    @property
+    def count(self) -> int:
+        """Number of frames ``T``."""
+        return self.shape[0]
+
+    def _array(self) -> zarr.Array:
+        if self.kind == "tiff":
+            return zarr.open(tifffile.imread(self.path, aszarr=True), mode="r")
+        return _zarr_array(Path(self.path))
+
+    def read(self, start: int, stop: int) -> np.ndarray:
+        """Frames ``start:stop`` as a ``(stop - start, Y, X)`` array (only those pages are read)."""
+        if not 0 <= start < stop <= self.count:
+            raise ValueError(f"frames {start}:{stop} are outside 0:{self.count} of {self.path}.")
+        if self.kind == "tiff-folder":
+            files = _folder_files(Path(self.path))[start:stop]
+            return np.stack([tifffile.imread(f) for f in files]).reshape(stop - start, *self.shape[1:])
+        return np.asarray(self._array()[start:stop]).reshape(stop - start, *self.shape[1:])
+
+    def to_dask(self) -> da.Array:
+        """The frames as a lazy ``dask.array`` (one chunk per frame for a folder)."""
+        if self.kind == "tiff-folder":
+            read = dask.delayed(tifffile.imread, pure=True)
+            frames = [
+                da.from_delayed(read(f), shape=self.shape[1:], dtype=self.dtype)
+                for f in _folder_files(Path(self.path))
+            ]
+            return da.stack(frames)
+        return da.from_zarr(self._array()).reshape(self.shape)
+
+
+def _checked_shape(shape: tuple[int, ...], path: Path) -> tuple[int, int, int]:
+    if len(shape) == 2:
+        return (1, *shape)
+    if len(shape) != 3:
+        raise ValueError(
+            f"{path} holds an array of shape {shape}; frames must be (T, Y, X) or one (Y, X) frame. "
+            "Fix: save the video as (T, Y, X)."
+        )
+    return tuple(int(n) for n in shape)  # type: ignore[return-value]
+
+
+def open_frames(path: str | os.PathLike) -> FrameSource:
+    """Describe the frames at ``path``: a (multi-page) TIFF, a folder of single-frame TIFFs (sorted
+    by name) or a Zarr/OME-Zarr array; nothing but the shape is read."""
+    source = Path(path).expanduser()
+    if not source.exists():
+        raise FileNotFoundError(f"frames {source} do not exist. Fix: check the path.")
+    if source.is_file() and source.suffix.lower() in TIFF_SUFFIXES:
+        with tifffile.TiffFile(source) as tif:
+            series = tif.series[0]
+            shape, dtype = _checked_shape(tuple(series.shape), source), str(series.dtype)
+        return FrameSource(str(source), "tiff", shape, dtype)
+    if source.is_dir() and any((source / name).exists() for name in ("zarr.json", ".zarray", ".zgroup")):
+        array = _zarr_array(source)
+        return FrameSource(str(source), "zarr", _checked_shape(tuple(array.shape), source), str(array.dtype))
+    if source.is_dir():
+        files = _folder_files(source)
+        with tifffile.TiffFile(files[0]) as tif:
+            first = tuple(tif.series[0].shape)
+            dtype = str(tif.series[0].dtype)
+        if len(first) != 2:
+            raise ValueError(
+                f"{files[0]} has shape {first}; a frames folder holds one (Y, X) frame per file. "
+                "Fix: save one frame per file, or pass a multi-page TIFF."
+            )
+        return FrameSource(str(source), "tiff-folder", (len(files), *first), dtype)
+    raise ValueError(
+        f"frames {source} are not a .tif/.tiff file, a folder of TIFFs or a Zarr array. Fix: convert them."
+    )
