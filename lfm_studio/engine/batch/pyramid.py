@@ -45,13 +45,15 @@ def pyramid(volume: np.ndarray, levels: int) -> list[np.ndarray]:
 
 
 def level_transforms(
-    scale: tuple[float, float, float, float], level: int
+    scale: tuple[float, float, float, float], level: int, origin: tuple[float, float, float, float]
 ) -> list[dict[str, str | list[float]]]:
-    """NGFF coordinate transformations of ``level`` for level-0 ``scale`` ``(t, z, y, x)``."""
+    """NGFF coordinate transformations of ``level`` for level-0 ``scale`` and ``origin`` (the
+    coordinates of level-0 voxel 0), both ``(t, z, y, x)``."""
     factor = float(2**level)
     dt, dz, dy, dx = scale
+    t0, z0, y0, x0 = origin
     shift = (factor - 1.0) / 2.0
     return [
         {"type": "scale", "scale": [dt, dz, dy * factor, dx * factor]},
-        {"type": "translation", "translation": [0.0, 0.0, dy * shift, dx * shift]},
+        {"type": "translation", "translation": [t0, z0, y0 + dy * shift, x0 + dx * shift]},
     ]

@@ -89,8 +89,8 @@ class VideoStore:
 
 
 def _write_layout(
-    folder: Path, shape: tuple[int, int, int, int], scale: tuple[float, float, float, float], levels: int,
-    name: str, attributes: dict[str, Any],
+    folder: Path, shape: tuple[int, int, int, int], scale: tuple[float, float, float, float],
+    origin: tuple[float, float, float, float], levels: int, name: str, attributes: dict[str, Any],
 ) -> None:  # fmt: skip
     group = zarr.open_group(str(folder), mode="w-", zarr_format=3)
     datasets = []
@@ -100,7 +100,9 @@ def _write_layout(
             str(level), shape=lshape, chunks=(1, *lshape[1:]), dtype="float32", fill_value=0.0,
             dimension_names=[axis["name"] for axis in AXES],
         )  # fmt: skip
-        datasets.append({"path": str(level), "coordinateTransformations": level_transforms(scale, level)})
+        datasets.append(
+            {"path": str(level), "coordinateTransformations": level_transforms(scale, level, origin)}
+        )
     write_multiscales_metadata(group, datasets, fmt=FormatV05(), axes=[dict(a) for a in AXES], name=name)
     group.attrs.update({RUN_KEY: attributes})
     zarr.open_group(str(folder / STATUS_GROUP), mode="w-", zarr_format=3)
@@ -111,12 +113,14 @@ def create_store(
     *,
     shape: tuple[int, int, int, int],
     scale: tuple[float, float, float, float],
+    origin: tuple[float, float, float, float],
     levels: int,
     chunk_frames: int,
     attributes: dict[str, Any],
     overwrite: bool = False,
 ) -> VideoStore:
-    """A new empty store at ``path`` (level-0 ``scale`` ``(t s, z um, y um, x um)``), created atomically.
+    """A new empty store at ``path``, created atomically; level-0 ``scale`` ``(t s, z um, y um, x um)``
+    and ``origin`` (the coordinates of voxel ``(0, 0, 0, 0)``, same units).
 
     An existing ``path`` is refused unless ``overwrite`` (then replaced only once the new one exists).
     """
@@ -131,7 +135,7 @@ def create_store(
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     try:
         shutil.rmtree(staging)  # zarr creates the folder itself (mode "w-")
-        _write_layout(staging, shape, scale, levels, target.stem, attributes)
+        _write_layout(staging, shape, scale, origin, levels, target.stem, attributes)
         if target.exists():
             trash = target.with_name(f".{target.name}.old")
             os.replace(target, trash)

@@ -102,12 +102,13 @@ def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelTo
 
 
 def _prepare_store(output, *, resume: bool, overwrite: bool, run: dict, attributes: dict,
-                   shape: tuple[int, int, int, int], scale, levels: int, chunk_frames: int) -> VideoStore:  # fmt: skip
+                   shape: tuple[int, int, int, int], scale, origin, levels: int,
+                   chunk_frames: int) -> VideoStore:  # fmt: skip
     target = Path(output).expanduser()
     if target.exists() and resume and not overwrite:
         return open_store(target, run=run)
     return create_store(
-        target, shape=shape, scale=scale, levels=levels, chunk_frames=chunk_frames,
+        target, shape=shape, scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
         attributes=attributes, overwrite=overwrite,
     )  # fmt: skip
 
@@ -174,6 +175,8 @@ def reconstruct_video(
     shape = (source.count, *volume_shape)
     dz, dy, dx = built.setup.voxel_size
     scale = (interval, dz / UM, dy / UM, dx / UM)
+    # first depth on z; y and x centred on the optical axis (the napari plugin's volume convention)
+    origin = (0.0, built.depths[0] / UM, -(shape[2] // 2) * dy / UM, -(shape[3] // 2) * dx / UM)
     run = _run_record(source, spec.key, options, chunk_frames, camera)
     attributes = {
         "version": __version__,
@@ -192,7 +195,7 @@ def reconstruct_video(
     }
     store = _prepare_store(
         output, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
-        scale=scale, levels=attributes["levels"], chunk_frames=chunk_frames,
+        scale=scale, origin=origin, levels=attributes["levels"], chunk_frames=chunk_frames,
     )  # fmt: skip
     done_before = store.records()
     chunks = store.chunks()
