@@ -103,7 +103,7 @@ def _checked_shape(shape: tuple[int, ...], path: Path) -> tuple[int, int, int]:
 def open_frames(path: str | os.PathLike) -> FrameSource:
     """Describe the frames at ``path``: a (multi-page) TIFF, a folder of single-frame TIFFs (sorted
     by name) or a Zarr/OME-Zarr array; nothing but the shape is read."""
-    source = Path(path).expanduser()
+    source = Path(path).expanduser().absolute()  # workers may run elsewhere: no relative paths
     if not source.exists():
         raise FileNotFoundError(f"frames {source} do not exist. Fix: check the path.")
     if source.is_file() and source.suffix.lower() in TIFF_SUFFIXES:

@@ -75,6 +75,13 @@ class VideoStore:
         text = json.dumps(record, indent=1, allow_nan=False).encode()
         atomic_write(self.record_path(index), lambda fh: fh.write(text))
 
+    def record(self, index: int) -> dict[str, Any] | None:
+        """The record of chunk ``index``, or None while it is not finished."""
+        try:
+            return json.loads(self.record_path(index).read_text())
+        except FileNotFoundError:
+            return None
+
     def records(self) -> dict[int, dict[str, Any]]:
         """Finished chunks: index -> record."""
         folder = Path(self.path) / STATUS_GROUP

@@ -79,7 +79,7 @@ def _attempt(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> tupl
 
 def process_chunk(task: ChunkTask) -> dict[str, Any]:
     """Reconstruct, write and record the chunk; returns its record (an existing record untouched)."""
-    existing = task.store.records().get(task.index)
+    existing = task.store.record(task.index)
     if existing is not None:  # finished earlier (e.g. a task re-run after its worker died)
         return existing
     if in_dask_worker():
