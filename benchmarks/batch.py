@@ -201,6 +201,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=10)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--long-frames", type=int, nargs="+", default=[200, 2000])
+    parser.add_argument("--only", choices=("speed", "memory"), default=None, help="run one part")
     args = parser.parse_args()
     if args.quick:
         args.frames, args.crop, args.repeats, args.long_frames = 8, 128, 1, [100, 400]
@@ -210,8 +211,10 @@ def main() -> None:
     keep_freed_memory()  # as the CLI and the workers do (engine/allocator.py)
     print(describe_threads())
     with tempfile.TemporaryDirectory(prefix="lfm-batch-bench-") as folder:
-        speed(args, Path(folder))
-        memory(args, Path(folder))
+        if args.only != "memory":
+            speed(args, Path(folder))
+        if args.only != "speed":
+            memory(args, Path(folder))
 
 
 if __name__ == "__main__":

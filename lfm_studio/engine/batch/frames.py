@@ -9,6 +9,7 @@ and a long video is never held in memory. :meth:`FrameSource.to_dask` gives the 
 from __future__ import annotations
 
 import os
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,6 +26,26 @@ import zarr  # noqa: E402
 
 TIFF_SUFFIXES = (".tif", ".tiff")
 KINDS = ("tiff", "tiff-folder", "zarr")
+OPEN_LIMIT = 2  # TIFF videos kept open per process
+# Per-process open TIFFs: a TIFF's pages are a linked list, so opening it walks the page index;
+# opening once per worker (not once per task) keeps a run linear in its length, and closing what
+# is evicted keeps file handles and page indexes from piling up. Keyed by path, size and mtime:
+# a rewritten file is opened afresh.
+_OPEN: OrderedDict[tuple[str, int, int], tuple[object, zarr.Array]] = OrderedDict()
+
+
+def _open_tiff(path: str) -> zarr.Array:
+    info = os.stat(path)
+    key = (path, info.st_size, info.st_mtime_ns)
+    if key in _OPEN:
+        _OPEN.move_to_end(key)
+        return _OPEN[key][1]
+    store = tifffile.imread(path, aszarr=True)
+    _OPEN[key] = (store, zarr.open(store, mode="r"))
+    while len(_OPEN) > OPEN_LIMIT:
+        old_store, _ = _OPEN.popitem(last=False)[1]
+        old_store.close()
+    return _OPEN[key][1]
 
 
 def _zarr_array(path: Path) -> zarr.Array:
@@ -64,9 +85,7 @@ class FrameSource:
         return self.shape[0]
 
     def _array(self) -> zarr.Array:
-        if self.kind == "tiff":
-            return zarr.open(tifffile.imread(self.path, aszarr=True), mode="r")
-        return _zarr_array(Path(self.path))
+        return _open_tiff(self.path) if self.kind == "tiff" else _zarr_array(Path(self.path))
 
     def read(self, start: int, stop: int) -> np.ndarray:
         """Frames ``start:stop`` as a ``(stop - start, Y, X)`` array (only those pages are read)."""
