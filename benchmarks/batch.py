@@ -17,8 +17,9 @@ in-process (synchronous) run use 1 thread too, so the rows compare like with lik
     the per-chunk records: reading frames, writing levels (compression included) and the rest
     (scheduler, store set-up, records) as fractions of the compute time.
 (b) Memory: a long synthetic video of cheap frames (Wiener, 128 px crop) at each ``--long-frames``
-    length on 2 workers; peak RSS of each worker (``ru_maxrss``) against its RSS before the run
-    and against one chunk (frames + volumes) plus the projector (PSF stack + OTFs).
+    length on 2 workers; each worker's RSS after importing the engine, then its peak RSS
+    (``ru_maxrss``) after 10 %, 50 % and 100 % of the frames: bounded means the peak stops growing
+    once the projector is built and the first chunks are done, whatever the length.
 """
 
 from __future__ import annotations
@@ -164,28 +165,41 @@ def memory(args, folder: Path) -> None:
     psf = built.setup.projector
     otf_bytes = sum(t.numel() * t.element_size() for t in vars(psf).values() if isinstance(t, torch.Tensor))
     print(f"\n(b) cheap frames (wiener, 128 px, volume {z}x{y}x{x}), 2 workers, chunks of 4 frames: one chunk "
-          f"~{chunk / 2**20:.1f} MiB, projector tensors ~{otf_bytes / 2**20:.1f} MiB")  # fmt: skip
-    print(f"{'frames':>7} {'RSS before (MiB)':>17} {'peak RSS (MiB)':>15} {'growth (MiB)':>13}")
+          f"~{chunk / 2**20:.1f} MiB, projector tensors ~{otf_bytes / 2**20:.1f} MiB; worker RSS after importing "
+          "the engine, then its peak (ru_maxrss) after 10 %, 50 % and 100 % of the frames (MiB, max over workers)")  # fmt: skip
+    print(
+        f"{'frames':>7} {'before':>7} {'peak 10%':>9} {'peak 50%':>9} {'peak 100%':>10} {'10% -> 100%':>12}"
+    )
     for count in args.long_frames:
         tiff = folder / f"long{count}.tif"
         _frames(design, 128, count, tiff)
         client = get_client(workers=2)
+        samples: dict[int, float] = {}
+        marks = {max(4, count // 10 // 4 * 4): 10, max(4, count // 2 // 4 * 4): 50}
+
+        def progress(
+            done: int, total: int, message: str, client=client, marks=marks, samples=samples
+        ) -> None:
+            if done in marks and marks[done] not in samples:
+                samples[marks[done]] = max(_worker_rss(client, peak=True))
+
         try:
             client.wait_for_workers(2, timeout=300)
             _warm_workers(client)
-            before = _worker_rss(client, peak=False)
+            before = max(_worker_rss(client, peak=False))
             out = folder / "long.ome.zarr"
             shutil.rmtree(out, ignore_errors=True)
             reconstruct_video(
-                tiff, design, method="wiener", crop=128, output=out, client=client, chunk_frames=4
-            )
-            peak = _worker_rss(client, peak=True)
+                tiff, design, method="wiener", crop=128, output=out, client=client, chunk_frames=4,
+                progress=progress,
+            )  # fmt: skip
+            samples[100] = max(_worker_rss(client, peak=True))
         finally:
             cluster = client.cluster
             client.close()
             cluster.close()
-        growth = max(p - b for p, b in zip(peak, before, strict=True))
-        print(f"{count:>7} {max(before):>17.0f} {max(peak):>15.0f} {growth:>13.1f}")
+        p10, p50, p100 = (samples.get(k, float("nan")) for k in (10, 50, 100))
+        print(f"{count:>7} {before:>7.0f} {p10:>9.0f} {p50:>9.0f} {p100:>10.0f} {p100 - p10:>+12.1f}")
         tiff.unlink()
 
 

@@ -83,7 +83,7 @@ def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelTo
                 raise CancelledError(f"stopped before chunk {task.index}; resume to finish")
             on_record(dask.delayed(process_chunk)(task).compute(scheduler="synchronous"))
         return []
-    from distributed import as_completed
+    from distributed import KilledWorker, as_completed
 
     futures = client.map(process_chunk, tasks, pure=False)
     index_of = {future.key: task.index for future, task in zip(futures, tasks, strict=True)}
@@ -93,9 +93,11 @@ def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelTo
             if is_cancelled(cancel):
                 raise CancelledError("stopped by the caller; resume to finish")
             try:
-                on_record(future.result())
-            except Exception:  # a worker lost for good (KilledWorker...): the chunk stays unrecorded
+                record = future.result()
+            except KilledWorker:  # its workers kept dying: the chunk stays unrecorded (resume)
                 lost.append(index_of[future.key])
+                continue
+            on_record(record)
     finally:
         client.cancel(futures)
     return sorted(lost)
