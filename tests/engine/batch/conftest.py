@@ -39,17 +39,29 @@ class Video:
 
 
 def serial_reference(design: Design, frames: np.ndarray, **options) -> np.ndarray:
-    """The plain loop: one projector, reconstruct_frame per frame, 1 torch thread (as in a worker)."""
+    """The plain loop: one projector, reconstruct_frame per frame (call it with 1 torch thread)."""
     setup = imaging_setup(simulate_psf(design, crop=CROP, dtype="float32"))
-    with torch_threads(1):
-        volumes = [
-            reconstruct_frame(setup.projector, torch.from_numpy(frame), **options).numpy() for frame in frames
-        ]
+    volumes = [
+        reconstruct_frame(setup.projector, torch.from_numpy(frame), **options).numpy() for frame in frames
+    ]
     return np.stack(volumes).astype(np.float32)
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Every in-process run uses 1 torch thread, as the reference and the Dask workers do: FFT results
+    (the projector's OTFs included) may differ in the last bit between thread counts."""
+    with torch_threads(1):
+        yield
 
 
 @pytest.fixture(scope="session")
 def video(tmp_path_factory) -> Video:
+    with torch_threads(1):
+        return _make_video(tmp_path_factory)
+
+
+def _make_video(tmp_path_factory) -> Video:
     design = load_preset("flfm_guo2019")
     design = design.updated(depths=type(design.depths)(depth_range_um=(-20.0, 20.0), depth_step_um=20.0))
     setup = imaging_setup(simulate_psf(design, crop=CROP, dtype="float32"))

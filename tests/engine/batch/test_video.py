@@ -13,15 +13,7 @@ from lfm_studio.engine.batch import reconstruct_video
 from lfm_studio.engine.batch.projectors import BUILDS, cached_projector, projector_spec
 from lfm_studio.engine.batch.store import STATUS_GROUP
 from lfm_studio.engine.progress import CancelledError
-from lfm_studio.engine.threads import torch_threads
 from tests.engine.batch.conftest import CROP, FRAMES, ITERATIONS, METHOD
-
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """The in-process runs use 1 torch thread, as the serial reference and the workers do."""
-    with torch_threads(1):
-        yield
 
 
 def _run(video, out, **kwargs):
