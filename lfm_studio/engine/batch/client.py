@@ -18,9 +18,17 @@ require_scale()
 from distributed import Client, LocalCluster  # noqa: E402
 
 
-def _check_workers(workers: int | None) -> None:
+def check_placement(client: Client | None, workers: int | None, scheduler: str | None) -> None:
+    """Refuse contradictory or invalid ``client``/``workers``/``scheduler`` (before any work starts)."""
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
         raise ValueError(f"workers must be an integer >= 1; got {workers!r}. Fix: e.g. workers=2.")
+    if client is not None and (workers is not None or scheduler is not None):
+        raise ValueError("pass either client or workers/scheduler, not both. Fix: drop workers/scheduler.")
+    if workers is not None and scheduler is not None:
+        raise ValueError(
+            f"workers={workers} and scheduler={scheduler!r} both given; a remote cluster has its "
+            "own workers. Fix: pass one of them."
+        )
 
 
 def get_client(workers: int | None = None, scheduler: str | None = None) -> Client | None:
@@ -31,13 +39,8 @@ def get_client(workers: int | None = None, scheduler: str | None = None) -> Clie
     the client: ``client.close(); client.cluster.close()``, or use :func:`client_for`);
     ``workers`` None or 1: None, meaning the synchronous scheduler in this process.
     """
-    _check_workers(workers)
+    check_placement(None, workers, scheduler)
     if scheduler is not None:
-        if workers is not None:
-            raise ValueError(
-                f"workers={workers} and scheduler={scheduler!r} both given; a remote cluster has its "
-                "own workers. Fix: pass one of them."
-            )
         return Client(scheduler)
     if workers is None or workers == 1:
         return None
@@ -50,9 +53,8 @@ def client_for(
     client: Client | None, workers: int | None = None, scheduler: str | None = None
 ) -> Iterator[Client | None]:
     """``client`` when given, else :func:`get_client` (closed on exit, its LocalCluster too)."""
+    check_placement(client, workers, scheduler)
     if client is not None:
-        if workers is not None or scheduler is not None:
-            raise ValueError("pass either client or workers/scheduler, not both.")
         yield client
         return
     owned = get_client(workers, scheduler)

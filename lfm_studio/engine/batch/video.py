@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from lfm_studio import __version__
-from lfm_studio.engine.batch.client import client_for, dashboard_link
+from lfm_studio.engine.batch.client import check_placement, client_for, dashboard_link
 from lfm_studio.engine.batch.frames import FrameSource, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
@@ -162,6 +162,7 @@ def reconstruct_video(
         ``cancel`` stops between chunks with :class:`CancelledError` (the store stays resumable).
     """
     options = ReconstructionOptions(method, iterations, background, snr, rtol)
+    check_placement(client, workers, scheduler)
     _check_chunk_frames(chunk_frames)
     interval = _frame_interval(frame_interval_s)
     source = frames if isinstance(frames, FrameSource) else open_frames(frames)

@@ -109,6 +109,10 @@ def test_bad_arguments_name_the_parameter(video, tmp_path):
         _run(video, tmp_path / "a.ome.zarr", chunk_frames=0)
     with pytest.raises(ValueError, match="method"):
         _run(video, tmp_path / "a.ome.zarr", method="magic")
+    with pytest.raises(ValueError, match=r"workers must be an integer >= 1; got 0"):
+        _run(video, tmp_path / "a.ome.zarr", workers=0)
+    with pytest.raises(ValueError, match="both given"):
+        _run(video, tmp_path / "a.ome.zarr", workers=2, scheduler="tcp://127.0.0.1:1")
     with pytest.raises(ValueError, match=r"\(64, 64\) pixels but the projector images \(128, 128\)"):
         tifffile.imwrite(tmp_path / "small.tif", video.frames[:, :64, :64])
         reconstruct_video(tmp_path / "small.tif", video.design, crop=CROP, output=tmp_path / "a.ome.zarr")
