@@ -15,6 +15,7 @@ from ome_zarr.reader import Reader
 from lfm_studio import __version__
 from lfm_studio.engine.batch import reconstruct_video
 from lfm_studio.engine.design import design_from_json, optics_hash
+from lfm_studio.engine.threads import torch_threads
 from lfm_studio.napari_plugin.zarr_reader import get_zarr_reader
 from tests.engine.batch.conftest import CROP, ITERATIONS, METHOD
 
@@ -24,10 +25,11 @@ UM = 1e-6
 @pytest.fixture(scope="module")
 def store(video, tmp_path_factory):
     out = tmp_path_factory.mktemp("ome") / "run.ome.zarr"
-    reconstruct_video(
-        video.tiff, video.design, method=METHOD, iterations=ITERATIONS, crop=CROP, output=out,
-        chunk_frames=4, frame_interval_s=0.5,
-    )  # fmt: skip
+    with torch_threads(1):  # as the reference (module fixtures run outside conftest's one_thread)
+        reconstruct_video(
+            video.tiff, video.design, method=METHOD, iterations=ITERATIONS, crop=CROP, output=out,
+            chunk_frames=4, frame_interval_s=0.5,
+        )  # fmt: skip
     return out
 
 
@@ -79,6 +81,10 @@ def test_napari_reader_opens_the_store_lazily_with_scales(video, store):
     assert meta["axis_labels"] == ("t", "z", "y", "x") and meta["units"] == ("s", "um", "um", "um")
     assert np.array_equal(levels[0][2].compute(), video.reference[2])
     napari = pytest.importorskip("napari")
-    layer = napari.components.ViewerModel().add_image(levels, **meta)
+    from npe2 import PluginManager
+
+    PluginManager.instance().discover()  # a bare ViewerModel does not (PLATFORM.md)
+    [layer] = napari.components.ViewerModel().open(str(store), plugin="lfm-studio")  # the manifest entry
     np.testing.assert_allclose(layer.scale, _expected_scale(video, 0), rtol=1e-12)
     assert layer.multiscale and layer.metadata["lfm_studio"]["method"] == METHOD
+    assert layer.data[0].shape == video.reference.shape
