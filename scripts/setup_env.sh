@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Set up everything lfm_studio needs, from a bare clone: Debian system packages
 # (Qt/OpenGL runtime + Xvfb), a virtual environment in .venv, torch, and the
-# package itself (editable) with the studio and dev extras.
+# package itself (editable) with the studio, scale (Dask, Zarr, OME-Zarr) and dev extras.
 # Idempotent: a stamp of pyproject.toml + this script skips the pip step when
 # nothing changed. Sourced by scripts/studio.sh and scripts/test.sh.
 set -euo pipefail
@@ -46,7 +46,7 @@ install_python_packages() {
   # torch first: with it present, the open range in pyproject installs nothing
   # more (no multi-GB CUDA download on CPU machines; PLATFORM.md).
   "$venv/bin/python" -c "import torch" >/dev/null 2>&1 || "$venv/bin/python" -m pip install -q "torch==$torch_version"
-  "$venv/bin/python" -m pip install -q -e "$repo_root[studio,dev]"
+  "$venv/bin/python" -m pip install -q -e "$repo_root[studio,scale,dev]"
   echo "$want" > "$stamp"
 }
 

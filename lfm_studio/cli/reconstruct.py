@@ -36,6 +36,7 @@ from lfm_studio.cli.raw_frames import (
     rectified_image,
 )
 from lfm_studio.cli.simulate import allow_negative_values, parse_depths, resolve_device
+from lfm_studio.cli.video import add_video_arguments, is_video_output, run_video
 from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.simulation import depth_grid
 
@@ -139,6 +140,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     from lfm_studio.engine.reconstruct import check_reconstruction
     from lfm_studio.engine.simulation import imaging_setup
 
+    if is_video_output(args.out):  # --out NAME.ome.zarr: a video on Dask (cli/video.py)
+        return run_video(args)
     inputs = [args.psf, args.image] + ([] if args.calibration is None else [args.calibration])
     check_output(args.out, overwrite=args.overwrite, inputs=inputs)
     method, options = method_options(args)
@@ -303,4 +306,5 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="START:STOP:STEP in um, one depth per slice, e.g. --depths -20:20:5",
     )
+    add_video_arguments(rec)
     rec.set_defaults(handler=run_reconstruct)

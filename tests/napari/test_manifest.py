@@ -21,7 +21,7 @@ def test_manifest_validates_with_imports():
 def test_every_command_resolves_to_a_callable():
     manifest = PluginManifest.from_distribution(PLUGIN)
     commands = manifest.contributions.commands
-    assert len(commands) == 7
+    assert len(commands) == 8
     for command in commands:
         module, _, attribute = command.python_name.partition(":")
         assert callable(getattr(importlib.import_module(module), attribute)), command.python_name
@@ -34,8 +34,9 @@ def test_plugin_is_discovered_with_all_contributions():
     contributions = manifest.contributions
     assert {w.display_name for w in contributions.widgets} == WIDGETS
     assert [s.key for s in contributions.sample_data] == ["beads"]
-    (reader,) = contributions.readers
+    reader, zarr_reader = contributions.readers
     assert set(reader.filename_patterns) == {"*.tif", "*.tiff", "*.json"}
+    assert list(zarr_reader.filename_patterns) == ["*.zarr"] and zarr_reader.accepts_directories
     (writer,) = contributions.writers
     assert list(writer.layer_types) == ["image"]
     assert set(writer.filename_extensions) == {".tif", ".tiff"}

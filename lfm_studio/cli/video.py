@@ -1,0 +1,143 @@
+"""``lfm-studio reconstruct --out run.ome.zarr``: a video, frame by frame, on Dask, into OME-Zarr.
+
+An output ending in ``.zarr`` turns ``reconstruct`` into a video run
+(:func:`lfm_studio.engine.batch.reconstruct_video`): the frames (``--image``: a multi-page
+TIFF, a folder of TIFFs or a Zarr array) are read lazily, chunk by chunk, by ``--workers N``
+one-thread processes (a LocalCluster; 1: in this process) or by the cluster at
+``--scheduler tcp://host:8786``; each finished chunk is recorded in the store, so ``--resume``
+after a crash or Ctrl+C computes only the missing frames. Camera counts become photons per
+frame as in the TIFF path (metadata or ``--baseline/--gain/--read-noise``). Needs the
+``scale`` extra (``pip install "lfm-studio[scale]"``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import tifffile
+import torch
+
+from lfm_studio.cli.progress import progress_bar
+
+VIDEO_SUFFIX = ".zarr"
+_NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
+    "measured": "--measured (prepare the bead PSF once with the TIFF path, then pass it as --psf)",
+    "calibration": "--calibration (raw frames: rectify them first)",
+    "pixel_size_um": "--pixel-size-um (a video's PSF stack must carry its metadata)",
+    "magnification": "--magnification (a video's PSF stack must carry its metadata)",
+    "wavelength_nm": "--wavelength-nm (a video's PSF stack must carry its metadata)",
+    "depths": "--depths (a video's PSF stack must carry its metadata)",
+}
+
+
+def is_video_output(out: Any) -> bool:
+    """True when ``--out`` names an OME-Zarr store (``*.zarr``)."""
+    return str(out).rstrip("/").lower().endswith(VIDEO_SUFFIX)
+
+
+def add_video_arguments(parser: argparse.ArgumentParser) -> None:
+    """The video options of ``reconstruct`` (used with ``--out NAME.ome.zarr``)."""
+    group = parser.add_argument_group("videos to OME-Zarr (--out NAME.ome.zarr; docs/scale_out.md)")
+    group.add_argument(
+        "--workers", type=int, default=None, metavar="N",
+        help="worker processes of a local Dask cluster, one thread each (default 1: in this process)",
+    )  # fmt: skip
+    group.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS",
+        help="run on the Dask cluster at this address, e.g. tcp://host:8786 (its workers must see the files)",
+    )  # fmt: skip
+    group.add_argument(
+        "--resume", action="store_true",
+        help="continue an interrupted run into the same store: only frames without a record are computed",
+    )  # fmt: skip
+    group.add_argument("--chunk-frames", type=int, default=4, metavar="N", help="frames per task (default 4)")
+    group.add_argument(
+        "--frame-interval-s", type=float, default=None, metavar="SECONDS",
+        help="time between frames, for the t axis scale (default 1 s, recorded as assumed)",
+    )  # fmt: skip
+
+
+def _tiff_metadata(path: Path) -> dict[str, Any]:
+    """The lfm_studio metadata in a TIFF's header (camera calibration), read without the pixels."""
+    if not (path.is_file() and path.suffix.lower() in (".tif", ".tiff")):
+        return {}
+    with tifffile.TiffFile(path) as tif:
+        info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
+    try:
+        header = json.loads(info) if isinstance(info, str) else {}
+    except json.JSONDecodeError:
+        return {}
+    return header.get("metadata") or {} if isinstance(header, dict) else {}
+
+
+def _camera(args: argparse.Namespace, source) -> Any:
+    """The camera calibration of the frames (warnings printed for what was assumed)."""
+    from lfm_studio.engine.io import resolve_calibration
+
+    first = torch.from_numpy(source.read(0, 1)[0].astype("float64"))
+    calibration, notes = resolve_calibration(
+        _tiff_metadata(Path(args.image)), first, baseline=args.baseline, gain=args.gain,
+        read_noise=args.read_noise,
+    )  # fmt: skip
+    for note in notes:
+        print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
+    return calibration
+
+
+def _refuse_unsupported(args: argparse.Namespace) -> None:
+    for name, flag in _NOT_FOR_VIDEO.items():
+        if getattr(args, name, None):
+            raise ValueError(f"{flag} is not supported with an OME-Zarr --out. Fix: drop it.")
+    if args.device != "cpu":
+        raise ValueError(
+            f"--device {args.device} is not supported with an OME-Zarr --out yet. Fix: --device cpu."
+        )
+
+
+def run_video(args: argparse.Namespace) -> int:
+    """``reconstruct`` into an OME-Zarr store; 0 on success, refusals raise (cli.main maps them)."""
+    from lfm_studio.engine.batch.extras import MissingExtraError, require_scale
+    from lfm_studio.engine.reconstruct.result_check import ReconstructionRejectedError
+
+    try:
+        require_scale()
+    except MissingExtraError as error:  # a usage error here (exit 2), not a traceback
+        raise ValueError(f"--out {args.out} (OME-Zarr): {error}") from error
+    from lfm_studio.cli.method_options import method_options
+    from lfm_studio.engine.batch import client_for, dashboard_link, open_frames, reconstruct_video
+
+    _refuse_unsupported(args)
+    method, options = method_options(args)
+    source = open_frames(args.image)
+    camera = _camera(args, source)
+    fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
+    with client_for(None, args.workers, args.scheduler) as client:
+        link = dashboard_link(client)
+        if link:
+            print(f"lfm-studio reconstruct: Dask dashboard: {link}", file=sys.stderr)
+        with progress_bar(f"{args.method} ({source.count} frames)") as bar:
+            result = reconstruct_video(
+                source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
+                overwrite=args.overwrite,
+                client=client, chunk_frames=args.chunk_frames, frame_interval_s=args.frame_interval_s,
+                camera=camera, field_of_view=fov, dtype=args.dtype,
+                progress=lambda done, total, message: bar(done, total, message),
+            )  # fmt: skip
+    print(
+        f"wrote {result.path}: {result.frame_count} frames ({len(result.computed)} computed now, "
+        f"{len(result.skipped)} done before)"
+    )
+    if result.unfinished:
+        print(f"lfm-studio reconstruct: chunks {list(result.unfinished)} were lost with their worker; "
+              "run again with --resume to finish them.", file=sys.stderr)  # fmt: skip
+    if result.failed:
+        listed = "; ".join(f"frame {t}: {error}" for t, error in result.failed.items())
+        raise ReconstructionRejectedError(
+            f"{len(result.failed)} frame(s) failed after a retry ({listed}). The other frames are in "
+            f"{result.path}; failures are recorded in its lfm_studio_status. Fix: check those frames."
+        )
+    return 0

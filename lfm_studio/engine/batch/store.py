@@ -1,0 +1,196 @@
+"""The OME-Zarr output of a video reconstruction: NGFF 0.5 on Zarr v3, axes t, z, y, x.
+
+Layout of ``run.ome.zarr``::
+
+    zarr.json               group: "ome" multiscales (scales in s and um) + "lfm_studio" run record
+    0/, 1/, ...             float32 levels (T, Z, Y / 2**k, X / 2**k), one Zarr chunk per frame
+    lfm_studio_status/      a group holding one JSON record per finished frame chunk
+
+A chunk's record (every frame "done" or "failed" with its error) is written atomically after
+its frames, and a chunk with a record is never computed or written again: a killed run
+resumes from the chunks without one. The store itself appears atomically (built in a hidden
+folder next to it, then renamed), so a run that fails before its first chunk leaves nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lfm_studio.engine.atomic_write import atomic_write
+from lfm_studio.engine.batch.extras import require_scale
+from lfm_studio.engine.batch.pyramid import level_shape, level_transforms, pyramid
+
+require_scale()
+
+import zarr  # noqa: E402
+from ome_zarr.format import FormatV05  # noqa: E402
+from ome_zarr.writer import write_multiscales_metadata  # noqa: E402
+
+STATUS_GROUP = "lfm_studio_status"
+RUN_KEY = "lfm_studio"  # our attributes in the root group
+AXES = (
+    {"name": "t", "type": "time", "unit": "second"},
+    {"name": "z", "type": "space", "unit": "micrometer"},
+    {"name": "y", "type": "space", "unit": "micrometer"},
+    {"name": "x", "type": "space", "unit": "micrometer"},
+)
+
+
+@dataclass(frozen=True)
+class VideoStore:
+    """Where and how a run writes (small and picklable: tasks carry it)."""
+
+    path: str
+    shape: tuple[int, int, int, int]  # level 0 (T, Z, Y, X)
+    levels: int
+    chunk_frames: int
+
+    def chunks(self) -> list[tuple[int, int]]:
+        """``(start, stop)`` frame ranges of the work chunks, in order."""
+        count, size = self.shape[0], self.chunk_frames
+        return [(start, min(start + size, count)) for start in range(0, count, size)]
+
+    def record_path(self, index: int) -> Path:
+        """The JSON record of work chunk ``index``."""
+        return Path(self.path) / STATUS_GROUP / f"chunk_{index:06d}.json"
+
+    def write_frames(self, start: int, volumes: np.ndarray, keep: np.ndarray) -> None:
+        """Frames ``start + i`` for each ``keep[i]``, at every pyramid level (``volumes``: ``(n, Z, Y, X)``)."""
+        group = zarr.open_group(self.path, mode="r+")
+        for level, data in enumerate(pyramid(volumes, self.levels)):
+            array = _array(group, str(level))
+            for i in np.flatnonzero(keep):
+                array[start + int(i)] = data[i]
+
+    def write_record(self, index: int, record: dict[str, Any]) -> None:
+        """Record chunk ``index`` as finished (atomic; an existing record is never replaced)."""
+        text = json.dumps(record, indent=1, allow_nan=False).encode()
+        atomic_write(self.record_path(index), lambda fh: fh.write(text))
+
+    def record(self, index: int) -> dict[str, Any] | None:
+        """The record of chunk ``index``, or None while it is not finished."""
+        try:
+            return json.loads(self.record_path(index).read_text())
+        except FileNotFoundError:
+            return None
+
+    def records(self) -> dict[int, dict[str, Any]]:
+        """Finished chunks: index -> record."""
+        folder = Path(self.path) / STATUS_GROUP
+        found = {}
+        for file in sorted(folder.glob("chunk_*.json")):
+            found[int(file.stem.split("_")[1])] = json.loads(file.read_text())
+        return found
+
+    def attributes(self) -> dict[str, Any]:
+        """The run record stored under ``"lfm_studio"`` in the root group."""
+        return run_attributes(zarr.open_group(self.path, mode="r"))
+
+
+def run_attributes(group: zarr.Group) -> dict[str, Any]:
+    """The run record stored under :data:`RUN_KEY` in a store's root group (KeyError when absent)."""
+    record = dict(group.attrs)[RUN_KEY]
+    if not isinstance(record, dict):
+        raise ValueError(f"the {RUN_KEY!r} attribute is not a record: {record!r}")
+    return record
+
+
+def _array(group: zarr.Group, name: str) -> zarr.Array:
+    node = group[name]
+    if not isinstance(node, zarr.Array):
+        raise ValueError(f"{name} in {group.store} is a group, not an array")
+    return node
+
+
+def _shape4(shape: tuple[int, ...]) -> tuple[int, int, int, int]:
+    t, z, y, x = (int(n) for n in shape)
+    return t, z, y, x
+
+
+def _write_layout(
+    folder: Path, shape: tuple[int, int, int, int], scale: tuple[float, float, float, float],
+    origin: tuple[float, float, float, float], levels: int, name: str, attributes: dict[str, Any],
+) -> None:  # fmt: skip
+    group = zarr.open_group(str(folder), mode="w-", zarr_format=3)
+    datasets = []
+    for level in range(levels):
+        lshape = level_shape(shape, level)
+        group.create_array(
+            str(level), shape=lshape, chunks=(1, *lshape[1:]), dtype="float32", fill_value=0.0,
+            dimension_names=[axis["name"] for axis in AXES],
+        )  # fmt: skip
+        datasets.append(
+            {"path": str(level), "coordinateTransformations": level_transforms(scale, level, origin)}
+        )
+    write_multiscales_metadata(group, datasets, fmt=FormatV05(), axes=[dict(a) for a in AXES], name=name)
+    group.attrs.update({RUN_KEY: attributes})
+    zarr.open_group(str(folder / STATUS_GROUP), mode="w-", zarr_format=3)
+
+
+def create_store(
+    path: str | os.PathLike,
+    *,
+    shape: tuple[int, int, int, int],
+    scale: tuple[float, float, float, float],
+    origin: tuple[float, float, float, float],
+    levels: int,
+    chunk_frames: int,
+    attributes: dict[str, Any],
+    overwrite: bool = False,
+) -> VideoStore:
+    """A new empty store at ``path``, created atomically; level-0 ``scale`` ``(t s, z um, y um, x um)``
+    and ``origin`` (the coordinates of voxel ``(0, 0, 0, 0)``, same units).
+
+    An existing ``path`` is refused unless ``overwrite`` (then replaced only once the new one exists).
+    """
+    target = Path(path).expanduser().absolute()
+    if target.exists() and not overwrite:
+        raise FileExistsError(
+            f"{target} already exists. Fix: pass resume=True (--resume) to finish it, overwrite=True "
+            "(--overwrite) to replace it, or choose another output."
+        )
+    if not target.parent.is_dir():
+        raise FileNotFoundError(f"folder {target.parent} does not exist. Fix: create it first.")
+    staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        shutil.rmtree(staging)  # zarr creates the folder itself (mode "w-")
+        _write_layout(staging, shape, scale, origin, levels, target.stem, attributes)
+        if target.exists():
+            trash = target.with_name(f".{target.name}.old")
+            os.replace(target, trash)
+            shutil.rmtree(trash)
+        os.replace(staging, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return VideoStore(str(target), shape, levels, chunk_frames)
+
+
+def open_store(path: str | os.PathLike, *, run: dict[str, Any]) -> VideoStore:
+    """The existing store at ``path``, refused when its run record differs from ``run`` (another
+    video, design, method or chunking: resuming would mix two reconstructions)."""
+    target = Path(path).expanduser().absolute()
+    try:
+        group = zarr.open_group(str(target), mode="r")
+        stored = run_attributes(group)
+    except (FileNotFoundError, KeyError, ValueError) as error:
+        raise ValueError(
+            f"{target} is not an lfm_studio video store ({error}). Fix: choose another output, or pass "
+            "overwrite=True (--overwrite) to replace it."
+        ) from error
+    different = sorted(key for key in run if stored["run"].get(key) != json.loads(json.dumps(run[key])))
+    if different:
+        raise ValueError(
+            f"{target} was written by a different run ({', '.join(different)} differ); resuming would mix "
+            "two reconstructions. Fix: use the same inputs and options, another output, or overwrite=True."
+        )
+    return VideoStore(
+        str(target), _shape4(_array(group, "0").shape), int(stored["levels"]), int(stored["chunk_frames"])
+    )

@@ -1,0 +1,120 @@
+"""One unit of work: reconstruct a chunk of frames, write them, then record the chunk.
+
+A :class:`ChunkTask` holds only small descriptions (frame source, projector spec, options,
+store); the worker reads its frames, takes the projector from its per-process cache, and
+reconstructs each frame. A frame that raises or comes back with NaN/Inf is tried once more,
+then recorded as failed with its error (its volume stays 0) and the chunk goes on.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from lfm_studio.engine.allocator import keep_freed_memory
+from lfm_studio.engine.batch.frames import FrameSource
+from lfm_studio.engine.batch.options import ReconstructionOptions
+from lfm_studio.engine.batch.projectors import ProjectorSpec, cached_projector
+from lfm_studio.engine.batch.store import VideoStore
+from lfm_studio.engine.io import CameraCalibration, counts_to_photons
+
+ATTEMPTS = 2  # a failing frame is tried twice, then recorded as failed
+
+
+@dataclass(frozen=True)
+class ChunkTask:
+    """Frames ``start:stop`` of ``frames`` (work chunk ``index``) into ``store``."""
+
+    index: int
+    start: int
+    stop: int
+    frames: FrameSource
+    projector: ProjectorSpec
+    options: ReconstructionOptions
+    store: VideoStore
+    camera: CameraCalibration | None
+    run_id: str
+
+
+def in_dask_worker() -> bool:
+    """True inside a dask.distributed worker process (not the synchronous scheduler)."""
+    try:
+        from distributed import get_worker
+
+        get_worker()
+    except (ImportError, ValueError):
+        return False
+    return True
+
+
+def _reconstruct(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> np.ndarray:
+    data = torch.from_numpy(np.ascontiguousarray(frame)).to(getattr(torch, task.projector.dtype))
+    floor = 0.0
+    if task.camera is not None:  # counts -> photons; refuses NaN/Inf pixels with a named error
+        data, floor = counts_to_photons(data, task.camera, name=f"frame {t}")
+    elif not bool(torch.isfinite(data).all()):
+        bad = int((~torch.isfinite(data)).sum())
+        raise ValueError(f"frame {t} has {bad} NaN/Inf pixel(s) of {data.numel()}.")
+    volume = task.options.run(projector, data, extra_background=floor).detach().cpu()
+    if not bool(torch.isfinite(volume).all()):
+        raise FloatingPointError(f"the reconstruction of frame {t} has NaN/Inf voxels.")
+    return volume.to(torch.float32).numpy()
+
+
+def _attempt(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> tuple[np.ndarray | None, dict]:
+    error = None
+    for attempt in range(1, ATTEMPTS + 1):
+        try:
+            return _reconstruct(task, projector, frame, t), {"status": "done", "attempts": attempt}
+        except Exception as caught:  # recorded and reported; the run goes on
+            error = f"{type(caught).__name__}: {caught}"
+    return None, {"status": "failed", "attempts": ATTEMPTS, "error": error}
+
+
+def process_chunk(task: ChunkTask) -> dict[str, Any]:
+    """Reconstruct, write and record the chunk; returns its record (an existing record untouched)."""
+    existing = task.store.record(task.index)
+    if existing is not None:  # finished earlier (e.g. a task re-run after its worker died)
+        return existing
+    if in_dask_worker():
+        torch.set_num_threads(1)  # one thread per worker process (PLATFORM.md, threads)
+        # Worker threads allocate from a non-main glibc arena that returns freed FFT buffers at once:
+        # measured 2.1x the CPU time per frame of the same loop in a main thread, 1.0x with this.
+        keep_freed_memory()
+    began = time.perf_counter()
+    built = cached_projector(task.projector)
+    ready = time.perf_counter()
+    raw = task.frames.read(task.start, task.stop)
+    volumes = np.zeros((len(raw), *built.setup.volume_shape), dtype=np.float32)
+    keep = np.zeros(len(raw), dtype=bool)
+    frames: dict[str, dict] = {}
+    read = time.perf_counter()
+    for i, frame in enumerate(raw):
+        t = task.start + i
+        volume, frames[str(t)] = _attempt(task, built.setup.projector, frame, t)
+        if volume is not None:
+            volumes[i], keep[i] = volume, True
+    computed = time.perf_counter()
+    task.store.write_frames(task.start, volumes, keep)
+    record = {
+        "chunk": task.index,
+        "start": task.start,
+        "stop": task.stop,
+        "frames": frames,
+        "run_id": task.run_id,
+        "worker": f"{socket.gethostname()}:{os.getpid()}",
+        "seconds": {
+            "projector": ready - began,
+            "read": read - ready,
+            "compute": computed - read,
+            "write": time.perf_counter() - computed,
+        },
+    }
+    task.store.write_record(task.index, record)
+    return record

@@ -1,0 +1,237 @@
+"""Reconstruct a light-field video into a resumable OME-Zarr store, in-process or on Dask.
+
+Example::
+
+    from lfm_studio.engine.batch import reconstruct_video
+
+    result = reconstruct_video("frames.tif", "flfm_guo2019", method="rl-accelerated",
+                               iterations=10, output="run.ome.zarr", workers=2)
+    print(result.failed)        # {frame: error} for frames that could not be reconstructed
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import uuid
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lfm_studio import __version__
+from lfm_studio.engine.batch.client import check_placement, client_for, dashboard_link
+from lfm_studio.engine.batch.frames import FrameSource, open_frames
+from lfm_studio.engine.batch.options import ReconstructionOptions
+from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
+from lfm_studio.engine.batch.pyramid import level_count
+from lfm_studio.engine.batch.store import VideoStore, create_store, open_store
+from lfm_studio.engine.batch.tasks import ChunkTask, process_chunk
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.io import CameraCalibration
+from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
+from lfm_studio.engine.types import OptionValue
+
+DEFAULT_CHUNK_FRAMES = 4
+UM = 1e-6
+
+
+@dataclass(frozen=True)
+class VideoResult:
+    """What a call did: frames computed now, frames already done before, failures (frame -> error,
+    from this and earlier calls), chunks left unfinished (a lost worker: resume to finish them)."""
+
+    path: str
+    frame_count: int
+    computed: tuple[int, ...]
+    skipped: tuple[int, ...]
+    failed: dict[int, str] = field(default_factory=dict)
+    unfinished: tuple[int, ...] = ()
+    dashboard: str | None = None
+
+
+def _run_record(source: FrameSource, spec_key: str, options: ReconstructionOptions, chunk_frames: int,
+                camera: CameraCalibration | None) -> dict[str, Any]:  # fmt: skip
+    """What must match for a resume to continue the same reconstruction."""
+    return {
+        "frames": {"path": source.path, "shape": list(source.shape)},
+        "projector": spec_key,
+        "options": options.to_dict(),
+        "chunk_frames": chunk_frames,
+        "camera": None if camera is None else camera.to_dict(),
+    }
+
+
+def _check_chunk_frames(chunk_frames: int) -> None:
+    if isinstance(chunk_frames, bool) or not isinstance(chunk_frames, int) or chunk_frames < 1:
+        raise ValueError(f"chunk_frames must be an integer >= 1; got {chunk_frames!r}. Fix: e.g. 4.")
+
+
+def _frame_interval(frame_interval_s: float | None) -> float:
+    if frame_interval_s is None:
+        return 1.0
+    if not frame_interval_s > 0:
+        raise ValueError(f"frame_interval_s must be > 0 (seconds); got {frame_interval_s!r}. Fix: e.g. 1/30.")
+    return float(frame_interval_s)
+
+
+def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelToken) -> list[int]:
+    """Run ``tasks``; ``on_record(record)`` per finished chunk; returns the indices that were lost."""
+    if client is None:
+        import dask
+
+        for task in tasks:
+            if is_cancelled(cancel):
+                raise CancelledError(f"stopped before chunk {task.index}; resume to finish")
+            on_record(dask.delayed(process_chunk)(task).compute(scheduler="synchronous"))
+        return []
+    from distributed import KilledWorker, as_completed
+
+    futures = client.map(process_chunk, tasks, pure=False)
+    index_of = {future.key: task.index for future, task in zip(futures, tasks, strict=True)}
+    lost = []
+    try:
+        for future in as_completed(futures):
+            if is_cancelled(cancel):
+                raise CancelledError("stopped by the caller; resume to finish")
+            try:
+                record = future.result()
+            except KilledWorker:  # its workers kept dying: the chunk stays unrecorded (resume)
+                lost.append(index_of[future.key])
+                continue
+            on_record(record)
+    finally:
+        client.cancel(futures)
+    return sorted(lost)
+
+
+def _prepare_store(output, *, resume: bool, overwrite: bool, run: dict, attributes: dict,
+                   shape: tuple[int, int, int, int], scale, origin, levels: int,
+                   chunk_frames: int) -> VideoStore:  # fmt: skip
+    target = Path(output).expanduser()
+    if target.exists() and resume and not overwrite:
+        return open_store(target, run=run)
+    return create_store(
+        target, shape=shape, scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
+        attributes=attributes, overwrite=overwrite,
+    )  # fmt: skip
+
+
+def reconstruct_video(
+    frames: str | os.PathLike | FrameSource,
+    design_or_psf: Design | str | os.PathLike,
+    *,
+    method: str = "rl-accelerated",
+    options: Mapping[str, OptionValue] | None = None,
+    output: str | os.PathLike = "run.ome.zarr",
+    resume: bool = True,
+    overwrite: bool = False,
+    client: Any = None,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    chunk_frames: int = DEFAULT_CHUNK_FRAMES,
+    frame_interval_s: float | None = None,
+    camera: CameraCalibration | None = None,
+    crop: int | None = None,
+    field_of_view: float | None = None,
+    dtype: str = "float32",
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+    **method_options: OptionValue,
+) -> VideoResult:
+    """Reconstruct every frame ``(T, Y, X)`` of ``frames`` into the OME-Zarr store ``output``.
+
+    Parameters
+    ----------
+    frames : a (multi-page) TIFF, a folder of single-frame TIFFs, a Zarr/OME-Zarr array, or a
+        :class:`FrameSource`; read lazily, chunk by chunk, by the workers. Photons per pixel,
+        or camera counts when ``camera`` is given (converted per frame).
+    design_or_psf : a :class:`Design`, preset name, design file, or simulated PSF stack TIFF;
+        each worker builds the projector once (``crop``: camera pixels kept around the axis).
+    method, options, **method_options : a method of the reconstruction registry and its options
+        (``options`` and keywords such as ``iterations=30``, ``background=2.0`` are merged; checked
+        by the method's schema), as in :func:`~lfm_studio.engine.reconstruct.dispatch.reconstruct_frame`.
+    output : the store (axes t, z, y, x; scales in s and um; a 2x lateral pyramid).
+    resume : continue an existing store of the same run, computing only unrecorded chunks.
+    overwrite : replace an existing store instead.
+    client, workers, scheduler : a Dask client to use; else ``workers`` N > 1 starts a
+        LocalCluster of N one-thread processes, ``scheduler`` connects to a cluster, and
+        neither runs the synchronous scheduler in this process.
+    chunk_frames : frames per task (and per status record).
+    frame_interval_s : time between frames (s); None records 1 s and notes it was assumed.
+    progress, cancel : ``progress(frames_done, frame_count, message)`` per finished chunk; a set
+        ``cancel`` stops between chunks with :class:`CancelledError` (the store stays resumable).
+    """
+    reconstruction = ReconstructionOptions.of(method, {**(options or {}), **method_options})
+    check_placement(client, workers, scheduler)
+    _check_chunk_frames(chunk_frames)
+    interval = _frame_interval(frame_interval_s)
+    source = frames if isinstance(frames, FrameSource) else open_frames(frames)
+    spec = projector_spec(design_or_psf, crop=crop, field_of_view=field_of_view, dtype=dtype)
+    built = cached_projector(spec)
+    sensor = tuple(built.setup.projector.image_shape)
+    if tuple(source.shape[1:]) != sensor:
+        raise ValueError(
+            f"frames {source.path} are {tuple(source.shape[1:])} pixels but the projector images {sensor} "
+            "pixels. Fix: use the design/PSF of this camera (or crop= matching the frames)."
+        )
+    nz, ny, nx = (int(n) for n in built.setup.volume_shape)
+    shape = (int(source.count), nz, ny, nx)
+    levels = level_count((ny, nx))
+    dz, dy, dx = built.setup.voxel_size
+    scale = (interval, dz / UM, dy / UM, dx / UM)
+    # first depth on z; y and x centred on the optical axis (the napari plugin's volume convention)
+    origin = (0.0, built.depths[0] / UM, -(shape[2] // 2) * dy / UM, -(shape[3] // 2) * dx / UM)
+    run = _run_record(source, spec.key, reconstruction, chunk_frames, camera)
+    attributes = {
+        "version": __version__,
+        "run": run,
+        "method": reconstruction.method,
+        "options": reconstruction.to_dict(),
+        "projector": spec.describe(),
+        "design": None if built.design_json is None else json.loads(built.design_json),
+        "depths_um": [d / UM for d in built.depths],
+        "voxel_size_um": [dz / UM, dy / UM, dx / UM],
+        "frame_interval_s": interval,
+        "frame_interval_assumed": frame_interval_s is None,
+        "levels": levels,
+        "chunk_frames": chunk_frames,
+        "units": "photons per voxel" if camera is None else camera.volume_units,
+    }
+    store = _prepare_store(
+        output, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
+        scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
+    )  # fmt: skip
+    done_before = store.records()
+    chunks = store.chunks()
+    run_id = uuid.uuid4().hex
+    tasks = [
+        ChunkTask(i, start, stop, source, spec, reconstruction, store, camera, run_id)
+        for i, (start, stop) in enumerate(chunks)
+        if i not in done_before
+    ]
+    state = {"frames": sum(r["stop"] - r["start"] for r in done_before.values())}
+
+    def on_record(record: dict) -> None:
+        state["frames"] += record["stop"] - record["start"]
+        if progress is not None:
+            progress(state["frames"], source.count, f"chunk {record['chunk'] + 1}/{len(chunks)} done")
+
+    with client_for(client, workers, scheduler) as active:
+        link = dashboard_link(active)
+        if progress is not None:
+            progress(state["frames"], source.count, f"dashboard {link}" if link else "starting")
+        lost = _run_chunks(tasks, active, on_record, cancel)
+    records = store.records()
+    computed = [t for i, r in records.items() if i not in done_before for t in range(r["start"], r["stop"])]
+    skipped = [t for r in done_before.values() for t in range(r["start"], r["stop"])]
+    failed = {
+        int(t): info["error"]
+        for r in records.values()
+        for t, info in r["frames"].items()
+        if info["status"] == "failed"
+    }
+    return VideoResult(
+        store.path, source.count, tuple(sorted(computed)), tuple(sorted(skipped)),
+        dict(sorted(failed.items())), tuple(lost), link,
+    )  # fmt: skip

@@ -1,0 +1,93 @@
+"""``lfm-studio reconstruct --out NAME.ome.zarr``: the same volumes as the TIFF path, resume, refusals."""
+
+from __future__ import annotations
+
+import importlib.util
+
+import numpy as np
+import pytest
+import tifffile
+import torch
+
+if any(importlib.util.find_spec(name) is None for name in ("dask", "distributed", "zarr", "ome_zarr")):
+    pytest.skip("the scale extra is not installed", allow_module_level=True)
+
+import zarr
+
+from lfm_studio import cli
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.io import read_volume, write_psf_stack
+from lfm_studio.engine.simulation import imaging_setup, simulate_psf
+
+FRAMES = 6
+COMMON = ["--iterations", "3", "--baseline", "100", "--gain", "2", "--read-noise", "1.5"]
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A 3-depth FLFM PSF stack cropped to 128 x 128 px and 6 noisy camera frames (ADU, seeded)."""
+    folder = tmp_path_factory.mktemp("video_cli")
+    design = load_preset("flfm_guo2019")
+    design = design.updated(depths=type(design.depths)(depth_range_um=(-20.0, 20.0), depth_step_um=20.0))
+    stack = simulate_psf(design, crop=128, dtype="float32")
+    psf = write_psf_stack(folder / "psf.tif", stack)
+    setup = imaging_setup(stack)
+    volume = (torch.rand(setup.volume_shape, generator=torch.Generator().manual_seed(5)) > 0.9995).float()
+    expected = setup.projector.forward(volume).numpy()
+    expected = expected * (1500.0 / expected.max())
+    frames = np.stack([100 + 2 * np.random.default_rng(s).poisson(expected) for s in range(FRAMES)])
+    image = folder / "frames.tif"
+    tifffile.imwrite(image, frames.astype(np.uint16))
+    return {"psf": psf, "image": image, "folder": folder}
+
+
+def _run(files, out, *extra: str) -> int:
+    argv = ["reconstruct", "--psf", str(files["psf"]), "--image", str(files["image"]), "--out", str(out)]
+    return cli.main([*argv, *COMMON, *extra])
+
+
+def test_video_equals_the_tiff_path_and_resumes(files, tmp_path, capsys):
+    tiff = tmp_path / "volume.tif"
+    assert _run(files, tiff) == 0
+    reference = read_volume(tiff).data.numpy()
+    store = tmp_path / "run.ome.zarr"
+    assert _run(files, store, "--chunk-frames", "2", "--workers", "1") == 0
+    assert "6 computed now" in capsys.readouterr().out
+    level0 = zarr.open_group(str(store), mode="r")["0"]
+    assert level0.shape == reference.shape
+    np.testing.assert_allclose(level0[:], reference, rtol=1e-5, atol=1e-5 * float(np.abs(reference).max()))
+
+    (store / "lfm_studio_status" / "chunk_000002.json").unlink()  # as if killed before the last record
+    assert _run(files, store, "--chunk-frames", "2") == 3  # exists: refused without --resume
+    assert "--resume" in capsys.readouterr().err
+    assert _run(files, store, "--chunk-frames", "2", "--resume") == 0
+    assert "2 computed now, 4 done before" in capsys.readouterr().out
+    np.testing.assert_allclose(level0[:], reference, rtol=1e-5, atol=1e-5 * float(np.abs(reference).max()))
+
+
+def test_a_nan_frame_exits_5_and_keeps_the_others(files, tmp_path, capsys):
+    frames = tifffile.imread(files["image"]).astype(np.float32)
+    frames[3, 10, 10] = np.nan
+    bad = tmp_path / "nan.tif"
+    tifffile.imwrite(bad, frames)
+    out = tmp_path / "run.ome.zarr"
+    argv = ["reconstruct", "--psf", str(files["psf"]), "--image", str(bad), "--out", str(out)]
+    assert cli.main([*argv, *COMMON]) == 5
+    err = capsys.readouterr().err
+    assert "frame 3" in err and "NaN" in err
+    level0 = zarr.open_group(str(out), mode="r")["0"][:]
+    assert not level0[3].any() and all(level0[t].any() for t in (0, 1, 2, 4, 5))
+
+
+@pytest.mark.parametrize(
+    ("extra", "named"),
+    [
+        (["--workers", "0"], "workers"),
+        (["--measured"], "--measured"),
+        (["--chunk-frames", "0"], "chunk_frames"),
+    ],
+)
+def test_bad_video_options_exit_2_naming_them(files, tmp_path, capsys, extra, named):
+    assert _run(files, tmp_path / "run.ome.zarr", *extra) == 2
+    assert named in capsys.readouterr().err
+    assert not (tmp_path / "run.ome.zarr").exists()

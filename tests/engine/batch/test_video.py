@@ -1,0 +1,119 @@
+"""reconstruct_video in-process (synchronous scheduler): equal to the serial loop, resumable, safe."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import tifffile
+import zarr
+
+from lfm_studio.engine.batch import reconstruct_video
+from lfm_studio.engine.batch.projectors import BUILDS, cached_projector, projector_spec
+from lfm_studio.engine.batch.store import STATUS_GROUP
+from lfm_studio.engine.progress import CancelledError
+from tests.engine.batch.conftest import CROP, FRAMES, ITERATIONS, METHOD
+
+
+def _run(video, out, **kwargs):
+    options = {"method": METHOD, "iterations": ITERATIONS, "crop": CROP, "output": out, "chunk_frames": 3}
+    return reconstruct_video(video.tiff, video.design, **{**options, **kwargs})
+
+
+def _level(path, level=0) -> np.ndarray:
+    return np.asarray(zarr.open_group(str(path), mode="r")[str(level)][:])
+
+
+def test_output_equals_the_serial_loop_bit_for_bit(video, tmp_path):
+    result = _run(video, tmp_path / "run.ome.zarr")
+    assert result.computed == tuple(range(FRAMES)) and result.failed == {} and result.skipped == ()
+    out = _level(result.path)
+    assert out.dtype == np.float32 and out.shape == video.reference.shape
+    assert np.array_equal(out, video.reference)  # bit for bit
+    assert out.std() > 0.1 * out.mean() > 0  # not a trivial (zero/constant) volume
+    # level 1: 2 x 2 lateral means of level 0 (odd last row/column dropped), computed here directly
+    ny, nx = (out.shape[-2] // 2) * 2, (out.shape[-1] // 2) * 2
+    blocks = out[..., :ny, :nx].astype(np.float64).reshape(*out.shape[:2], ny // 2, 2, nx // 2, 2)
+    np.testing.assert_allclose(_level(result.path, 1), blocks.mean(axis=(3, 5)), rtol=1e-6, atol=1e-6)
+
+
+def test_projector_is_built_once_per_process(video, tmp_path):
+    spec = projector_spec(video.design, crop=CROP)
+    before = BUILDS[spec.key]
+    cached_projector(spec)
+    after_first = BUILDS[spec.key]
+    _run(video, tmp_path / "run.ome.zarr", chunk_frames=1)  # 8 tasks, same process
+    assert after_first - before <= 1 and BUILDS[spec.key] == after_first
+
+
+def test_a_nan_frame_is_reported_and_the_run_goes_on(video, tmp_path):
+    frames = video.frames.copy()
+    frames[5, 40, 17] = np.nan
+    tiff = tmp_path / "nan.tif"
+    tifffile.imwrite(tiff, frames)
+    result = reconstruct_video(
+        tiff, video.design, method=METHOD, iterations=ITERATIONS, crop=CROP,
+        output=tmp_path / "run.ome.zarr", chunk_frames=3,
+    )  # fmt: skip
+    assert list(result.failed) == [5] and "frame 5" in result.failed[5] and "NaN" in result.failed[5]
+    out = _level(result.path)
+    good = [t for t in range(FRAMES) if t != 5]
+    assert np.array_equal(out[good], video.reference[good])  # the others, in the same chunk too
+    assert not out[5].any()  # left at the fill value, not half-written
+    record = json.loads((tmp_path / "run.ome.zarr" / STATUS_GROUP / "chunk_000001.json").read_text())
+    assert record["frames"]["5"]["status"] == "failed" and record["frames"]["5"]["attempts"] == 2
+    assert record["frames"]["4"] == {"status": "done", "attempts": 1}
+
+
+def test_cancel_then_resume_computes_only_the_missing_frames(video, tmp_path):
+    out = tmp_path / "run.ome.zarr"
+    stop_after = {"chunks": 0}
+
+    def progress(done, total, message):
+        stop_after["chunks"] += "done" in message
+
+    with pytest.raises(CancelledError):
+        _run(video, out, progress=progress, cancel=lambda: stop_after["chunks"] >= 2)
+    folder = out / STATUS_GROUP
+    first = {p.name: p.read_bytes() for p in folder.glob("chunk_*.json")}
+    assert sorted(first) == ["chunk_000000.json", "chunk_000001.json"]  # frames 0-5 of 8
+    data_before = _level(out)[:6].copy()
+
+    result = _run(video, out)  # resume=True by default
+    assert result.skipped == tuple(range(6)) and result.computed == (6, 7)
+    for name, text in first.items():  # completed chunks were not rewritten
+        assert (folder / name).read_bytes() == text
+    assert np.array_equal(_level(out)[:6], data_before)
+    assert np.array_equal(_level(out), video.reference)
+    again = _run(video, out)
+    assert again.computed == () and again.skipped == tuple(range(FRAMES))
+
+
+def test_existing_output_is_refused_or_checked(video, tmp_path):
+    out = tmp_path / "run.ome.zarr"
+    _run(video, out, chunk_frames=4)
+    with pytest.raises(FileExistsError, match="resume"):
+        _run(video, out, chunk_frames=4, resume=False)
+    with pytest.raises(ValueError, match="options differ"):
+        _run(video, out, chunk_frames=4, iterations=ITERATIONS + 1)
+    replaced = _run(video, out, chunk_frames=4, iterations=1, overwrite=True)
+    assert replaced.computed == tuple(range(FRAMES))
+    assert (
+        json.loads((out / "zarr.json").read_text())["attributes"]["lfm_studio"]["options"]["iterations"] == 1
+    )
+
+
+def test_bad_arguments_name_the_parameter(video, tmp_path):
+    with pytest.raises(ValueError, match="chunk_frames"):
+        _run(video, tmp_path / "a.ome.zarr", chunk_frames=0)
+    with pytest.raises(ValueError, match="method"):
+        _run(video, tmp_path / "a.ome.zarr", method="magic")
+    with pytest.raises(ValueError, match=r"workers must be an integer >= 1; got 0"):
+        _run(video, tmp_path / "a.ome.zarr", workers=0)
+    with pytest.raises(ValueError, match="both given"):
+        _run(video, tmp_path / "a.ome.zarr", workers=2, scheduler="tcp://127.0.0.1:1")
+    with pytest.raises(ValueError, match=r"\(64, 64\) pixels but the projector images \(128, 128\)"):
+        tifffile.imwrite(tmp_path / "small.tif", video.frames[:, :64, :64])
+        reconstruct_video(tmp_path / "small.tif", video.design, crop=CROP, output=tmp_path / "a.ome.zarr")
+    assert not (tmp_path / "a.ome.zarr").exists()  # refused before anything was written
