@@ -12,6 +12,9 @@ See docs/optimize.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Iterator
+from typing import Any
 
 from lfm_studio.cli.progress import progress_bar
 
@@ -70,13 +73,28 @@ def _constraints(args: argparse.Namespace, design) -> tuple:
     return tuple(found)
 
 
+@contextlib.contextmanager
+def _client(args: argparse.Namespace) -> Iterator[Any]:
+    """The Dask client the video reconstruction uses too (engine/batch): --scheduler, --workers N > 1
+    (a local cluster, closed afterwards), else None (in this process)."""
+    if args.scheduler is None and args.workers <= 1:
+        yield None
+        return
+    try:
+        from lfm_studio.engine.batch import client_for
+    except ImportError as error:
+        raise ValueError(f'{error}. Fix: pip install "lfm-studio[scale]", or use --workers 1.') from error
+    with client_for(None, None if args.scheduler else args.workers, args.scheduler) as client:
+        yield client
+
+
 def run_optimize(args: argparse.Namespace) -> int:
     from lfm_studio.cli.simulate import _design_file, parse_depths, resolve_device
     from lfm_studio.engine.design import resolve_design, save_design
     from lfm_studio.engine.design.design_io import design_from_json
     from lfm_studio.engine.io import check_output
     from lfm_studio.engine.optimize import EvaluationSettings, Evaluator, FocalLengthCatalogue, load_space
-    from lfm_studio.engine.optimize.study import local_client, record_of, run_study
+    from lfm_studio.engine.optimize.study import record_of, run_study
     from lfm_studio.engine.optimize.study_report import format_front, pareto_front, summary
     from lfm_studio.engine.simulation import depth_grid
 
@@ -104,25 +122,11 @@ def run_optimize(args: argparse.Namespace) -> int:
         settings=settings,
         seed=args.seed,
     )
-    client = None
-    if args.scheduler:
-        from dask.distributed import Client
-
-        client = Client(args.scheduler)
-    elif args.workers > 1:
-        client = local_client(args.workers)
-    try:
-        with progress_bar(f"optimise ({args.sampler})") as progress:
-            study = run_study(
-                evaluator, args.study, study_name=args.study_name, sampler=args.sampler, n_trials=args.trials,
-                resume=args.resume, client=client, progress=progress,
-            )  # fmt: skip
-    finally:
-        if client is not None:
-            cluster = getattr(client, "cluster", None) if not args.scheduler else None
-            client.close()
-            if cluster is not None:  # the local cluster --workers started
-                cluster.close()
+    with _client(args) as client, progress_bar(f"optimise ({args.sampler})") as progress:
+        study = run_study(
+            evaluator, args.study, study_name=args.study_name, sampler=args.sampler, n_trials=args.trials,
+            resume=args.resume, client=client, progress=progress,
+        )  # fmt: skip
     counts = summary(study)
     print(", ".join(f"{k} {v}" for k, v in counts.items()))
     print(format_front(study))

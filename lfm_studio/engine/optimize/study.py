@@ -326,19 +326,6 @@ def _evaluate(evaluator: Evaluator, params: dict[str, Any]) -> EvaluationRecord:
     return evaluator(params)
 
 
-def local_client(workers: int) -> Any:
-    """A ``dask.distributed.Client`` on a local cluster of ``workers`` single-threaded processes."""
-    try:
-        from dask.distributed import Client, LocalCluster
-    except ImportError as error:
-        raise ValueError(
-            'parallel evaluation needs dask.distributed. Fix: pip install "dask[distributed]", or use --workers 1.'
-        ) from error
-    return Client(
-        LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None)
-    )
-
-
 def load_study(storage: str, study_name: str | None = None) -> Any:
     """A stored study (the only one in the database when ``study_name`` is None)."""
     optuna = require_optuna()
