@@ -29,7 +29,7 @@ import numpy as np
 import torch
 
 from lfm_studio.engine.io import LightFieldImage, Volume
-from lfm_studio.engine.io.metadata import design_kind, design_to_json
+from lfm_studio.engine.io.metadata import design_kind, design_to_json, pattern_metadata, split_pattern_metadata
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.units import nm, um
 
@@ -88,7 +88,7 @@ def psf_layer_data(stack: PSFStack, *, name: str, source: str | None = None) -> 
         "wavelength_nm": stack.wavelength / nm,
         "design": design_to_json(stack.design),
         "design_kind": design_kind(stack.design),
-        "metadata": dict(stack.metadata),
+        "metadata": {**stack.metadata, **pattern_metadata(stack.patterns)},
         "source": source,
     }
     meta = {
@@ -199,6 +199,7 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
         )
     _require(metadata, ("depths_m", "pixel_size_m", "magnification", "wavelength_m"), name)
     try:
+        patterns, extra = split_pattern_metadata(metadata.get("metadata"), where=f"layer {name!r}")
         return PSFStack(
             data=_tensor(data, name),
             depths=tuple(metadata["depths_m"]),
@@ -206,7 +207,8 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
             magnification=float(metadata["magnification"]),
             wavelength=float(metadata["wavelength_m"]),
             design=design_of(metadata, name),
-            metadata=dict(metadata.get("metadata") or {}),
+            metadata=extra,
+            patterns=patterns,
         )
     except LayerError:
         raise

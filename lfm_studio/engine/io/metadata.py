@@ -15,6 +15,12 @@ Schema (version 1), keys carry their unit::
      "design": {...} | null, "design_kind": "model" | "dict" | null,
      "metadata": {...}}
 
+A conventional-LFM pattern stack keeps its layout (:class:`ConventionalPatterns`) in
+``"metadata"`` as ``"kind": "conventional"``, ``"pixels_per_lenslet"``,
+``"voxels_per_lenslet"``, ``"reach"`` (one integer per depth) and ``"lenslets"``
+(``[Ly, Lx]``): :func:`pattern_metadata` writes them and :func:`split_pattern_metadata`,
+the one parser, reads them back.
+
 Lengths are written as exact decimal shifts of the metre values (``4.8e-05`` m is
 written ``48`` um), so reading gives back the identical float64 (no 1-ulp drift
 from multiplying by 1e6 and dividing again).
@@ -29,12 +35,17 @@ import uuid
 from decimal import Decimal
 from typing import Any
 
+from lfm_studio.engine.psf_stack import ConventionalPatterns
+
 FORMAT_NAME = "lfm_studio"
 SCHEMA_VERSION = 1
 KINDS = ("psf_stack", "volume", "image")
 
 #: Power-of-ten exponent of each unit suffix used in header keys.
 _UNIT_EXPONENT = {"um": 6, "nm": 9}
+
+_PATTERN_KIND = "conventional"  # the "kind" word of a pattern stack's metadata
+_PATTERN_KEYS = ("pixels_per_lenslet", "voxels_per_lenslet", "reach", "lenslets")
 
 
 class MissingMetadataError(ValueError):
@@ -115,6 +126,47 @@ def design_from_header(obj: Any, *, kind: str | None, rebuild: bool, path: str) 
             f"{path}: the embedded design could not be rebuilt ({exc}). "
             "Fix: read it with rebuild_design=False to get the design as a JSON dict."
         ) from exc
+
+
+def pattern_metadata(patterns: ConventionalPatterns | None) -> dict[str, Any]:
+    """The JSON-serialisable metadata entries of a pattern layout (``{}`` for ``None``)."""
+    if patterns is None:
+        return {}
+    return {
+        "kind": _PATTERN_KIND,
+        "pixels_per_lenslet": patterns.pixels_per_lenslet,
+        "voxels_per_lenslet": patterns.voxels_per_lenslet,
+        "reach": list(patterns.reach),
+        "lenslets": list(patterns.lenslets),
+    }
+
+
+def split_pattern_metadata(
+    metadata: dict[str, Any] | None, *, where: str = "metadata"
+) -> tuple[ConventionalPatterns | None, dict[str, Any]]:
+    """``(patterns, rest)``: the pattern layout stored by :func:`pattern_metadata` (``None`` when
+    ``metadata`` holds none) and the remaining free-form entries. ``where`` names the source in errors."""
+    rest = dict(metadata or {})
+    if rest.get("kind") != _PATTERN_KIND:
+        return None, rest
+    missing = [key for key in _PATTERN_KEYS if key not in rest]
+    if missing:
+        raise HeaderError(
+            f"{where}: a conventional pattern stack lacks {', '.join(missing)} in its metadata. "
+            "Fix: re-simulate the PSF with lfm-studio simulate-psf."
+        )
+    values = {key: rest.pop(key) for key in _PATTERN_KEYS}
+    del rest["kind"]
+    try:
+        patterns = ConventionalPatterns(
+            pixels_per_lenslet=values["pixels_per_lenslet"],
+            voxels_per_lenslet=values["voxels_per_lenslet"],
+            reach=tuple(values["reach"]),
+            lenslets=tuple(values["lenslets"]),
+        )
+    except (TypeError, ValueError) as exc:
+        raise HeaderError(f"{where}: malformed conventional pattern layout ({exc}).") from exc
+    return patterns, rest
 
 
 def encode_header(kind: str, fields: dict[str, Any], units: dict[str, str]) -> str:

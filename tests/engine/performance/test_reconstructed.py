@@ -72,7 +72,7 @@ def test_conventional_stack_and_volume_follow_voxels_per_lenslet():
         accuracy={**base.accuracy.model_dump(), "preset": "preview", "voxels_per_lenslet": 7}
     )
     stack = simulate_psf(design, depths=(0.0,), crop=60)
-    assert stack.metadata["voxels_per_lenslet"] == 7
+    assert stack.patterns is not None and stack.patterns.voxels_per_lenslet == 7
     setup = imaging_setup(stack)
     assert setup.voxel_size[1] == pytest.approx(125 * um / (10 * 7), rel=1e-9)
 
