@@ -29,7 +29,12 @@ import numpy as np
 import torch
 
 from lfm_studio.engine.io import LightFieldImage, Volume
-from lfm_studio.engine.io.metadata import design_kind, design_to_json, pattern_metadata, split_pattern_metadata
+from lfm_studio.engine.io.metadata import (
+    design_kind,
+    design_to_json,
+    pattern_metadata,
+    split_pattern_metadata,
+)
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.units import nm, um
 

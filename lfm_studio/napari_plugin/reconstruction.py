@@ -30,6 +30,7 @@ from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.dispatch import ITERATIVE
 from lfm_studio.engine.simulation import imaging_setup
+from lfm_studio.engine.systems.kinds import stack_kind
 from lfm_studio.engine.units import um
 
 # Short labels for the method box; the methods themselves are the engine's (reconstruct_frame).
@@ -123,11 +124,11 @@ def prepare(
             "one camera frame (Y, X). Fix: pick a 2-D layer, or reconstruct time series with "
             "'lfm-studio reconstruct'."
         )
-    conventional = stack.data.ndim == 5
-    if settings.method not in ITERATIVE and conventional:
+    kind = stack_kind(stack)
+    if settings.method not in ITERATIVE and not kind.shift_invariant:
         raise ValueError(
             f"{METHODS[settings.method]} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
-            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose Richardson-Lucy."
+            f"{psf_name!r} is a {kind.title} pattern stack. Fix: choose Richardson-Lucy."
         )
     if calibration is not None:  # a raw frame: its rectified shape is checked against the PSF in run
         name = calibration_name or "calibration"
@@ -140,7 +141,7 @@ def prepare(
             f"{stack.pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
             "simulate one with the camera's pixel pitch (Simulate PSF)."
         )
-    if not conventional and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
+    if kind.shift_invariant and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
         raise ValueError(
             f"The image layer {image_name!r} has {tuple(image.data.shape)} pixels but the PSF layer "
             f"{psf_name!r} covers a {tuple(stack.data.shape[-2:])} pixel sensor. Fix: use the PSF simulated "
