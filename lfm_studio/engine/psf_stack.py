@@ -142,9 +142,10 @@ class PSFStack:
         require_positive("pixel_size", self.pixel_size, "m", "give the sensor pixel pitch, e.g. 6.5 * um.")
         require_positive("magnification", self.magnification, "", "give the sample-to-sensor magnification.")
         require_positive("wavelength", self.wavelength, "m", "give the emission wavelength, e.g. 525 * nm.")
-        require_finite_tensor("PSFStack.data", self.data.detach())
-        if self.data.numel() and float(self.data.detach().min()) < 0:
-            raise ValueError("PSFStack.data must be non-negative (intensities). Fix: clip or re-measure.")
+        if self.data.device.type != "meta":  # (a meta tensor has a shape but no values to check)
+            require_finite_tensor("PSFStack.data", self.data.detach())
+            if self.data.numel() and float(self.data.detach().min()) < 0:
+                raise ValueError("PSFStack.data must be non-negative (intensities). Fix: clip or re-measure.")
         if self.patterns is not None:
             if not isinstance(self.patterns, ConventionalPatterns):
                 raise TypeError(
