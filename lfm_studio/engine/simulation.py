@@ -82,7 +82,8 @@ def simulate_psf(
     depths = tuple(depths) if depths is not None else design_depths(design)
     if crop is not None and not (isinstance(crop, int) and crop >= 1):
         raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
-    sensor = tuple(min(crop, n) for n in design.camera.pixel_count) if crop is not None else None
+    ny, nx = design.camera.pixel_count
+    sensor = (min(crop, ny), min(crop, nx)) if crop is not None else None
     require_psf_memory(design, len(depths), dtype=dtype, device=device, sensor=sensor)
     return kind.psf_stack(
         design, depths, device=device, dtype=real_dtype_named(dtype) if dtype is not None else None, crop=crop,
@@ -162,10 +163,10 @@ def make_phantom(
                 f"{2 * max(voxel) * 1e6:.3g} um apart in a volume of {shape} voxels. Fix: pass --count N "
                 "(at most what fits), or use more depths / a larger field of view."
             )
-    elif kind == "beads":
+    elif kind == "beads" and count is not None:
         phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
     elif kind == "cells":
-        semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
+        semi = (0.45 * shape[0] * voxel[0], 0.45 * shape[1] * voxel[1], 0.45 * shape[2] * voxel[2])
         phantom = cells_in_ellipsoid(shape, voxel_size=voxel, seed=seed, semi_axes=semi, dtype=dtype)
     else:
         raise ValueError(f"phantom must be 'beads', 'cells' or a TIFF volume path; got {kind!r}.")

@@ -156,7 +156,7 @@ def lattice_projector(stack: PSFStack, lenslets: tuple[int, int] | None = None) 
             "conventional_psf_stack / simulate_psf of a conventional design, or use a ShiftInvariantProjector."
         )
     q = layout.pixels_per_lenslet
-    lenslets = tuple(lenslets or layout.lenslets)
+    grid = layout.lenslets if lenslets is None else (int(lenslets[0]), int(lenslets[1]))
     width = stack.data.shape[-1]
     grouped: dict[int, list[int]] = defaultdict(list)
     for index, reach in enumerate(layout.reach):
@@ -167,7 +167,7 @@ def lattice_projector(stack: PSFStack, lenslets: tuple[int, int] | None = None) 
         start = (width - h) // 2
         patterns = stack.data[:, :, indices, start : start + h, start : start + h].permute(2, 0, 1, 3, 4)
         built.append((indices, patterns))
-    return LensletLatticeProjector(built, len(stack.depths), lenslets, q)
+    return LensletLatticeProjector(built, len(stack.depths), grid, q)
 
 
 def conventional_projector(

@@ -18,10 +18,11 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import torch
 
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.operators.shift_invariant import ShiftInvariantProjector
@@ -77,7 +78,7 @@ class SystemKind(ABC):
     @abstractmethod
     def psf_stack(
         self,
-        design: Any,
+        design: Design,
         depths: tuple[float, ...],
         *,
         device: torch.device | str = "cpu",
@@ -96,7 +97,7 @@ class SystemKind(ABC):
         """
 
     @abstractmethod
-    def psf_bytes(self, design: Any, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
+    def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """Lower bound in bytes of what :meth:`psf_stack` holds at once for ``depth_count`` depths
         on a ``sensor`` of camera pixels, in real dtype ``real`` (complex fields of the matching width)."""
 

@@ -12,10 +12,10 @@ Not shift-invariant: only iterative reconstruction applies. No per-lenslet cache
 from __future__ import annotations
 
 from dataclasses import replace
-from typing import Any
 
 import torch
 
+from lfm_studio.engine.design import Design, RegularMLASpec
 from lfm_studio.engine.memory import tensor_bytes
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
@@ -42,7 +42,7 @@ class ConventionalKind(SystemKind):
 
     def psf_stack(
         self,
-        design: Any,
+        design: Design,
         depths: tuple[float, ...],
         *,
         device: torch.device | str = "cpu",
@@ -54,10 +54,10 @@ class ConventionalKind(SystemKind):
         cancel: CancelToken = None,
     ) -> PSFStack:
         """``crop``: only the lenslets that fit in ``crop`` camera pixels; ``cache`` is not used."""
-        lenslets, pitch_um = None, getattr(design.mla, "pitch_um", None)
-        if crop is not None and pitch_um is not None:  # (no pitch: conventional_system_of explains)
-            count = max(1, int(crop * design.camera.pixel_pitch / (pitch_um * 1e-6)))
-            lenslets = tuple(min(count, n) for n in design.mla.shape)
+        lenslets, mla = None, design.mla
+        if crop is not None and isinstance(mla, RegularMLASpec):  # (else conventional_system_of explains)
+            count = max(1, int(crop * design.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
+            lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
         system = conventional_system_of(design, lenslets=lenslets)
         accuracy = conventional_accuracy_of(design, system)
         if dtype is not None:
@@ -68,7 +68,7 @@ class ConventionalKind(SystemKind):
             system, depths, accuracy=accuracy, device=device, progress=progress, cancel=cancel, design=design
         )
 
-    def psf_bytes(self, design: Any, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
+    def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """At least a few complex sensor-sized fields (its projector images the whole sensor)."""
         return 3 * tensor_bytes(sensor, complex_of(real))
 

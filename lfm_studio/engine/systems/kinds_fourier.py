@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
-from typing import Any
 
 import torch
 
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.memory import tensor_bytes
 from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.operators.shift_invariant import ShiftInvariantProjector
@@ -45,7 +45,7 @@ class FourierKind(SystemKind):
 
     def psf_stack(
         self,
-        design: Any,
+        design: Design,
         depths: tuple[float, ...],
         *,
         device: torch.device | str = "cpu",
@@ -59,7 +59,8 @@ class FourierKind(SystemKind):
         refine = design.accuracy.volume_oversampling
         system, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
         if crop is not None:
-            shape = tuple(virtual_pixel_count(min(crop, n), refine) for n in design.camera.pixel_count)
+            ny, nx = design.camera.pixel_count
+            shape = (virtual_pixel_count(min(crop, ny), refine), virtual_pixel_count(min(crop, nx), refine))
             system = replace(system, sensor_shape=shape)
         if dtype is not None:
             accuracy = replace(accuracy, dtype=dtype)
@@ -71,7 +72,7 @@ class FourierKind(SystemKind):
             stack = replace(stack, metadata={**stack.metadata, OVERSAMPLING_KEY: refine})
         return stack
 
-    def psf_bytes(self, design: Any, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
+    def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """A few complex fields on the (virtual) sensor plus the ``(Z, ny, nx)`` real stack."""
         refine = design.accuracy.volume_oversampling
         shape = (sensor[0] * refine, sensor[1] * refine)
