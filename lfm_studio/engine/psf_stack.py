@@ -112,6 +112,10 @@ class PSFStack:
     patterns : ConventionalPatterns or None
         The lenslet-pattern layout of a conventional-LFM stack; ``None`` for per-depth
         shift-invariant PSFs.
+    volume_oversampling : int
+        ``k`` (odd, >= 1): the PSFs are sampled on a virtual sensor ``k`` times finer than the
+        camera (``pixel_size`` is the virtual pitch); their projector sums ``k x k`` virtual
+        pixels onto each camera pixel. 1 for camera-sampled PSFs and for lenslet patterns.
     """
 
     data: torch.Tensor
@@ -122,6 +126,7 @@ class PSFStack:
     design: Any | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     patterns: ConventionalPatterns | None = None
+    volume_oversampling: int = 1
 
     def __post_init__(self) -> None:
         if not isinstance(self.data, torch.Tensor) or self.data.is_complex() or self.data.ndim < 3:
@@ -152,6 +157,18 @@ class PSFStack:
                     f"PSFStack.patterns must be a ConventionalPatterns or None; got {type(self.patterns).__name__}."
                 )
             self.patterns.check_data(self.data)
+        k = self.volume_oversampling
+        if isinstance(k, bool) or int(k) != k or k < 1 or k % 2 == 0:
+            raise ValueError(
+                f"PSFStack.volume_oversampling must be an odd integer >= 1 (virtual pixels per camera "
+                f"pixel); got {k!r}."
+            )
+        object.__setattr__(self, "volume_oversampling", int(k))
+        if k > 1 and self.patterns is not None:
+            raise ValueError(
+                "PSFStack.volume_oversampling > 1 applies to shift-invariant PSFs, not to conventional "
+                "lenslet patterns (their voxels per lenslet set the volume grid). Fix: leave it at 1."
+            )
 
     @property
     def shift_invariant(self) -> bool:

@@ -70,8 +70,8 @@ def simulate_psf(
     with the design attached; computed by the design's system kind (:func:`kind_of`).
 
     Fourier with ``accuracy.volume_oversampling`` ``k > 1``: the PSFs are sampled on a virtual
-    sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded in the stack's
-    metadata as ``volume_oversampling``; :func:`imaging_setup` bins them onto the camera.
+    sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded as
+    ``stack.volume_oversampling``; :func:`imaging_setup` bins them onto the camera.
 
     ``crop``: keep only about ``crop x crop`` camera pixels around the axis, for quick studies
     (Fourier: the sensor cut to that size, views outside it are lost; conventional: the
@@ -123,7 +123,7 @@ def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> Ima
     """Projector and volume grid for ``stack``, built by the kind of its layout (:func:`stack_kind`).
 
     Fourier (and any per-depth shift-invariant stack): lateral voxel = the stack's pixel /
-    magnification (sensor pixel / M_T, or ``1 / k`` of it for a stack with metadata
+    magnification (sensor pixel / M_T, or ``1 / k`` of it for a stack with
     ``volume_oversampling`` ``k``, whose PSFs are then summed ``k x k`` onto each camera pixel:
     :class:`BinnedProjector`); the volume spans ``field_of_view`` metres (default: the design's,
     else a quarter of the sensor). Conventional: the lattice of the stack's lenslets,

@@ -32,8 +32,8 @@ from lfm_studio.engine.io import LightFieldImage, Volume
 from lfm_studio.engine.io.metadata import (
     design_kind,
     design_to_json,
-    pattern_metadata,
-    split_pattern_metadata,
+    layout_metadata,
+    split_layout_metadata,
 )
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.units import nm, um
@@ -93,7 +93,7 @@ def psf_layer_data(stack: PSFStack, *, name: str, source: str | None = None) -> 
         "wavelength_nm": stack.wavelength / nm,
         "design": design_to_json(stack.design),
         "design_kind": design_kind(stack.design),
-        "metadata": {**stack.metadata, **pattern_metadata(stack.patterns)},
+        "metadata": {**stack.metadata, **layout_metadata(stack.patterns, stack.volume_oversampling)},
         "source": source,
     }
     meta = {
@@ -204,7 +204,7 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
         )
     _require(metadata, ("depths_m", "pixel_size_m", "magnification", "wavelength_m"), name)
     try:
-        patterns, extra = split_pattern_metadata(metadata.get("metadata"), where=f"layer {name!r}")
+        layout, extra = split_layout_metadata(metadata.get("metadata"), where=f"layer {name!r}")
         return PSFStack(
             data=_tensor(data, name),
             depths=tuple(metadata["depths_m"]),
@@ -213,7 +213,7 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
             wavelength=float(metadata["wavelength_m"]),
             design=design_of(metadata, name),
             metadata=extra,
-            patterns=patterns,
+            **layout,
         )
     except LayerError:
         raise

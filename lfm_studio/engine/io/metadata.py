@@ -15,11 +15,12 @@ Schema (version 1), keys carry their unit::
      "design": {...} | null, "design_kind": "model" | "dict" | null,
      "metadata": {...}}
 
-A conventional-LFM pattern stack keeps its layout (:class:`ConventionalPatterns`) in
-``"metadata"`` as ``"kind": "conventional"``, ``"pixels_per_lenslet"``,
+A PSF stack keeps its typed layout in ``"metadata"``: a conventional-LFM pattern stack
+(:class:`ConventionalPatterns`) as ``"kind": "conventional"``, ``"pixels_per_lenslet"``,
 ``"voxels_per_lenslet"``, ``"reach"`` (one integer per depth) and ``"lenslets"``
-(``[Ly, Lx]``): :func:`pattern_metadata` writes them and :func:`split_pattern_metadata`,
-the one parser, reads them back.
+(``[Ly, Lx]``); a stack sampled ``k`` times finer than the camera as
+``"volume_oversampling": k``. :func:`layout_metadata` writes them and
+:func:`split_layout_metadata`, the one parser, reads them back.
 
 Lengths are written as exact decimal shifts of the metre values (``4.8e-05`` m is
 written ``48`` um), so reading gives back the identical float64 (no 1-ulp drift
@@ -46,6 +47,7 @@ _UNIT_EXPONENT = {"um": 6, "nm": 9}
 
 _PATTERN_KIND = "conventional"  # the "kind" word of a pattern stack's metadata
 _PATTERN_KEYS = ("pixels_per_lenslet", "voxels_per_lenslet", "reach", "lenslets")
+_OVERSAMPLING_KEY = "volume_oversampling"
 
 
 class MissingMetadataError(ValueError):
@@ -128,11 +130,15 @@ def design_from_header(obj: Any, *, kind: str | None, rebuild: bool, path: str) 
         ) from exc
 
 
-def pattern_metadata(patterns: ConventionalPatterns | None) -> dict[str, Any]:
-    """The JSON-serialisable metadata entries of a pattern layout (``{}`` for ``None``)."""
+def layout_metadata(patterns: ConventionalPatterns | None, volume_oversampling: int = 1) -> dict[str, Any]:
+    """The JSON-serialisable metadata entries of a PSF stack's typed layout (``{}`` for plain PSFs)."""
+    entries: dict[str, Any] = {}
+    if volume_oversampling != 1:
+        entries[_OVERSAMPLING_KEY] = int(volume_oversampling)
     if patterns is None:
-        return {}
+        return entries
     return {
+        **entries,
         "kind": _PATTERN_KIND,
         "pixels_per_lenslet": patterns.pixels_per_lenslet,
         "voxels_per_lenslet": patterns.voxels_per_lenslet,
@@ -141,24 +147,28 @@ def pattern_metadata(patterns: ConventionalPatterns | None) -> dict[str, Any]:
     }
 
 
-def split_pattern_metadata(
+def split_layout_metadata(
     metadata: dict[str, Any] | None, *, where: str = "metadata"
-) -> tuple[ConventionalPatterns | None, dict[str, Any]]:
-    """``(patterns, rest)``: the pattern layout stored by :func:`pattern_metadata` (``None`` when
-    ``metadata`` holds none) and the remaining free-form entries. ``where`` names the source in errors."""
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(layout, rest)``: the typed layout stored by :func:`layout_metadata` as :class:`PSFStack`
+    keyword arguments (``patterns``, ``volume_oversampling``; empty for plain PSFs) and the
+    remaining free-form entries. ``where`` names the source in errors."""
     rest = dict(metadata or {})
+    layout: dict[str, Any] = {}
+    if _OVERSAMPLING_KEY in rest:
+        layout["volume_oversampling"] = rest.pop(_OVERSAMPLING_KEY)
     if rest.get("kind") != _PATTERN_KIND:
-        return None, rest
+        return layout, rest
     missing = [key for key in _PATTERN_KEYS if key not in rest]
     if missing:
         raise HeaderError(
             f"{where}: a conventional pattern stack lacks {', '.join(missing)} in its metadata. "
-            "Fix: re-simulate the PSF with lfm-studio simulate-psf."
+            "Fix: re-simulate the PSF with lfm-studio simulate."
         )
     values = {key: rest.pop(key) for key in _PATTERN_KEYS}
     del rest["kind"]
     try:
-        patterns = ConventionalPatterns(
+        layout["patterns"] = ConventionalPatterns(
             pixels_per_lenslet=values["pixels_per_lenslet"],
             voxels_per_lenslet=values["voxels_per_lenslet"],
             reach=tuple(values["reach"]),
@@ -166,7 +176,7 @@ def split_pattern_metadata(
         )
     except (TypeError, ValueError) as exc:
         raise HeaderError(f"{where}: malformed conventional pattern layout ({exc}).") from exc
-    return patterns, rest
+    return layout, rest
 
 
 def encode_header(kind: str, fields: dict[str, Any], units: dict[str, str]) -> str:

@@ -3,7 +3,7 @@
 PSF: :func:`~lfm_studio.engine.systems.fourier_psf.fourier_psf_stack` of
 :func:`~lfm_studio.engine.systems.from_design.fourier_system_of` (per-lenslet, cached, or
 full field). With ``accuracy.volume_oversampling`` ``k > 1`` the PSFs are sampled on a
-virtual sensor ``k`` times finer (recorded as metadata ``volume_oversampling``) and the
+virtual sensor ``k`` times finer (``stack.volume_oversampling``) and the
 projector sums ``k x k`` virtual pixels onto each camera pixel (:class:`BinnedProjector`).
 """
 
@@ -24,8 +24,6 @@ from lfm_studio.engine.systems.fourier_psf import FourierPSFReport, fourier_psf_
 from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of, virtual_pixel_count
 from lfm_studio.engine.systems.kinds_base import ImagingSetup, Projector, SystemKind, depth_step
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
-
-OVERSAMPLING_KEY = "volume_oversampling"  # metadata entry of a stack sampled k times finer than the camera
 
 
 def complex_of(real: torch.dtype) -> torch.dtype:
@@ -68,9 +66,7 @@ class FourierKind(SystemKind):
             system, depths, accuracy=accuracy, device=device, cache=cache, progress=progress, cancel=cancel,
             report=report, design=design,
         )  # fmt: skip
-        if refine > 1:
-            stack = replace(stack, metadata={**stack.metadata, OVERSAMPLING_KEY: refine})
-        return stack
+        return replace(stack, volume_oversampling=refine)
 
     def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """A few complex fields on the (virtual) sensor plus the ``(Z, ny, nx)`` real stack."""
@@ -85,7 +81,7 @@ class FourierKind(SystemKind):
 
 
 def shift_invariant_setup(stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
-    """:class:`ShiftInvariantProjector` of ``stack`` (binned ``k x k`` for metadata ``volume_oversampling``
+    """:class:`ShiftInvariantProjector` of ``stack`` (binned ``k x k`` for ``stack.volume_oversampling``
     ``k``), on a volume of lateral voxel ``stack.object_pixel_size`` spanning ``field_of_view`` metres."""
     voxel = stack.object_pixel_size
     if field_of_view is None and stack.design is not None:
@@ -94,9 +90,8 @@ def shift_invariant_setup(stack: PSFStack, *, field_of_view: float | None = None
     lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
     lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
     projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
-    refine = int(stack.metadata.get(OVERSAMPLING_KEY, 1))
-    if refine > 1:
-        projector = BinnedProjector(projector, refine)
+    if stack.volume_oversampling > 1:
+        projector = BinnedProjector(projector, stack.volume_oversampling)
     return ImagingSetup(projector, (len(stack.depths), lateral, lateral), (depth_step(stack), voxel, voxel))
 
 

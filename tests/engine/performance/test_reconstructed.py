@@ -85,7 +85,7 @@ def test_refined_fourier_psf_bins_to_the_camera_psf(pixels):
     well_sampled = dict(pixel_um=6.5, offset_um=300.0, aperture_um=500.0)
     coarse = simulate_psf(sampling_limited_design(1, pixels, **well_sampled), depths=(0.0, 4e-6))
     fine = simulate_psf(sampling_limited_design(3, pixels, **well_sampled), depths=(0.0, 4e-6))
-    assert fine.metadata["volume_oversampling"] == 3
+    assert fine.volume_oversampling == 3 and "volume_oversampling" not in fine.metadata
     assert fine.pixel_size == pytest.approx(coarse.pixel_size / 3, rel=1e-12)
     n = pixels
     binned = fine.data[:, : 3 * n, : 3 * n].reshape(2, n, 3, n, 3).sum(dim=(2, 4))

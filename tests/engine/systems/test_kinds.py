@@ -16,7 +16,7 @@ import torch
 
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
 from lfm_studio.engine.io import read_psf_stack, write_psf_stack
-from lfm_studio.engine.io.metadata import HeaderError, pattern_metadata, split_pattern_metadata
+from lfm_studio.engine.io.metadata import HeaderError, layout_metadata, split_layout_metadata
 from lfm_studio.engine.performance.closed_forms import closed_form_metrics
 from lfm_studio.engine.performance.conventional_closed_forms import conventional_closed_forms
 from lfm_studio.engine.performance.fourier_closed_forms import fourier_closed_forms
@@ -233,7 +233,7 @@ def test_pattern_layout_round_trips_through_the_psf_tiff(conventional_stack, tmp
 
 def test_the_file_layout_of_a_pattern_stack_is_the_documented_metadata_entries():
     layout = ConventionalPatterns(pixels_per_lenslet=5, voxels_per_lenslet=3, reach=(1, 2), lenslets=(4, 6))
-    entries = pattern_metadata(layout)
+    entries = layout_metadata(layout)
     assert json.loads(json.dumps(entries)) == {
         "kind": "conventional",
         "pixels_per_lenslet": 5,
@@ -241,10 +241,26 @@ def test_the_file_layout_of_a_pattern_stack_is_the_documented_metadata_entries()
         "reach": [1, 2],
         "lenslets": [4, 6],
     }
-    parsed, rest = split_pattern_metadata({**entries, "note": "kept"})
-    assert parsed == layout and rest == {"note": "kept"}
-    assert split_pattern_metadata({"method": "per_lenslet"}) == (None, {"method": "per_lenslet"})
-    assert pattern_metadata(None) == {}
+    parsed, rest = split_layout_metadata({**entries, "note": "kept"})
+    assert parsed == {"patterns": layout} and rest == {"note": "kept"}
+    assert split_layout_metadata({"method": "per_lenslet"}) == ({}, {"method": "per_lenslet"})
+    assert layout_metadata(None) == {} and layout_metadata(None, 1) == {}
+    assert layout_metadata(None, 3) == {"volume_oversampling": 3}
+    assert split_layout_metadata({"volume_oversampling": 3}) == ({"volume_oversampling": 3}, {})
+
+
+def test_an_oversampled_fourier_stack_keeps_its_binning_through_the_tiff(tmp_path):
+    # A stack sampled 3 x finer than the camera: the projector bins 3 x 3 before and after a round trip.
+    base = _preview(FOURIER_PRESET)
+    design = base.updated(accuracy={**base.accuracy.model_dump(), "volume_oversampling": 3})
+    stack = simulate_psf(design, depths=(0.0,), crop=32)
+    assert stack.volume_oversampling == 3 and stack.data.shape[-2:] == (3 * 32 + 2, 3 * 32 + 2)
+    back = read_psf_stack(write_psf_stack(tmp_path / "fine.tif", stack))
+    assert back.volume_oversampling == 3 and back.metadata == stack.metadata
+    for each in (stack, back):
+        assert imaging_setup(each).projector.image_shape == (32, 32)
+    with pytest.raises(ValueError, match="volume_oversampling must be an odd integer"):
+        replace(stack, volume_oversampling=2)
 
 
 @pytest.mark.parametrize(
@@ -263,7 +279,7 @@ def test_the_file_layout_of_a_pattern_stack_is_the_documented_metadata_entries()
 )  # fmt: skip
 def test_a_malformed_pattern_layout_is_a_header_error_naming_the_field(entries, message):
     with pytest.raises(HeaderError, match=message):
-        split_pattern_metadata(entries, where="file.tif")
+        split_layout_metadata(entries, where="file.tif")
 
 
 def test_pattern_layout_must_match_the_data(conventional_stack):
