@@ -181,6 +181,19 @@ class PSFStack:
         return self.pixel_size / self.magnification
 
     @property
+    def camera_pixel_size(self) -> float:
+        """Camera pixel pitch in metres: ``pixel_size`` times ``volume_oversampling``."""
+        return self.pixel_size * self.volume_oversampling
+
+    @property
+    def camera_shape(self) -> tuple[int, int]:
+        """``(ny, nx)`` camera pixels the PSFs cover: the sensor, or the whole ``k x k`` blocks of a
+        virtual sensor ``k`` times finer (lenslet patterns: the pattern canvas)."""
+        ny, nx = self.data.shape[-2:]
+        k = self.volume_oversampling
+        return (ny // k, nx // k)
+
+    @property
     def shape(self) -> torch.Size:
         return self.data.shape
 

@@ -134,17 +134,17 @@ def prepare(
         name = calibration_name or "calibration"
         _check_raw_frame(image, settings, calibration, image_name, name)
         return Request(stack, image, settings, image_name, psf_name, calibration, name)
-    if not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
+    if not math.isclose(stack.camera_pixel_size, image.pixel_size, rel_tol=1e-6):
         raise ValueError(
             f"PSF pixel size does not match the image: the image layer {image_name!r} has "
             f"{image.pixel_size / um:g} um pixels but the PSF layer {psf_name!r} was computed for "
-            f"{stack.pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
+            f"{stack.camera_pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
             "simulate one with the camera's pixel pitch (Simulate PSF)."
         )
-    if kind.shift_invariant and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
+    if kind.shift_invariant and tuple(image.data.shape) != stack.camera_shape:
         raise ValueError(
             f"The image layer {image_name!r} has {tuple(image.data.shape)} pixels but the PSF layer "
-            f"{psf_name!r} covers a {tuple(stack.data.shape[-2:])} pixel sensor. Fix: use the PSF simulated "
+            f"{psf_name!r} covers a {stack.camera_shape} pixel sensor. Fix: use the PSF simulated "
             "for this camera (same pixel count), or crop the image to it."
         )
     return Request(stack, image, settings, image_name, psf_name)

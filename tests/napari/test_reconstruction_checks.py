@@ -138,3 +138,17 @@ def test_a_raw_frame_with_a_calibration_is_refused_for_wiener_on_a_conventional_
             _stack(3, 3, 3, 9, 9), image, Settings(method="wiener"), image_name="frame", psf_name="psf",
             calibration=object(), calibration_name="calib.json",
         )  # fmt: skip
+
+
+def test_a_psf_sampled_finer_than_the_camera_is_matched_to_camera_frames():
+    # volume_oversampling 3: PSFs on a virtual sensor of 2.1667 um pixels, 3 x 3 per 6.5 um camera pixel
+    # (16 camera pixels: 3 * 16 + 2 virtual ones on an even axis). The frame is the camera's.
+    fine = PSFStack(
+        torch.ones(3, 50, 50), (-1 * um, 0.0, 1 * um), 6.5 * um / 3, 10.0, 525 * nm, volume_oversampling=3
+    )
+    assert fine.camera_shape == (16, 16) and fine.camera_pixel_size == pytest.approx(6.5 * um)
+    assert _prepare(fine, LightFieldImage(torch.ones(16, 16), 6.5 * um)).psf_name == "psf"
+    with pytest.raises(ValueError, match=r"\(50, 50\) pixels but the PSF layer 'psf' covers a \(16, 16\)"):
+        _prepare(fine, LightFieldImage(torch.ones(50, 50), 6.5 * um))
+    with pytest.raises(ValueError, match=r"2\.16667 um pixels"):
+        _prepare(fine, LightFieldImage(torch.ones(16, 16), 6.5 * um / 3))
