@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 from lfm_studio.engine.design import Design, load_preset, resolve_design
 from lfm_studio.engine.design.evolve import evolve
+from lfm_studio.engine.systems.kinds import FOURIER, SystemKind, kind_of
 
 CROP_PIXELS = 512
 """Sensor side (pixels) of the crop used for full-field Fourier cases."""
@@ -41,8 +42,13 @@ class BenchCase:
 
     @property
     def kind(self) -> str:
-        """``"fourier"`` or ``"conventional"``."""
-        return self.design.kind
+        """The design-file word of the case's system kind (for tables and JSON)."""
+        return self.system_kind.name
+
+    @property
+    def system_kind(self) -> SystemKind:
+        """The case's system kind (:func:`~lfm_studio.engine.systems.kinds.kind_of`)."""
+        return kind_of(self.design)
 
 
 def case_depths(design: Design) -> tuple[float, ...]:
@@ -76,7 +82,7 @@ def bench_case(design: Design, name: str | None = None) -> BenchCase:
     """The case for ``design``: its depths, and a sensor crop for full-field Fourier designs."""
     name = name or design.name
     depths = case_depths(design)
-    if design.kind != "fourier":
+    if kind_of(design) is not FOURIER:  # the crop and lenslet subset below are Fourier-path tricks
         return BenchCase(name, design, depths)
     ny, nx = design.camera.pixel_count
     if not _sub_images_overlap(design, depths):
@@ -123,7 +129,7 @@ def lenslet_subset(design: Design) -> Design:
     lenslet's, so these extremes (nearest to and farthest from the axis, every focal
     group) bound the error of the full array at a fraction of the cost. Tests use it.
     """
-    if design.kind != "fourier":
+    if kind_of(design) is not FOURIER:
         return design
     lenses = design.mla.lenslets
     keep: list[int] = []

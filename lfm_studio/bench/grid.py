@@ -26,10 +26,11 @@ from dataclasses import dataclass
 from lfm_studio.bench.cases import BenchCase
 from lfm_studio.engine.design import AccuracySpec, Design
 from lfm_studio.engine.design.evolve import evolve
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, SystemKind
 
-GRID_KNOBS: dict[str, tuple[str, tuple[int, ...]]] = {
-    "conventional": ("voxels_per_lenslet", (3, 5, 7)),
-    "fourier": ("volume_oversampling", (1, 3)),
+GRID_KNOBS: dict[SystemKind, tuple[str, tuple[int, ...]]] = {
+    CONVENTIONAL: ("voxels_per_lenslet", (3, 5, 7)),
+    FOURIER: ("volume_oversampling", (1, 3)),
 }
 """Per system kind: the grid knob and the values swept (the default is always included)."""
 
@@ -82,7 +83,7 @@ def grid_settings(case: BenchCase, *, quick: bool = False) -> list[GridSetting]:
     """The grid values of ``case``'s kind on the standard preset (none for ``quick``)."""
     if quick:
         return []
-    knob, values = GRID_KNOBS[case.kind]
+    knob, values = GRID_KNOBS[case.system_kind]
     base = AccuracySpec.from_preset("standard")
     default = getattr(base, knob)
     out = []

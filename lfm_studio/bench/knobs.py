@@ -21,15 +21,16 @@ from lfm_studio.engine.design.evolve import evolve
 from lfm_studio.engine.systems.conventional_psf import ConventionalAccuracy
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
 from lfm_studio.engine.systems.from_design import conventional_accuracy_of, fourier_accuracy_of
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, SystemKind
 
 EngineOptions = FourierAccuracy | ConventionalAccuracy
 
-NOT_APPLICABLE: dict[str, dict[str, str]] = {
-    "fourier": {
+NOT_APPLICABLE: dict[SystemKind, dict[str, str]] = {
+    FOURIER: {
         "debye_points": "the pupil-plane field is closed-form (exact defocus phase), no quadrature",
         "propagator=fresnel_ir": "changes the grid; the per-lenslet path is the single-FFT Fresnel transform",
     },
-    "conventional": {
+    CONVENTIONAL: {
         "propagator": "no FFT propagation: each lenslet is a direct Fresnel matrix product onto its window",
         "padding": "no FFT, so no wrap-around; light_margin is the truncation knob",
         "per_lenslet": "lenslets are always summed coherently on one sensor grid",
@@ -59,7 +60,7 @@ class KnobSetting:
 def preset_options(case: BenchCase, preset: str) -> EngineOptions:
     """Engine options of accuracy preset ``preset`` for ``case`` (through :mod:`from_design`)."""
     design = evolve(case.design, "accuracy", AccuracySpec.from_preset(preset))
-    return fourier_accuracy_of(design) if case.kind == "fourier" else conventional_accuracy_of(design)
+    return fourier_accuracy_of(design) if case.system_kind is FOURIER else conventional_accuracy_of(design)
 
 
 def uses_full_field(case: BenchCase, options: EngineOptions) -> bool:
@@ -92,7 +93,7 @@ def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[Engi
       so the reference is the Richardson extrapolation of m = 5 and 7 (refined: 7 and 9), NIP
       grid x1.5 (x2), light margin 24 (32) diffraction lengths, the converged Debye quadrature.
     """
-    if case.kind == "fourier":
+    if case.system_kind is FOURIER:
         full = uses_full_field(case, FourierAccuracy())
         s = REFERENCE_FOURIER_SAMPLING["full_field" if full else "per_lenslet"][int(refined)]
         options = FourierAccuracy(
@@ -204,7 +205,7 @@ def sweep_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSetting]
     presets = [KnobSetting("preset", name, preset_options(case, name)) for name in ACCURACY_PRESETS]
     knobs = (
         fourier_settings(case, quick=quick)
-        if case.kind == "fourier"
+        if case.system_kind is FOURIER
         else conventional_settings(case, quick=quick)
     )
     return presets + knobs

@@ -42,7 +42,7 @@ def psf_error(stack: torch.Tensor, reference: torch.Tensor) -> float:
 
 def _projector(stack: PSFStack):
     data = stack.data.detach().to("cpu", torch.float32)
-    if stack.metadata.get("kind") == "conventional":
+    if not stack.shift_invariant:  # conventional lenslet patterns
         return lattice_projector(stack.with_data(data), CONVENTIONAL_LENSLETS)
     return ShiftInvariantProjector(data, (FOURIER_VOLUME_SIDE, FOURIER_VOLUME_SIDE))
 

@@ -20,6 +20,7 @@ from lfm_studio.engine.design import DesignError, resolve_design
 from lfm_studio.engine.performance import compute_design_metrics, format_metrics_table, measurement_psf
 from lfm_studio.engine.performance.closed_forms import CRITERION_LABELS
 from lfm_studio.engine.performance.psf_measures_stack import main_focus_depth
+from lfm_studio.engine.systems.kinds import kind_of
 
 
 def add_info_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -63,7 +64,7 @@ def run_info(args: argparse.Namespace) -> int:
         return 2
     psf, focus = None, None
     if args.measure:
-        if design.kind != "fourier":
+        if not kind_of(design).shift_invariant:  # PSF measures need per-depth shift-invariant PSFs
             print(
                 f"lfm-studio info: measuring is not available yet for a {design.kind!r} LFM (no PSF model); "
                 "showing the closed forms only.",

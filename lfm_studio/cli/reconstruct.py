@@ -99,11 +99,11 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
     if (
         stack.data.ndim == 3
         and args.calibration is None
-        and not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6)
+        and not math.isclose(stack.camera_pixel_size, image.pixel_size, rel_tol=1e-6)
     ):
         raise ValueError(
             f"{args.image} has {image.pixel_size * 1e6:g} um pixels but the PSF stack {args.psf} has "
-            f"{stack.pixel_size * 1e6:g} um pixels. Fix: pass --measured to resample the PSF to the image, "
+            f"{stack.camera_pixel_size * 1e6:g} um pixels. Fix: pass --measured to resample the PSF to the image, "
             "or simulate the PSF for this camera."
         )
     return stack

@@ -7,29 +7,33 @@ light-field image with camera noise. Each step is a plain function; none imports
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
 
 import torch
 
-from lfm_studio.engine.design import Design, RegularMLASpec
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.memory import require_memory, tensor_bytes
-from lfm_studio.engine.operators import Projector, ShiftInvariantProjector
-from lfm_studio.engine.operators.binned import BinnedProjector
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
 from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
-from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
-from lfm_studio.engine.systems.from_design import (
-    conventional_accuracy_of,
-    conventional_system_of,
-    fourier_accuracy_of,
-    fourier_system_of,
-    virtual_pixel_count,
-)
+from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
+from lfm_studio.engine.systems.kinds import ImagingSetup, Projector, kind_of, stack_kind
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
+
+__all__ = [
+    "ImagingSetup",
+    "Projector",
+    "camera_of",
+    "depth_grid",
+    "design_depths",
+    "imaging_setup",
+    "light_field_image",
+    "make_phantom",
+    "photons_per_unit",
+    "require_psf_memory",
+    "simulate_psf",
+]
 
 
 def depth_grid(depths_um: tuple[float, float, float], name: str = "depths") -> tuple[float, ...]:
@@ -59,69 +63,32 @@ def simulate_psf(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     cache: LensletCache | None = None,
+    report: FourierPSFReport | None = None,
 ) -> PSFStack:
     """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
-    ``(S, S, Z, H, H)``) at ``depths`` metres (default: the design's), with the design attached.
+    ``(S, S, Z, H, H)`` with ``stack.patterns``) at ``depths`` metres (default: the design's),
+    with the design attached; computed by the design's system kind (:func:`kind_of`).
 
     Fourier with ``accuracy.volume_oversampling`` ``k > 1``: the PSFs are sampled on a virtual
-    sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded in the stack's
-    metadata as ``volume_oversampling``; :func:`imaging_setup` bins them onto the camera.
+    sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded as
+    ``stack.volume_oversampling``; :func:`imaging_setup` bins them onto the camera.
 
     ``crop``: keep only about ``crop x crop`` camera pixels around the axis, for quick studies
     (Fourier: the sensor cut to that size, views outside it are lost; conventional: the
-    lenslets that fit in it).
-
-    ``cache``: a per-lenslet cache (Fourier kind, per-lenslet path) kept across calls, so a
-    design that changes one lenslet recomputes one lenslet (the optimiser's grid search).
+    lenslets that fit in it). ``cache``: a per-lenslet cache, used by kinds that have one
+    (``kind.lenslet_cache``); ``report``: filled with the method and the lenslets computed / cached.
     """
+    kind = kind_of(design)
     depths = tuple(depths) if depths is not None else design_depths(design)
-    refine = design.accuracy.volume_oversampling
     if crop is not None and not (isinstance(crop, int) and crop >= 1):
         raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
     ny, nx = design.camera.pixel_count
     sensor = (min(crop, ny), min(crop, nx)) if crop is not None else None
     require_psf_memory(design, len(depths), dtype=dtype, device=device, sensor=sensor)
-    real = real_dtype_named(dtype) if dtype is not None else None
-    if design.kind == "fourier":
-        fourier, accuracy = fourier_system_of(design, refine=refine), fourier_accuracy_of(design)
-        if sensor is not None:
-            shape = (virtual_pixel_count(sensor[0], refine), virtual_pixel_count(sensor[1], refine))
-            fourier = replace(fourier, sensor_shape=shape)
-        if real is not None:
-            accuracy = replace(accuracy, dtype=real)
-        stack = fourier_psf_stack(
-            fourier,
-            depths,
-            accuracy=accuracy,
-            device=device,
-            progress=progress,
-            cancel=cancel,
-            design=design,
-            cache=cache,
-        )
-    else:
-        lenslets, mla = None, design.mla
-        if crop is not None and isinstance(
-            mla, RegularMLASpec
-        ):  # (no pitch: conventional_system_of explains)
-            count = max(1, int(crop * design.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
-            lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
-        conventional = conventional_system_of(design, lenslets=lenslets)
-        patterns = conventional_accuracy_of(design, conventional)
-        if real is not None:
-            patterns = replace(patterns, dtype=real)
-        stack = conventional_psf_stack(
-            conventional,
-            depths,
-            accuracy=patterns,
-            device=device,
-            progress=progress,
-            cancel=cancel,
-            design=design,
-        )
-    if design.kind == "fourier" and refine > 1:
-        stack = replace(stack, metadata={**stack.metadata, "volume_oversampling": refine})
-    return stack
+    return kind.psf_stack(
+        design, depths, device=device, dtype=real_dtype_named(dtype) if dtype is not None else None, crop=crop,
+        cache=cache if kind.lenslet_cache else None, report=report, progress=progress, cancel=cancel,
+    )  # fmt: skip
 
 
 def require_psf_memory(
@@ -134,21 +101,15 @@ def require_psf_memory(
 ) -> None:
     """Refuse, before allocating, a PSF stack whose sensor-sized arrays cannot fit in memory.
 
-    Lower bound of what :func:`simulate_psf` holds at once: a Fourier stack keeps
-    ``depths x ny x nx`` reals plus a few complex sensor-sized fields (``k`` times finer per
-    axis with ``accuracy.volume_oversampling = k``); a conventional one at least a few complex
-    sensor-sized fields (its projector images the whole sensor). ``sensor``: the (cropped)
-    sensor in camera pixels, default the design's.
+    Lower bound of what :func:`simulate_psf` holds at once, from the design's kind
+    (:meth:`SystemKind.psf_bytes`: a Fourier stack keeps ``depths x ny x nx`` reals plus a few
+    complex sensor-sized fields, ``k`` times finer per axis with ``accuracy.volume_oversampling
+    = k``; a conventional one at least a few complex sensor-sized fields). ``sensor``: the
+    (cropped) sensor in camera pixels, default the design's (named in the error).
     """
     ny, nx = sensor if sensor is not None else design.camera.pixel_count
-    if design.kind == "fourier":
-        refine = design.accuracy.volume_oversampling
-        ny, nx = ny * refine, nx * refine
     real = real_dtype_named(dtype) if dtype is not None else torch.float32
-    complex_type = torch.complex128 if real == torch.float64 else torch.complex64
-    needed = 3 * tensor_bytes((ny, nx), complex_type)
-    if design.kind == "fourier":
-        needed += tensor_bytes((depth_count, ny, nx), real)
+    needed = kind_of(design).psf_bytes(design, depth_count, (ny, nx), real)
     require_memory(
         needed,
         f"the PSF stack of {design.name!r} ({depth_count} depths on a {ny} x {nx} px sensor)",
@@ -158,47 +119,17 @@ def require_psf_memory(
     )
 
 
-@dataclass(frozen=True)
-class ImagingSetup:
-    """A projector with the volume grid it expects (voxel size in metres, ``(dz, dy, dx)``)."""
-
-    projector: Projector
-    volume_shape: tuple[int, int, int]
-    voxel_size: tuple[float, float, float]
-
-
 def imaging_setup(stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
-    """Projector and volume grid for ``stack``.
+    """Projector and volume grid for ``stack``, built by the kind of its layout (:func:`stack_kind`).
 
-    Fourier: lateral voxel = the stack's pixel / magnification (sensor pixel / M_T, or
-    ``1 / k`` of it for a stack with metadata ``volume_oversampling`` ``k``, whose PSFs are
-    then summed ``k x k`` onto each camera pixel: :class:`BinnedProjector`); the volume
-    spans ``field_of_view`` metres (default: the design's, else a quarter of the sensor).
-    Conventional: the lattice of the stack's lenslets, ``voxels_per_lenslet`` per pitch.
+    Fourier (and any per-depth shift-invariant stack): lateral voxel = the stack's pixel /
+    magnification (sensor pixel / M_T, or ``1 / k`` of it for a stack with
+    ``volume_oversampling`` ``k``, whose PSFs are then summed ``k x k`` onto each camera pixel:
+    :class:`BinnedProjector`); the volume spans ``field_of_view`` metres (default: the design's,
+    else a quarter of the sensor). Conventional: the lattice of the stack's lenslets,
+    ``voxels_per_lenslet`` per pitch (``stack.patterns``).
     """
-    depths = stack.depths
-    dz = abs(depths[1] - depths[0]) if len(depths) > 1 else stack.object_pixel_size
-    if stack.metadata.get("kind") == "conventional":
-        lattice = lattice_projector(stack)
-        voxel = (
-            stack.pixel_size
-            * stack.metadata_int("pixels_per_lenslet")
-            / (stack.magnification * stack.metadata_int("voxels_per_lenslet"))
-        )
-        return ImagingSetup(lattice, lattice.volume_shape, (dz, voxel, voxel))
-    voxel = stack.object_pixel_size
-    if field_of_view is None and isinstance(
-        stack.design, Design
-    ):  # (a dict: a design read without rebuilding)
-        field_of_view = stack.design.field_of_view_diameter or None
-    ny, nx = stack.data.shape[-2:]
-    lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
-    lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
-    projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
-    refine = stack.metadata_int("volume_oversampling", 1)
-    if refine > 1:
-        projector = BinnedProjector(projector, refine)
-    return ImagingSetup(projector, (len(depths), lateral, lateral), (dz, voxel, voxel))
+    return stack_kind(stack).imaging_setup(stack, field_of_view=field_of_view)
 
 
 def make_phantom(
@@ -234,9 +165,10 @@ def make_phantom(
                 f"{2 * max(voxel) * 1e6:.3g} um apart in a volume of {shape} voxels. Fix: pass --count N "
                 "(at most what fits), or use more depths / a larger field of view."
             )
+    elif kind == "beads" and count is not None:
+        phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
     elif kind == "cells":
-        (nz, ny, nx), (dz, dy, dx) = shape, voxel
-        semi = (0.45 * nz * dz, 0.45 * ny * dy, 0.45 * nx * dx)
+        semi = (0.45 * shape[0] * voxel[0], 0.45 * shape[1] * voxel[1], 0.45 * shape[2] * voxel[2])
         phantom = cells_in_ellipsoid(shape, voxel_size=voxel, seed=seed, semi_axes=semi, dtype=dtype)
     else:
         raise ValueError(f"phantom must be 'beads', 'cells' or a TIFF volume path; got {kind!r}.")

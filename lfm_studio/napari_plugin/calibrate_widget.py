@@ -52,7 +52,7 @@ from lfm_studio.napari_plugin.task_controls import TaskControls
 def summary_line(calibration: Calibration) -> str:
     """One line on a calibration: pitch (px), rotation (deg), RMS residual (px) and flagged lenslets."""
     summary = calibration.summary()
-    if calibration.kind == "conventional":
+    if calibration.grid is not None:  # a lenslet lattice (conventional LFM), else Fourier sub-images
         py, px = summary["pitch_yx_px"]
         return (
             f"pitch {py:.4f} x {px:.4f} px, rotation {summary['rotation_deg']:.4f} deg, "

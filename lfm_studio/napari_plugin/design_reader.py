@@ -23,13 +23,14 @@ from qtpy.QtCore import QObject
 
 from lfm_studio.engine.design import Design, load_design
 from lfm_studio.engine.simulation import simulate_psf
+from lfm_studio.engine.systems.kinds import KIND_NAMES
 from lfm_studio.napari_plugin.background import Outcome
 from lfm_studio.napari_plugin.layer_data import LayerData, psf_layer_data
 from lfm_studio.napari_plugin.notify import design_warnings_collected, report_error, report_info
 from lfm_studio.napari_plugin.psf_task import psf_task
 
 MAX_DESIGN_BYTES = 16 * 2**20  # larger JSON files are not designs (a design is a few kB)
-DESIGN_KINDS = ("fourier", "conventional")
+DESIGN_KINDS = KIND_NAMES  # the design-file words of the system kinds
 NOTHING: list[Any] = [(None,)]  # napari's "read, but no layer" sentinel
 
 _RUNNING: set[DesignPSFJob] = set()  # keeps running jobs alive until they end

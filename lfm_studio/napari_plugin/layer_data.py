@@ -29,7 +29,12 @@ import numpy as np
 import torch
 
 from lfm_studio.engine.io import LightFieldImage, Volume
-from lfm_studio.engine.io.metadata import design_kind, design_to_json
+from lfm_studio.engine.io.metadata import (
+    design_kind,
+    design_to_json,
+    layout_metadata,
+    split_layout_metadata,
+)
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.units import nm, um
 
@@ -88,7 +93,7 @@ def psf_layer_data(stack: PSFStack, *, name: str, source: str | None = None) -> 
         "wavelength_nm": stack.wavelength / nm,
         "design": design_to_json(stack.design),
         "design_kind": design_kind(stack.design),
-        "metadata": dict(stack.metadata),
+        "metadata": {**stack.metadata, **layout_metadata(stack.patterns, stack.volume_oversampling)},
         "source": source,
     }
     meta = {
@@ -199,6 +204,7 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
         )
     _require(metadata, ("depths_m", "pixel_size_m", "magnification", "wavelength_m"), name)
     try:
+        layout, extra = split_layout_metadata(metadata.get("metadata"), where=f"layer {name!r}")
         return PSFStack(
             data=_tensor(data, name),
             depths=tuple(metadata["depths_m"]),
@@ -206,7 +212,8 @@ def stack_from_layer(data: Any, metadata: dict[str, Any], *, name: str) -> PSFSt
             magnification=float(metadata["magnification"]),
             wavelength=float(metadata["wavelength_m"]),
             design=design_of(metadata, name),
-            metadata=dict(metadata.get("metadata") or {}),
+            metadata=extra,
+            **layout,
         )
     except LayerError:
         raise

@@ -33,6 +33,7 @@ from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.simulation import imaging_setup
+from lfm_studio.engine.systems.kinds import stack_kind
 from lfm_studio.engine.units import um
 
 
@@ -115,28 +116,28 @@ def prepare(
             "one camera frame (Y, X). Fix: pick a 2-D layer, or reconstruct time series with "
             "'lfm-studio reconstruct'."
         )
-    conventional = stack.data.ndim == 5
-    if registry.get(settings.method).projectors == "shift-invariant" and conventional:
+    kind = stack_kind(stack)
+    if registry.get(settings.method).projectors == "shift-invariant" and not kind.shift_invariant:
         choices = " or ".join(m.label for m in registry.methods() if m.projectors == "any")
         raise ValueError(
             f"{settings.label} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
-            f"{psf_name!r} is a conventional-LFM pattern stack. Fix: choose {choices}."
+            f"{psf_name!r} is a {kind.title} pattern stack. Fix: choose {choices}."
         )
     if calibration is not None:  # a raw frame: its rectified shape is checked against the PSF in run
         name = calibration_name or "calibration"
         _check_raw_frame(image, settings, calibration, image_name, name)
         return Request(stack, image, settings, image_name, psf_name, calibration, name)
-    if not math.isclose(stack.pixel_size, image.pixel_size, rel_tol=1e-6):
+    if not math.isclose(stack.camera_pixel_size, image.pixel_size, rel_tol=1e-6):
         raise ValueError(
             f"PSF pixel size does not match the image: the image layer {image_name!r} has "
             f"{image.pixel_size / um:g} um pixels but the PSF layer {psf_name!r} was computed for "
-            f"{stack.pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
+            f"{stack.camera_pixel_size / um:g} um sensor pixels. Fix: pick the PSF simulated for this camera, or "
             "simulate one with the camera's pixel pitch (Simulate PSF)."
         )
-    if not conventional and tuple(image.data.shape) != tuple(stack.data.shape[-2:]):
+    if kind.shift_invariant and tuple(image.data.shape) != stack.camera_shape:
         raise ValueError(
             f"The image layer {image_name!r} has {tuple(image.data.shape)} pixels but the PSF layer "
-            f"{psf_name!r} covers a {tuple(stack.data.shape[-2:])} pixel sensor. Fix: use the PSF simulated "
+            f"{psf_name!r} covers a {stack.camera_shape} pixel sensor. Fix: use the PSF simulated "
             "for this camera (same pixel count), or crop the image to it."
         )
     return Request(stack, image, settings, image_name, psf_name)

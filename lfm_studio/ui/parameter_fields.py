@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from qtpy.QtCore import Signal
 from qtpy.QtWidgets import QHBoxLayout, QLabel, QWidget
 
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, KINDS, SystemKind
 from lfm_studio.widgets.numeric_field import NumericField
 from lfm_studio.widgets.numeric_text import NumberRule
 
@@ -32,7 +33,7 @@ class FieldSpec:
     parts : 1 for a number, 2 for a pair such as ``pixel_count`` (y, x) or ``depth_range_um``.
     integer : whole numbers (pixel counts).
     optional : the minimum means "none" (the design value is None).
-    kinds : design kinds where the field applies ("fourier", "conventional").
+    kinds : system kinds where the field applies (default: all).
     tip : tooltip.
     """
 
@@ -47,7 +48,7 @@ class FieldSpec:
     parts: int = 1
     integer: bool = False
     optional: bool = False
-    kinds: tuple[str, ...] = ("fourier", "conventional")
+    kinds: tuple[SystemKind, ...] = KINDS
     tip: str = ""
 
 
@@ -63,9 +64,9 @@ FIELDS: tuple[FieldSpec, ...] = (
     FieldSpec("objective.tube_lens_focal_length_mm", "Tube lens focal length", "mm", "Objective", 1, 0.0, 1e4, 5.0,
               tip="Olympus 180 mm, Nikon 200 mm, Zeiss 165 mm."),
     FieldSpec("relay.focal_length_mm", "Fourier lens focal length", "mm", "Fourier lens", 1, 0.0, 1e4, 5.0,
-              kinds=("fourier",), tip="Relay lens that images the back pupil onto the MLA."),
+              kinds=(FOURIER,), tip="Relay lens that images the back pupil onto the MLA."),
     FieldSpec("relay.field_stop_diameter_mm", "Field stop diameter", "mm", "Fourier lens", 2, 0.0, 1e3, 0.1,
-              optional=True, kinds=("fourier",), tip="Iris at the native image plane (0 = none)."),
+              optional=True, kinds=(FOURIER,), tip="Iris at the native image plane (0 = none)."),
     FieldSpec("mla_to_camera_distance_mm", "MLA to camera distance", "mm", "MLA and camera", 2, 0.0, 1e4, 0.25,
               tip="Distance from the microlens array to the sensor."),
     FieldSpec("camera.pixel_pitch_um", "Pixel pitch", "µm", "MLA and camera", 2, 0.0, 1e3, 0.1),
@@ -78,10 +79,10 @@ FIELDS: tuple[FieldSpec, ...] = (
               tip="Source depths below the native focal plane (positive: away from the objective)."),
     FieldSpec("depths.depth_step_um", "Depth step", "µm", "Depths", 2, 0.0, 1e5, 1.0),
     FieldSpec("accuracy.voxels_per_lenslet", "Voxels per lenslet", "", "Computation", 0, 0, 99, 2, integer=True,
-              kinds=("conventional",), tip="Lateral volume voxels per lenslet pitch (odd). Finer grids resolve "
+              kinds=(CONVENTIONAL,), tip="Lateral volume voxels per lenslet pitch (odd). Finer grids resolve "
               "closer pairs (never below 2 voxels) at the square of the PSF cost."),
     FieldSpec("accuracy.volume_oversampling", "Volume voxels per pixel", "", "Computation", 0, 0, 7, 2,
-              integer=True, kinds=("fourier",), tip="1, 3, 5 or 7 volume voxels per sensor pixel (the PSF is "
+              integer=True, kinds=(FOURIER,), tip="1, 3, 5 or 7 volume voxels per sensor pixel (the PSF is "
               "sampled to match). Finer grids resolve closer pairs at k² the PSF and volume size."),
 )  # fmt: skip
 

@@ -25,14 +25,10 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.design import ACCURACY_PRESETS, AccuracySpec, Design, describe_preset
+from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.ui.edits import read_path, try_changes
 from lfm_studio.ui.parameter_fields import FIELDS, ErrorLabel, FieldSpec, QuantityInput
 from lfm_studio.ui.state import StudioState
-
-_KIND_TEXT = {
-    "fourier": "Fourier LFM: the MLA sits at the relayed back pupil",
-    "conventional": "Conventional LFM: the MLA sits at the native image plane",
-}
 
 
 class ParameterPanel(QScrollArea):
@@ -119,10 +115,11 @@ class ParameterPanel(QScrollArea):
     # ----- state -> view -----
 
     def _on_design(self, design: Design) -> None:
-        self.kind_label.setText(f"<b>{design.name}</b><br>{_KIND_TEXT.get(design.kind, design.kind)}")
+        kind = kind_of(design)
+        self.kind_label.setText(f"<b>{design.name}</b><br>{kind.label}")
         pending = self.state.errors
         for path, field in self.inputs.items():
-            applies = design.kind in field.spec.kinds
+            applies = kind in field.spec.kinds
             field.setEnabled(applies)
             if applies and path not in pending:
                 field.set_value(read_path(design, path))
@@ -138,7 +135,7 @@ class ParameterPanel(QScrollArea):
             was_invalid = bool(field.property("invalid"))
             field.set_invalid(message)
             self.error_labels[path].show_error(message)
-            if was_invalid and message is None and design.kind in field.spec.kinds:
+            if was_invalid and message is None and kind_of(design) in field.spec.kinds:
                 field.discard_edits()  # the refused value is dropped
                 field.set_value(read_path(design, path))
 

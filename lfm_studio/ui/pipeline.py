@@ -21,8 +21,9 @@ import torch
 from lfm_studio.engine.design import AccuracySpec, Design
 from lfm_studio.engine.performance import DesignMetrics, compute_design_metrics
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.fourier_psf import FourierPSFReport, fourier_psf_stack
-from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
+from lfm_studio.engine.simulation import simulate_psf
+from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
+from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui.edits import try_changes
 from lfm_studio.ui.results import ImageResult, PSFProfiles, PSFResult, ReconstructionResult, WorkflowSettings
@@ -52,15 +53,16 @@ def preview_design(design: Design) -> Design | None:
     """A cheaper variant of ``design`` for the quick preview, or None when the design is small already.
 
     The "preview" accuracy preset (1 sub-sample per pixel with the exact pixel integration, Debye
-    objective: <= 5 % PSF error, :data:`PRESET_ERROR_BOUNDS`) and, for big Fourier sensors, 2 x 2
-    pixel binning (same sensor area, same sub-image positions).
+    objective: <= 5 % PSF error, :data:`PRESET_ERROR_BOUNDS`) and, for big sensors of a kind whose
+    PSF keeps its geometry when binned (``kind.binnable_sensor``: Fourier), 2 x 2 pixel binning
+    (same sensor area, same sub-image positions).
     """
     ny, nx = design.camera.pixel_count
     big_sensor = min(ny, nx) >= PREVIEW_BINNING_FROM
     if design.depths.count <= PREVIEW_DEPTHS and not big_sensor:
         return None
     changes: dict[str, Any] = {"accuracy": AccuracySpec.from_preset("preview")}
-    if big_sensor and design.kind == "fourier":
+    if big_sensor and kind_of(design).binnable_sensor:
         binned = {
             "camera.pixel_pitch_um": 2.0 * design.camera.pixel_pitch_um,
             "camera.pixel_count": (ny // 2, nx // 2),
@@ -108,17 +110,11 @@ def _stack(
     def progress(done: int, total: int, message: str) -> None:
         ctx.progress(done, total, f"{label}: {message}")
 
-    if design.kind == "fourier":
-        report = FourierPSFReport()
-        stack = fourier_psf_stack(
-            fourier_system_of(design), depths, accuracy=fourier_accuracy_of(design), device=device,
-            cache=cache, progress=progress, cancel=ctx.cancel, report=report, design=design,
-        )  # fmt: skip
-        return stack, report.method, tuple(report.lenslets_computed), tuple(report.lenslets_cached)
-    from lfm_studio.engine.simulation import simulate_psf
-
-    stack = simulate_psf(design, depths=depths, device=device, progress=progress, cancel=ctx.cancel)
-    return stack, "conventional", (), ()
+    report = FourierPSFReport()
+    stack = simulate_psf(
+        design, depths=depths, device=device, progress=progress, cancel=ctx.cancel, cache=cache, report=report
+    )
+    return stack, report.method, tuple(report.lenslets_computed), tuple(report.lenslets_cached)
 
 
 def _psf_result(
@@ -158,7 +154,7 @@ def compute_psf(ctx: Context, request: PSFRequest, cache: LensletCache | None) -
 def _fourier_slices(stack: PSFStack) -> torch.Tensor:
     """The ``(Z, Y, X)`` PSFs of a stack (a conventional stack's central lenslet pattern)."""
     data = stack.data.detach()
-    if data.ndim == 5:  # conventional patterns (S, S, Z, H, H): the on-axis source position
+    if not stack.shift_invariant:  # conventional patterns (S, S, Z, H, H): the on-axis source position
         s = data.shape[0]
         return data[s // 2, s // 2]
     return data.reshape(-1, *data.shape[-3:])[0]
@@ -185,7 +181,7 @@ def psf_profiles(stack: PSFStack) -> PSFProfiles:
 def measure_design(ctx: Context, design: Design, stack: PSFStack | None) -> DesignMetrics:
     """Design metrics with the requirement checks, measured on ``stack`` when it is a ``(Z, Y, X)`` stack."""
     ctx.progress(0, 1, "measuring design metrics")
-    usable = stack is not None and stack.data.ndim == 3 and len(stack.depths) >= 3
+    usable = stack is not None and stack.shift_invariant and stack.data.ndim == 3 and len(stack.depths) >= 3
     metrics = compute_design_metrics(design, psf=stack if usable else None)
     ctx.progress(1, 1, "design metrics")
     return metrics

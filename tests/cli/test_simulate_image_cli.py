@@ -91,8 +91,8 @@ def test_conventional_design_round_trips_patterns_through_tiff(tmp_path):
     psf_path, lf_path = tmp_path / "patterns.tif", tmp_path / "lf.tif"
     assert main(["simulate", str(path), "--out", str(psf_path), "--dtype", "float64"]) == 0
     stack = read_psf_stack(psf_path)
-    assert stack.data.ndim == 5 and stack.metadata["kind"] == "conventional"
-    assert stack.metadata["lenslets"] == [6, 6] and len(stack.metadata["reach"]) == 3
+    assert stack.data.ndim == 5 and stack.patterns is not None and stack.metadata == {}
+    assert stack.patterns.lenslets == (6, 6) and len(stack.patterns.reach) == 3
     assert (
         main(
             ["image", str(path), "--psf", str(psf_path), "--count", "2", "--seed", "3", "--out", str(lf_path)]
@@ -100,6 +100,6 @@ def test_conventional_design_round_trips_patterns_through_tiff(tmp_path):
         == 0
     )
     image = read_image(lf_path)
-    q = stack.metadata["pixels_per_lenslet"]
+    q = stack.patterns.pixels_per_lenslet
     assert image.data.shape == (6 * q, 6 * q)
     assert float(image.data.sum()) > 0

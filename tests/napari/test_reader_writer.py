@@ -21,7 +21,7 @@ from lfm_studio.engine.io import (
     write_psf_stack,
     write_volume,
 )
-from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.simulation import simulate_psf
 from lfm_studio.engine.units import nm, um
 from lfm_studio.napari_plugin import design_reader
@@ -102,19 +102,22 @@ def test_light_field_and_volume_round_trip(make_napari_viewer, tmp_path, notes):
 
 
 def test_conventional_pattern_stack_is_a_5d_layer(make_napari_viewer, tmp_path):
-    meta = {"kind": "conventional", "pixels_per_lenslet": 8, "voxels_per_lenslet": 2}
-    stack = PSFStack(
-        _rand(2, 2, 3, 8, 8, seed=3), (-2 * um, 0.0, 2 * um), 6.5 * um, 20.0, 525 * nm, None, meta
+    layout = ConventionalPatterns(
+        pixels_per_lenslet=3, voxels_per_lenslet=3, reach=(0, 1, 0), lenslets=(4, 4)
     )
+    stack = PSFStack(
+        _rand(3, 3, 3, 15, 15, seed=3), (-2 * um, 0.0, 2 * um), 6.5 * um, 20.0, 525 * nm, None, {"note": "n"},
+        patterns=layout,
+    )  # fmt: skip
     write_psf_stack(tmp_path / "conv.tif", stack)
     viewer = make_napari_viewer()
     layer = _open_one(viewer, tmp_path / "conv.tif")
-    assert layer.data.shape == (2, 2, 3, 8, 8)
+    assert layer.data.shape == (3, 3, 3, 15, 15)
     np.testing.assert_allclose(layer.scale, (1.0, 1.0, 2.0, 6.5, 6.5), rtol=1e-12)
     _save(viewer, layer, tmp_path / "conv2.tif")
     back = read_psf_stack(tmp_path / "conv2.tif")
     torch.testing.assert_close(back.data, stack.data, rtol=0, atol=0)
-    assert back.metadata == meta and back.depths == stack.depths
+    assert back.patterns == layout and back.metadata == {"note": "n"} and back.depths == stack.depths
 
 
 def test_plain_layer_is_written_from_its_scale_in_micrometres(make_napari_viewer, tmp_path):

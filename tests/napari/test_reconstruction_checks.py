@@ -6,13 +6,20 @@ import pytest
 import torch
 
 from lfm_studio.engine.io import LightFieldImage
-from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.units import nm, um
 from lfm_studio.napari_plugin.reconstruction import Settings, prepare
 
 
 def _stack(*shape: int) -> PSFStack:
-    return PSFStack(torch.ones(*shape), (-1 * um, 0.0, 1 * um), 6.5 * um, 10.0, 525 * nm)
+    """Per-depth PSFs of ``shape`` or, for a 5-D shape ``(S, S, 3, H, H)``, conventional lenslet
+    patterns (3 pixels per lenslet, reach 0: ``H`` = 9)."""
+    layout = None
+    if len(shape) == 5:
+        layout = ConventionalPatterns(
+            pixels_per_lenslet=3, voxels_per_lenslet=shape[0], reach=(0, 0, 0), lenslets=(2, 2)
+        )
+    return PSFStack(torch.ones(*shape), (-1 * um, 0.0, 1 * um), 6.5 * um, 10.0, 525 * nm, patterns=layout)
 
 
 def _prepare(stack, image, **settings):
@@ -31,7 +38,7 @@ def test_matching_inputs_are_accepted():
         ((3, 16, 16), LightFieldImage(torch.ones(16, 16), 6.4 * um), {}, "6.4 um pixels"),
         ((3, 16, 16), LightFieldImage(torch.ones(16, 20), 6.5 * um), {}, "(16, 20) pixels"),
         (
-            (2, 2, 3, 8, 8),
+            (3, 3, 3, 9, 9),
             LightFieldImage(torch.ones(16, 16), 6.5 * um),
             {"method": "tikhonov"},
             "Fourier LFM",
@@ -131,6 +138,20 @@ def test_a_raw_frame_with_a_calibration_is_refused_for_wiener_on_a_conventional_
     image = LightFieldImage(torch.ones(16, 16), 6.5 * um)
     with pytest.raises(ValueError, match="Fourier LFM"):
         prepare(
-            _stack(2, 2, 3, 8, 8), image, Settings(method="wiener"), image_name="frame", psf_name="psf",
+            _stack(3, 3, 3, 9, 9), image, Settings(method="wiener"), image_name="frame", psf_name="psf",
             calibration=object(), calibration_name="calib.json",
         )  # fmt: skip
+
+
+def test_a_psf_sampled_finer_than_the_camera_is_matched_to_camera_frames():
+    # volume_oversampling 3: PSFs on a virtual sensor of 2.1667 um pixels, 3 x 3 per 6.5 um camera pixel
+    # (16 camera pixels: 3 * 16 + 2 virtual ones on an even axis). The frame is the camera's.
+    fine = PSFStack(
+        torch.ones(3, 50, 50), (-1 * um, 0.0, 1 * um), 6.5 * um / 3, 10.0, 525 * nm, volume_oversampling=3
+    )
+    assert fine.camera_shape == (16, 16) and fine.camera_pixel_size == pytest.approx(6.5 * um)
+    assert _prepare(fine, LightFieldImage(torch.ones(16, 16), 6.5 * um)).psf_name == "psf"
+    with pytest.raises(ValueError, match=r"\(50, 50\) pixels but the PSF layer 'psf' covers a \(16, 16\)"):
+        _prepare(fine, LightFieldImage(torch.ones(50, 50), 6.5 * um))
+    with pytest.raises(ValueError, match=r"2\.16667 um pixels"):
+        _prepare(fine, LightFieldImage(torch.ones(16, 16), 6.5 * um / 3))

@@ -11,7 +11,7 @@ import torch
 from qtpy.QtGui import QGuiApplication
 from qtpy.QtWidgets import QApplication
 
-from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.widgets import psf_viewer
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from lfm_studio.widgets.viewer import napari_embed
@@ -23,15 +23,16 @@ DEPTHS = (-20e-6, 0.0, 20e-6)
 SPOT = (16, 44)  # (row, column) of the bright spot in a 64 x 64 slice: up and right of the axis
 
 
-def spot_stack(depths=DEPTHS, n=64, *, lead=(), kind=None) -> PSFStack:
-    """One Gaussian spot per depth, wider away from focus, at SPOT (rows/cols of an n x n slice)."""
+def spot_stack(depths=DEPTHS, n=64, *, lead=(), patterns=None) -> PSFStack:
+    """One Gaussian spot per depth, wider away from focus, at SPOT (rows/cols of an n x n slice);
+    ``patterns``: the typed layout of conventional lenslet patterns (``lead`` = (S, S))."""
     yy, xx = torch.meshgrid(
         torch.arange(n, dtype=torch.float32), torch.arange(n, dtype=torch.float32), indexing="ij"
     )
     r2 = (yy - SPOT[0]) ** 2 + (xx - SPOT[1]) ** 2
     planes = [torch.exp(-r2 / (2 * (1.5 + abs(z) * 1e5) ** 2)) for z in depths]
     data = torch.stack(planes).expand(*lead, len(depths), n, n).contiguous()
-    return PSFStack(data, depths, PITCH, MAG, 680e-9, metadata={"kind": kind} if kind else {})
+    return PSFStack(data, depths, PITCH, MAG, 680e-9, patterns=patterns)
 
 
 def settle(qtbot, ms=400):
@@ -89,7 +90,10 @@ def test_showing_the_same_name_again_updates_the_layer_in_place(viewer):
 
 
 def test_conventional_patterns_are_5d_at_the_central_sub_position(viewer):
-    viewer.show_psf(spot_stack(lead=(3, 3), kind="conventional"))
+    layout = ConventionalPatterns(
+        pixels_per_lenslet=5, voxels_per_lenslet=3, reach=(2, 0, 2), lenslets=(4, 4)
+    )
+    viewer.show_psf(spot_stack(n=65, lead=(3, 3), patterns=layout))  # (odd: patterns are centred)
     layer = viewer.layer("PSF")
     assert layer.ndim == 5 and layer.axis_labels[:2] == ("sub-position row", "sub-position column")
     assert viewer._scene.model.dims.current_step[:2] == (1, 1)

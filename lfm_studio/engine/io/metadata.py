@@ -15,6 +15,13 @@ Schema (version 1), keys carry their unit::
      "design": {...} | null, "design_kind": "model" | "dict" | null,
      "metadata": {...}}
 
+A PSF stack keeps its typed layout in ``"metadata"``: a conventional-LFM pattern stack
+(:class:`ConventionalPatterns`) as ``"kind": "conventional"``, ``"pixels_per_lenslet"``,
+``"voxels_per_lenslet"``, ``"reach"`` (one integer per depth) and ``"lenslets"``
+(``[Ly, Lx]``); a stack sampled ``k`` times finer than the camera as
+``"volume_oversampling": k``. :func:`layout_metadata` writes them and
+:func:`split_layout_metadata`, the one parser, reads them back.
+
 Lengths are written as exact decimal shifts of the metre values (``4.8e-05`` m is
 written ``48`` um), so reading gives back the identical float64 (no 1-ulp drift
 from multiplying by 1e6 and dividing again).
@@ -29,12 +36,18 @@ import uuid
 from decimal import Decimal
 from typing import Any
 
+from lfm_studio.engine.psf_stack import ConventionalPatterns
+
 FORMAT_NAME = "lfm_studio"
 SCHEMA_VERSION = 1
 KINDS = ("psf_stack", "volume", "image")
 
 #: Power-of-ten exponent of each unit suffix used in header keys.
 _UNIT_EXPONENT = {"um": 6, "nm": 9}
+
+_PATTERN_KIND = "conventional"  # the "kind" word of a pattern stack's metadata
+_PATTERN_KEYS = ("pixels_per_lenslet", "voxels_per_lenslet", "reach", "lenslets")
+_OVERSAMPLING_KEY = "volume_oversampling"
 
 
 class MissingMetadataError(ValueError):
@@ -115,6 +128,55 @@ def design_from_header(obj: Any, *, kind: str | None, rebuild: bool, path: str) 
             f"{path}: the embedded design could not be rebuilt ({exc}). "
             "Fix: read it with rebuild_design=False to get the design as a JSON dict."
         ) from exc
+
+
+def layout_metadata(patterns: ConventionalPatterns | None, volume_oversampling: int = 1) -> dict[str, Any]:
+    """The JSON-serialisable metadata entries of a PSF stack's typed layout (``{}`` for plain PSFs)."""
+    entries: dict[str, Any] = {}
+    if volume_oversampling != 1:
+        entries[_OVERSAMPLING_KEY] = int(volume_oversampling)
+    if patterns is None:
+        return entries
+    return {
+        **entries,
+        "kind": _PATTERN_KIND,
+        "pixels_per_lenslet": patterns.pixels_per_lenslet,
+        "voxels_per_lenslet": patterns.voxels_per_lenslet,
+        "reach": list(patterns.reach),
+        "lenslets": list(patterns.lenslets),
+    }
+
+
+def split_layout_metadata(
+    metadata: dict[str, Any] | None, *, where: str = "metadata"
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(layout, rest)``: the typed layout stored by :func:`layout_metadata` as :class:`PSFStack`
+    keyword arguments (``patterns``, ``volume_oversampling``; empty for plain PSFs) and the
+    remaining free-form entries. ``where`` names the source in errors."""
+    rest = dict(metadata or {})
+    layout: dict[str, Any] = {}
+    if _OVERSAMPLING_KEY in rest:
+        layout["volume_oversampling"] = rest.pop(_OVERSAMPLING_KEY)
+    if rest.get("kind") != _PATTERN_KIND:
+        return layout, rest
+    missing = [key for key in _PATTERN_KEYS if key not in rest]
+    if missing:
+        raise HeaderError(
+            f"{where}: a conventional pattern stack lacks {', '.join(missing)} in its metadata. "
+            "Fix: re-simulate the PSF with lfm-studio simulate."
+        )
+    values = {key: rest.pop(key) for key in _PATTERN_KEYS}
+    del rest["kind"]
+    try:
+        layout["patterns"] = ConventionalPatterns(
+            pixels_per_lenslet=values["pixels_per_lenslet"],
+            voxels_per_lenslet=values["voxels_per_lenslet"],
+            reach=tuple(values["reach"]),
+            lenslets=tuple(values["lenslets"]),
+        )
+    except (TypeError, ValueError) as exc:
+        raise HeaderError(f"{where}: malformed conventional pattern layout ({exc}).") from exc
+    return layout, rest
 
 
 def encode_header(kind: str, fields: dict[str, Any], units: dict[str, str]) -> str:

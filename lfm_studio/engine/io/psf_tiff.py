@@ -22,7 +22,9 @@ from lfm_studio.engine.io.metadata import (
     design_kind,
     design_to_json,
     encode_header,
+    layout_metadata,
     require_kind,
+    split_layout_metadata,
 )
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.units import um
@@ -55,7 +57,7 @@ def write_psf_stack(path: str | os.PathLike, stack: PSFStack, *, overwrite: bool
         "wavelength_nm": stack.wavelength,
         "design": design_to_json(stack.design),
         "design_kind": design_kind(stack.design),
-        "metadata": stack.metadata,
+        "metadata": {**stack.metadata, **layout_metadata(stack.patterns, stack.volume_oversampling)},
     }
     return hs.write_hyperstack(
         path,
@@ -117,12 +119,12 @@ def read_psf_stack(
         design = design_from_header(
             header.get("design"), kind=header.get("design_kind"), rebuild=rebuild_design, path=name
         )
-        metadata = header.get("metadata") or {}
+        layout, metadata = split_layout_metadata(header.get("metadata"), where=name)
         object_px = header.get("object_pixel_size_um")
     else:
         array = hs.as_stack(raw, name, min_ndim=3, max_ndim=4, what="PSF stack")
         stored = {"pixel_size": None, "magnification": None, "wavelength": None, "depths": None}
-        design, metadata = None, {}
+        design, metadata, layout = None, {}, {}
         given = pixel_size is not None and magnification is not None
         object_px = None if given else hs.square_pixel(raw.calibration.dy, raw.calibration.dx, name)
     px = pixel_size if pixel_size is not None else stored["pixel_size"]
@@ -157,4 +159,5 @@ def read_psf_stack(
         wavelength=float(wl),
         design=design,
         metadata=metadata,
+        **layout,
     )

@@ -1,6 +1,7 @@
 """Closed-form design metrics of a light-field microscope (thesis section 2.3.1), SI units.
 
-:func:`closed_form_metrics` picks the formulas of the design's kind:
+:func:`closed_form_metrics` picks the formulas of the design's system kind
+(:func:`~lfm_studio.engine.systems.kinds.kind_of`, :data:`CLOSED_FORMS`):
 :mod:`.fourier_closed_forms` (MLA on the Fourier plane: FLFM, XLFM) or
 :mod:`.conventional_closed_forms` (MLA on the native image plane). Both fill the same
 :class:`ClosedFormMetrics`, so reports and requirement checks treat them alike; each
@@ -17,6 +18,8 @@ table; docs/resolution_conventions.md compares every closed form with the thesis
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.performance.closed_form_record import (
     CRITERION_LABELS,
@@ -28,8 +31,10 @@ from lfm_studio.engine.performance.closed_form_record import (
 )
 from lfm_studio.engine.performance.conventional_closed_forms import conventional_closed_forms
 from lfm_studio.engine.performance.fourier_closed_forms import fourier_closed_forms
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, SystemKind, kind_of
 
 __all__ = [
+    "CLOSED_FORMS",
     "CRITERION_LABELS",
     "LATERAL_CRITERIA",
     "UM",
@@ -40,12 +45,18 @@ __all__ = [
 ]
 
 
+CLOSED_FORMS: dict[SystemKind, Callable[..., ClosedFormMetrics]] = {
+    FOURIER: fourier_closed_forms,
+    CONVENTIONAL: conventional_closed_forms,
+}
+"""The closed forms of each system kind, ``f(design, *, criterion) -> ClosedFormMetrics``.
+
+(Kept here rather than on the kind objects: this package builds on the systems package
+for its measured metrics, so the systems package must not import it back.)"""
+
+
 def closed_form_metrics(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
     """The closed-form metrics of ``design`` (Fourier or conventional LFM); lateral resolution
     by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
     criterion_factor(criterion)
-    if design.kind == "fourier":
-        return fourier_closed_forms(design, criterion=criterion)
-    if design.kind == "conventional":
-        return conventional_closed_forms(design, criterion=criterion)
-    raise ValueError(f"design.kind must be 'fourier' or 'conventional'; got {design.kind!r}.")
+    return CLOSED_FORMS[kind_of(design)](design, criterion=criterion)

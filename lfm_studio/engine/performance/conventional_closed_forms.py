@@ -44,6 +44,7 @@ from lfm_studio.engine.performance.closed_form_record import (
     criterion_factor,
     tightest_limit,
 )
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, kind_of
 
 SPARROW = LATERAL_CRITERIA["sparrow"]
 """Sparrow factor used by Levoy 2006: two points resolve at ``0.47 lambda / NA``."""
@@ -74,9 +75,10 @@ def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") ->
     """Closed-form metrics of a conventional LFM design (see the module docstring); the lateral
     diffraction limit by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
     factor = criterion_factor(criterion)
-    if design.kind != "conventional":
+    if kind_of(design) is not CONVENTIONAL:
         raise ValueError(
-            f"conventional_closed_forms needs a design of kind 'conventional'; got {design.kind!r}."
+            f"conventional_closed_forms needs a conventional-LFM design; got a {kind_of(design).title} "
+            f"({design.kind!r}). Fix: use closed_form_metrics(design), which picks the formulas of its kind."
         )
     objective, camera = design.objective, design.camera
     na, n, m = objective.numerical_aperture, objective.immersion_index, design.magnification

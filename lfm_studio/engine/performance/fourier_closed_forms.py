@@ -52,6 +52,7 @@ from lfm_studio.engine.performance.closed_form_record import (
     criterion_factor,
     tightest_limit,
 )
+from lfm_studio.engine.systems.kinds import FOURIER, kind_of
 
 RAYLEIGH = 1.22
 """Rayleigh factor of a circular aperture: first Airy zero at ``1.22 lambda / (2 NA)``."""
@@ -140,8 +141,11 @@ def fourier_closed_forms(design: Design, *, criterion: str = "rayleigh") -> Clos
     """Closed-form metrics of a Fourier LFM design (see the module docstring for each formula);
     the lateral diffraction limit by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
     factor = criterion_factor(criterion)
-    if design.kind != "fourier":
-        raise ValueError(f"fourier_closed_forms needs a design of kind 'fourier'; got {design.kind!r}.")
+    if kind_of(design) is not FOURIER:
+        raise ValueError(
+            f"fourier_closed_forms needs a Fourier-LFM design; got a {kind_of(design).title} ({design.kind!r}). "
+            "Fix: use closed_form_metrics(design), which picks the formulas of its kind."
+        )
     objective, camera = design.objective, design.camera
     m_t = design.magnification
     pupil, field_stop = pupil_diameter_of(design), relay_of(design).field_stop_diameter

@@ -35,6 +35,7 @@ from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 from lfm_studio.engine.systems.fourier_windows import footprint_radius
 from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
+from lfm_studio.engine.systems.kinds import kind_of
 
 MARGIN_AIRY = 8.0
 """Diffraction margin of the lenslet windows, in ``lambda d / D`` (see the module docstring)."""
@@ -93,7 +94,7 @@ def measurement_psf(
 
     Raises NotImplementedError for conventional designs (their PSF model does not exist yet).
     """
-    if design.kind != "fourier":
+    if not kind_of(design).shift_invariant:  # the measures need per-depth shift-invariant PSFs
         raise NotImplementedError(
             f"measuring needs the PSF model of a {design.kind!r} LFM, which is not implemented yet; "
             "only the closed-form metrics are available for this design."

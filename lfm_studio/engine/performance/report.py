@@ -111,7 +111,8 @@ class DesignMetrics:
     Attributes
     ----------
     design_name : str
-    kind : "fourier" or "conventional"
+    kind : str
+        The design-file word of the design's system kind (``design.kind``), as stored in the JSON.
     wavelength : float
         Emission wavelength, m.
     closed_form : ClosedFormMetrics

@@ -10,7 +10,7 @@ import torch
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
-from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.systems.conventional_patterns import (
     OUTPUT_OVERSAMPLING,
     conventional_patterns,
@@ -90,8 +90,9 @@ def conventional_psf_stack(
     """All patterns of ``system`` as one :class:`PSFStack` with data ``(S, S, Z, H, H)``.
 
     ``(S, S)`` is the voxel sub-position (row, column) in image orientation, ``H`` the
-    widest pattern (narrower ones are zero-padded, centred); ``metadata["reach"]`` lists
-    each depth's reach so :func:`lattice_projector` crops them back. ``accuracy``:
+    widest pattern (narrower ones are zero-padded, centred); ``stack.patterns``
+    (:class:`ConventionalPatterns`) lists each depth's reach so :func:`lattice_projector`
+    crops them back. ``accuracy``:
     the knobs (default :class:`ConventionalAccuracy`); ``dtype``, when given, overrides its dtype.
     """
     acc = accuracy or ConventionalAccuracy()
@@ -139,31 +140,27 @@ def conventional_psf_stack(
         system.magnification,
         system.wavelength,
         design=design,
-        metadata={
-            "kind": "conventional",
-            "pixels_per_lenslet": q,
-            "voxels_per_lenslet": s,
-            "reach": [*reach_of],
-            "lenslets": [*system.lenslets],
-        },
+        patterns=ConventionalPatterns(
+            pixels_per_lenslet=q, voxels_per_lenslet=s, reach=tuple(reach_of), lenslets=system.lenslets
+        ),
     )
 
 
 def lattice_projector(stack: PSFStack, lenslets: tuple[int, int] | None = None) -> LensletLatticeProjector:
-    """The conventional projector of a pattern stack from :func:`conventional_psf_stack`."""
-    meta = stack.metadata
-    if meta.get("kind") != "conventional" or stack.data.ndim != 5:
+    """The conventional projector of a pattern stack from :func:`conventional_psf_stack`, on the
+    stack's device and dtype; ``lenslets`` ``(Ly, Lx)`` overrides the stack's lenslet count."""
+    layout = stack.patterns
+    if layout is None:
         raise ValueError(
-            "stack is not a conventional-LFM pattern stack (expected data (S, S, Z, H, H) and "
-            f"metadata kind 'conventional'); got shape {tuple(stack.data.shape)}, kind {meta.get('kind')!r}."
+            "stack is not a conventional-LFM pattern stack (its patterns are None: per-depth "
+            f"shift-invariant PSFs of shape {tuple(stack.data.shape)}). Fix: build it with "
+            "conventional_psf_stack / simulate_psf of a conventional design, or use a ShiftInvariantProjector."
         )
-    q = stack.metadata_int("pixels_per_lenslet")
-    if lenslets is None:
-        ly, lx = stack.metadata_ints("lenslets")
-        lenslets = (ly, lx)
+    q = layout.pixels_per_lenslet
+    grid = layout.lenslets if lenslets is None else (int(lenslets[0]), int(lenslets[1]))
     width = stack.data.shape[-1]
     grouped: dict[int, list[int]] = defaultdict(list)
-    for index, reach in enumerate(stack.metadata_ints("reach")):
+    for index, reach in enumerate(layout.reach):
         grouped[reach].append(index)
     built = []
     for reach, indices in sorted(grouped.items()):
@@ -171,7 +168,7 @@ def lattice_projector(stack: PSFStack, lenslets: tuple[int, int] | None = None) 
         start = (width - h) // 2
         patterns = stack.data[:, :, indices, start : start + h, start : start + h].permute(2, 0, 1, 3, 4)
         built.append((indices, patterns))
-    return LensletLatticeProjector(built, len(stack.depths), lenslets, q)
+    return LensletLatticeProjector(built, len(stack.depths), grid, q)
 
 
 def conventional_projector(

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.kinds import stack_kind
 
 #: Per displayed 3-D block: 2**24 float32 voxels = 64 MiB, about 0.45 s/frame in software GL.
 DEFAULT_MAX_VOXELS_3D = 2**24
@@ -92,12 +93,13 @@ def psf_display(
     px = stack.pixel_size * 1e6
     ny, nx = data.shape[-2:]
     lead = data.ndim - 3
-    conventional = stack.metadata.get("kind") == "conventional" and lead == 2
-    lead_labels = ("sub-position row", "sub-position column") if conventional else _axis_names(lead)
+    kind = stack_kind(stack)
+    patterns = len(kind.pattern_axes) == lead > 0  # lenslet patterns: step through the sub-positions
+    lead_labels = kind.pattern_axes if patterns else _axis_names(lead)
     z_span = dz * depths.size
     meta = {
         "kind": "psf",
-        "model": "conventional" if conventional else str(stack.metadata.get("kind", "fourier")),
+        "model": kind.name,
         "space": SENSOR,
         "units": "um",
         "lateral": "sensor pixel pitch (camera side); sample side = pitch / magnification",
@@ -121,7 +123,7 @@ def psf_display(
         contrast_limits=_robust_limits(data, floor=0.0),
         gamma=PSF_GAMMA,
         z_stretch=_z_stretch(z_span, min(ny, nx) * px),
-        initial_step={axis: data.shape[axis] // 2 for axis in range(lead)} if conventional else {},
+        initial_step={axis: data.shape[axis] // 2 for axis in range(lead)} if patterns else {},
         metadata=meta,
     )
     return _finish(shown, max_voxels_3d)

@@ -72,7 +72,7 @@ def test_conventional_stack_and_volume_follow_voxels_per_lenslet():
         accuracy={**base.accuracy.model_dump(), "preset": "preview", "voxels_per_lenslet": 7}
     )
     stack = simulate_psf(design, depths=(0.0,), crop=60)
-    assert stack.metadata["voxels_per_lenslet"] == 7
+    assert stack.patterns is not None and stack.patterns.voxels_per_lenslet == 7
     setup = imaging_setup(stack)
     assert setup.voxel_size[1] == pytest.approx(125 * um / (10 * 7), rel=1e-9)
 
@@ -85,7 +85,7 @@ def test_refined_fourier_psf_bins_to_the_camera_psf(pixels):
     well_sampled = dict(pixel_um=6.5, offset_um=300.0, aperture_um=500.0)
     coarse = simulate_psf(sampling_limited_design(1, pixels, **well_sampled), depths=(0.0, 4e-6))
     fine = simulate_psf(sampling_limited_design(3, pixels, **well_sampled), depths=(0.0, 4e-6))
-    assert fine.metadata["volume_oversampling"] == 3
+    assert fine.volume_oversampling == 3 and "volume_oversampling" not in fine.metadata
     assert fine.pixel_size == pytest.approx(coarse.pixel_size / 3, rel=1e-12)
     n = pixels
     binned = fine.data[:, : 3 * n, : 3 * n].reshape(2, n, 3, n, 3).sum(dim=(2, 4))
