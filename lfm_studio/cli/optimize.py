@@ -63,9 +63,10 @@ def _objectives(args: argparse.Namespace) -> list:
 
 
 def _constraints(args: argparse.Namespace, design) -> tuple:
-    from lfm_studio.engine.optimize import DEFAULT_CONSTRAINTS, MinimumLensletSize, RequirementsConstraint
+    from lfm_studio.engine.optimize import MinimumLensletSize, RequirementsConstraint
+    from lfm_studio.engine.optimize.constraints import default_constraints
 
-    found = list(DEFAULT_CONSTRAINTS) if design.kind == "fourier" else []
+    found = list(default_constraints(design))
     if args.min_lenslet_um is not None:
         found.append(MinimumLensletSize(args.min_lenslet_um))
     if args.require_zebrafish:

@@ -23,6 +23,7 @@ from pydantic import ValidationError
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.errors import fmt
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
+from lfm_studio.engine.systems.kinds import kind_of
 
 
 @dataclass(frozen=True)
@@ -221,3 +222,8 @@ def first_violation(design: Design, constraints: Sequence[Constraint]) -> Infeas
         if found is not None:
             return found
     return None
+
+
+def default_constraints(design: Design) -> tuple[Constraint, ...]:
+    """:data:`DEFAULT_CONSTRAINTS` for a design whose MLA sits on the pupil (Fourier LFM), else none."""
+    return DEFAULT_CONSTRAINTS if kind_of(design).mla_at_pupil else ()

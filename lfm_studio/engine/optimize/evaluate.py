@@ -20,10 +20,10 @@ from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.memory import MemoryBudgetError
 from lfm_studio.engine.optimize.candidate import Candidate, EvaluationSettings
 from lfm_studio.engine.optimize.constraints import (
-    DEFAULT_CONSTRAINTS,
     Constraint,
     FocalLengthCatalogue,
     Infeasible,
+    default_constraints,
     first_violation,
     infeasible_from_error,
 )
@@ -103,7 +103,7 @@ class Evaluator:
         space.check_paths(base)
         self.base, self.space, self.objectives = base, space, tuple(objectives)
         if constraints is None:
-            constraints = DEFAULT_CONSTRAINTS if base.kind == "fourier" else ()
+            constraints = default_constraints(base)
         self.constraints = tuple(constraints)
         self.catalogue = catalogue
         self.settings = settings or EvaluationSettings()

@@ -59,6 +59,9 @@ class SystemKind(ABC):
     lenslet_cache : a per-lenslet :class:`LensletCache` speeds up recomputing its PSF after
         a lenslet edit (the cache is ignored when False).
     binnable_sensor : a 2 x 2-binned camera keeps its PSF's geometry (cheap previews of big sensors).
+    mla_at_pupil : the MLA sits on the relayed objective pupil, each lenslet forming its own
+        sub-image (Fourier LFM): lenslets must lie inside the pupil and sub-images on the sensor,
+        without overlap (the optimiser's default constraints).
     pattern_axes : names of the leading PSF axes the viewer steps through (empty: plain
         ``(Z, Y, X)`` PSF slices).
     """
@@ -69,6 +72,7 @@ class SystemKind(ABC):
     shift_invariant: ClassVar[bool]
     lenslet_cache: ClassVar[bool]
     binnable_sensor: ClassVar[bool]
+    mla_at_pupil: ClassVar[bool]
     pattern_axes: ClassVar[tuple[str, ...]] = ()
 
     @abstractmethod

@@ -37,6 +37,7 @@ class ConventionalKind(SystemKind):
     label = "Conventional LFM: the MLA sits at the native image plane"
     shift_invariant = False
     lenslet_cache = False
+    mla_at_pupil = False
     binnable_sensor = False  # binning would change the rectified pixels per lenslet
     pattern_axes = ("sub-position row", "sub-position column")
 

@@ -39,6 +39,7 @@ class FourierKind(SystemKind):
     label = "Fourier LFM: the MLA sits at the relayed back pupil"
     shift_invariant = True
     lenslet_cache = True
+    mla_at_pupil = True
     binnable_sensor = True
 
     def psf_stack(
