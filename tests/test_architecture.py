@@ -50,7 +50,7 @@ def test_resources_resolve_through_the_accessor():
 KIND_WORDS = frozenset({"fourier", "conventional"})
 KIND_WORD_ALLOWED = (
     "engine/design/",  # the design-file parser and its checks
-    "engine/calibration/",  # (for now: its record stores the word; to be folded in)
+    "engine/calibration/record.py",  # the calibration file stores the word (parsed there)
     "engine/systems/kinds",  # the kind objects and kind_of / kind_named
     "engine/systems/from_design.py",  # the design -> engine-system builders refuse the other kind's design
     "engine/io/metadata.py",  # the PSF file layout of a conventional pattern stack

@@ -19,6 +19,7 @@ import torch
 from lfm_studio.engine.calibration.record import Calibration
 from lfm_studio.engine.design import Design, LensletSpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.lenslet import overlap_depth_um
+from lfm_studio.engine.systems.kinds import kind_named, kind_of
 
 
 def _axis(calibration: Calibration) -> tuple[float, float]:
@@ -83,9 +84,10 @@ def nominal_design(calibration: Calibration) -> Design:
 def fitted_design(design: Design | None, calibration: Calibration) -> Design:
     """``design`` (default: the calibration's nominal one) with the MLA geometry measured by ``calibration``."""
     design = nominal_design(calibration) if design is None else design
-    if design.kind != calibration.kind:
+    mine, theirs = kind_of(design), kind_named(calibration.kind)
+    if mine is not theirs:
         raise ValueError(
-            f"the design is a {design.kind} LFM but the calibration was made for a {calibration.kind} one. "
+            f"the design is a {mine.title} but the calibration was made for a {theirs.title}. "
             "Fix: use the design the calibration was made with."
         )
     pixel_um = design.camera.pixel_pitch_um
@@ -144,9 +146,9 @@ def rectified_design(
             "rectified_design needs a conventional calibration; a Fourier LFM's raw frame is not "
             "rectified. Fix: use fitted_design(design, calibration) for a Fourier LFM."
         )
-    if design.kind != "conventional":
+    if kind_of(design).mla_at_pupil:
         raise ValueError(
-            f"the design is a {design.kind} LFM but the calibration was made for a conventional one. "
+            f"the design is a {kind_of(design).title} but the calibration was made for a conventional LFM. "
             "Fix: use the design the calibration was made with."
         )
     ni, nj = (calibration.block[1], calibration.block[3]) if lenslets is None else lenslets

@@ -14,6 +14,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.systems.from_design import conventional_system_of
+from lfm_studio.engine.systems.kinds import kind_of
 
 
 @dataclass(frozen=True)
@@ -49,8 +50,10 @@ class NominalSubImages:
 
 def nominal_grid(design: Design) -> NominalGrid:
     """The lenslet grid a conventional ``design`` predicts on its camera."""
-    if design.kind != "conventional":
-        raise ValueError(f"nominal_grid needs a conventional design; got kind {design.kind!r}.")
+    if kind_of(design).mla_at_pupil:
+        raise ValueError(
+            f"nominal_grid needs a conventional design (MLA at the image plane); got a {kind_of(design).title}."
+        )
     pitch_um = getattr(design.mla, "pitch_um", None)
     if pitch_um is None:
         raise ValueError(
@@ -66,8 +69,10 @@ def nominal_grid(design: Design) -> NominalGrid:
 
 def nominal_sub_images(design: Design, frame_shape: tuple[int, int]) -> NominalSubImages:
     """The sub-image centres and diameter a Fourier ``design`` predicts on a frame of ``frame_shape``."""
-    if design.kind != "fourier":
-        raise ValueError(f"nominal_sub_images needs a Fourier design; got kind {design.kind!r}.")
+    if not kind_of(design).mla_at_pupil:
+        raise ValueError(
+            f"nominal_sub_images needs a Fourier design (MLA at the pupil); got a {kind_of(design).title}."
+        )
     ny, nx = frame_shape
     pitch = design.camera.pixel_pitch_um
     centres = torch.tensor(

@@ -29,6 +29,7 @@ from lfm_studio.engine.calibration.sub_image_flat import fit_sub_image_flat
 from lfm_studio.engine.calibration.sub_images import fit_sub_images
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+from lfm_studio.engine.systems.kinds import kind_of
 
 _STEPS = 5
 HOT_RELATIVE = 0.25  # radiometry: a hot pixel is 25 % above its brightest neighbour
@@ -70,7 +71,7 @@ def calibrate(
         dark_frame=None if dark_frame is None else dark_frame.to(torch.float32),
         defects=torch.nonzero(bad),
     )
-    if design.kind == "fourier":
+    if kind_of(design).mla_at_pupil:  # one sub-image per lenslet: fit their centres
         checkpoint(cancel, progress, 1, _STEPS, "sub-image centres")
         nominal_subs = nominal_sub_images(design, shape)
         fit = fit_sub_images(image, nominal_subs)
@@ -78,7 +79,7 @@ def calibrate(
         flat = fit_sub_image_flat(image, fit.measured, fit.flags, nominal_subs.diameter)
         checkpoint(cancel, progress, _STEPS, _STEPS, "done")
         return calibration(
-            kind="fourier",
+            kind=design.kind,
             envelope=None,
             pixels_per_lenslet=None,
             block=None,
@@ -99,7 +100,7 @@ def calibrate(
     check_pitch(grid.lattice.pitch, nominal.pitch)
     checkpoint(cancel, progress, _STEPS, _STEPS, "done")
     return calibration(
-        kind="conventional",
+        kind=design.kind,
         envelope=envelope,
         pixels_per_lenslet=nominal.pixels_per_lenslet,
         block=lenslet_block(grid.lattice, shape, lit=_lit(grid)),
