@@ -38,7 +38,7 @@ from lfm_studio.engine.optics.debye import Device, Scalar, _depths
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import Apodization, ObjectiveLens, _value, resolve_apodization
-from lfm_studio.engine.optics.pupils import disk_coverage
+from lfm_studio.engine.optics.pupils import disk_coverage, radial_distance
 
 _MODELS = ("debye", "paraxial")
 
@@ -205,7 +205,7 @@ def pupil_terms_at(
     x0, y0 = position
     n, f = as_t(objective.immersion_index), as_t(objective.focal_length)
     k = 2.0 * math.pi / wavelength
-    rho = torch.sqrt(y**2 + x**2)
+    rho = radial_distance(x, y)
     sin_t = rho / (n * f)
     if soft_edge_spacing is None:
         na_limit = _value(objective.numerical_aperture) / _value(objective.immersion_index)
