@@ -27,6 +27,7 @@ import torch
 
 from lfm_studio.engine.optics.debye import debye_psf
 from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.objective import _value
 from lfm_studio.engine.optics.phase_kernels import (
     aperture_coverage,
     fresnel_chirp,
@@ -50,7 +51,7 @@ def light_radius(system: ConventionalLFMSystem, depths: tuple[float, ...], margi
     pattern by 0.25 % (margin 8), 0.1 % (12, default) or < 0.02 % (20), measured on the
     10x/0.3 test system.
     """
-    na_image = float(system.objective.numerical_aperture) / system.magnification
+    na_image = _value(system.objective.numerical_aperture) / system.magnification
     return max(system.blur_radius(z) for z in depths) + margin * system.wavelength / na_image
 
 
@@ -66,7 +67,7 @@ def samples_per_pitch(system: ConventionalLFMSystem, oversampling: float = 1.0) 
             f"NIP oversampling must be >= 1; got {oversampling!r}. Fix: use 1 (the minimum grid)."
         )
     s = system.voxels_per_lenslet
-    na_image = float(system.objective.numerical_aperture) / system.magnification
+    na_image = _value(system.objective.numerical_aperture) / system.magnification
     nyquist = math.ceil(2.0 * system.pitch * na_image / system.wavelength) + 1
     alias_free = math.floor(3.0 * system.pitch**2 / (system.wavelength * system.mla_to_camera)) + 1
     per_voxel = math.ceil(max(alias_free, nyquist) * oversampling / s)
