@@ -150,7 +150,8 @@ class PhaseMask(nn.Module):
         """The effective phase (rad) at arbitrary points ``x``, ``y`` (metres, same frame as the grid).
 
         Bilinear interpolation between the mask's sample centres (sample ``i`` at
-        ``(i - n // 2) d``); zero phase (no modulation) beyond the outer sample centres.
+        ``(i - n // 2) d``); beyond the outer sample centres the phase falls linearly to
+        zero (no modulation) over one sample.
         At the sample centres it returns the samples exactly. Differentiable with respect
         to the phase and (piecewise) to the coordinates; float64, the broadcast shape of
         ``x`` and ``y``.

@@ -38,6 +38,7 @@ from lfm_studio.engine.optics.debye import Device, Scalar, _depths
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import Apodization, ObjectiveLens, _value, resolve_apodization
+from lfm_studio.engine.optics.phase_kernels import shift_ramp, wavenumber
 from lfm_studio.engine.optics.pupils import disk_coverage, radial_distance
 
 _MODELS = ("debye", "paraxial")
@@ -204,7 +205,7 @@ def pupil_terms_at(
 
     x0, y0 = position
     n, f = as_t(objective.immersion_index), as_t(objective.focal_length)
-    k = 2.0 * math.pi / wavelength
+    k = wavenumber(wavelength)
     rho = radial_distance(x, y)
     sin_t = rho / (n * f)
     if soft_edge_spacing is None:
@@ -231,6 +232,6 @@ def pupil_terms_at(
     )
     if weight is not None:
         amplitude = amplitude * weight
-    tilt = -k * (x * x0 + y * y0) / f
+    tilt = shift_ramp(x, y, (x0, y0), k, f)  # -k (x x0 + y y0) / f_obj
     amplitude, defocus, tilt = torch.broadcast_tensors(amplitude, defocus, tilt)
     return amplitude, defocus, tilt
