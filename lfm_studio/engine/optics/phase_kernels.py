@@ -71,7 +71,7 @@ def aperture_coverage(
     x: torch.Tensor,
     y: torch.Tensor,
     diameter: Scalar,
-    spacing: tuple[Scalar, Scalar],
+    spacing: tuple[float, float],
     *,
     antialias: bool,
 ) -> torch.Tensor:

@@ -181,15 +181,16 @@ def pupil_terms_at(
     position: tuple[Scalar, Scalar] = (0.0, 0.0),
     model: str = "debye",
     apodization: Apodization = "aplanatic",
-    soft_edge_spacing: tuple[Scalar, Scalar] | None = None,
+    soft_edge_spacing: Scalar | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`pupil_terms` at pupil-plane coordinates ``x``, ``y`` (float64, metres, broadcastable).
 
     Every input may be a tensor (coordinates, wavelength, the objective's fields, the
     source position): the terms keep their graphs. The pupil rim is binary (samples
-    inside ``NA f_obj`` count) unless ``soft_edge_spacing = (dy, dx)`` (metres) is given:
-    then the amplitude is weighted by the antialiased area coverage of the disk of
-    radius ``NA f_obj`` (:func:`disk_coverage`), which is differentiable in the NA.
+    inside ``NA f_obj`` count) unless ``soft_edge_spacing`` (the sample spacing of square
+    samples, metres, float or 0-d tensor) is given: then the amplitude is weighted by the
+    antialiased area coverage of the disk of radius ``NA f_obj`` (:func:`disk_coverage`,
+    evaluated in units of samples), which is differentiable in the NA and the spacing.
     """
     if model not in _MODELS:
         raise ValueError(f"model must be one of {_MODELS}; got {model!r}. Fix: use 'debye' at high NA.")
@@ -216,7 +217,8 @@ def pupil_terms_at(
         weight = None
     else:
         radius = as_t(objective.numerical_aperture) * f
-        weight = disk_coverage(x, y, radius, soft_edge_spacing, antialias=True)
+        h = soft_edge_spacing
+        weight = disk_coverage(x / h, y / h, radius / h, (1.0, 1.0), antialias=True)
         inside = weight.detach() > 0
         sin_t = torch.where(inside, sin_t.clamp(max=1.0 - 1e-9), torch.zeros_like(sin_t))
     sin2 = sin_t**2

@@ -97,7 +97,7 @@ def lenslet_psf(
     amplitude, defocus, tilt = pupil_terms_at(
         v.objective, (x + cx) / m_r, (y + cy) / m_r, lam,
         position=(-source_position[0], -source_position[1]), model=model,
-        soft_edge_spacing=(dx / m_r, dx / m_r) if v.soft_pupil_edge else None,
+        soft_edge_spacing=dx / m_r if v.soft_pupil_edge else None,
     )  # fmt: skip
     # Coverage in units of samples (scale-free): the aperture then follows dx's gradient too.
     aperture = aperture_coverage(

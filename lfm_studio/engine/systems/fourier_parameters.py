@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass
+from typing import Any
 
 import torch
 
@@ -104,16 +105,14 @@ class FourierParameters:
         objective = system.objective
         if self.numerical_aperture is not None:
             objective = dataclasses.replace(objective, numerical_aperture=_value(self.numerical_aperture))
-        return dataclasses.replace(
-            system,
-            objective=objective,
-            mla=dataclasses.replace(system.mla, lenslets=tuple(lenses)),
-            **{
-                name: _value(getattr(self, name))
-                for name in ("wavelength", "mla_to_camera", "fourier_focal_length")
-                if getattr(self, name) is not None
-            },
-        )
+        changes: dict[str, Any] = {
+            name: _value(getattr(self, name))
+            for name in ("wavelength", "mla_to_camera", "fourier_focal_length")
+            if getattr(self, name) is not None
+        }
+        changes["objective"] = objective
+        changes["mla"] = dataclasses.replace(system.mla, lenslets=tuple(lenses))
+        return dataclasses.replace(system, **changes)
 
     def lenslet(self, system: FourierLFMSystem, index: int) -> LensletOptics:
         """The optics lenslet ``index`` is computed with (tensors where overridden)."""

@@ -7,6 +7,11 @@ placed on the sensor and cached per lenslet, so editing one lenslet recomputes o
 whole MLA transmission, propagated with :func:`propagate` and integrated on pixels:
 the straightforward reference, and the fallback when sub-images overlap (their fields
 interfere, which separate lenslets cannot represent).
+
+Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierParameters`
+(tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
+to the per-lenslet path; the cache is then bypassed. Cache keys are derived from the spec
+objects' fields (:func:`lenslet_key`), never from a hand-written list.
 """
 
 from __future__ import annotations
