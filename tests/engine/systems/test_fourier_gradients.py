@@ -3,7 +3,8 @@
 Tiny float64 system: 20x/0.12 water objective (f_obj = 9 mm), Fourier lens 60 mm (relayed
 pupil radius 0.36 mm on the MLA, so the rim cuts the outer lenslets and the NA has a
 gradient), three 0.25 mm lenslets (two circles, one square) of 5 mm focal length, camera
-5 mm behind, 8 um pixels, 2 sub-samples: windows of 30 samples. Parameters are passed in
+5 mm behind, 8 um pixels, 2 sub-samples: windows of 30 samples. No lenslet sits on the axis: a
+patch sample there would fall on a knot of the bilinear phase mask (a kink in the centre). Parameters are passed in
 mm / um / plain numbers so that gradcheck's finite-difference step (1e-6) is well scaled.
 """
 
@@ -27,7 +28,7 @@ from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.engine.units import mm, nm, um
 
 F64 = torch.float64
-CENTRES = ((0.0, 0.0), (0.3 * mm, 0.05 * mm), (-0.12 * mm, -0.28 * mm))
+CENTRES = ((0.013 * mm, -0.021 * mm), (0.3 * mm, 0.05 * mm), (-0.12 * mm, -0.28 * mm))
 SHAPES = ("circle", "square", "circle")
 SYSTEM = FourierLFMSystem(
     ObjectiveLens(20.0, 0.12, 1.33, 180 * mm),
@@ -70,10 +71,9 @@ def _parameters(f, diameter, centres, wavelength, na, d, fourier) -> FourierPara
     )
 
 
-def _psf(*values, cache=None, report=None) -> torch.Tensor:
-    stack = fourier_psf_stack(
-        SYSTEM, DEPTHS, accuracy=ACC, parameters=_parameters(*values), cache=cache, report=report
-    )
+def _psf(*values, mask=None, cache=None, report=None) -> torch.Tensor:
+    parameters = dataclasses.replace(_parameters(*values), pupil_phase=mask)
+    stack = fourier_psf_stack(SYSTEM, DEPTHS, accuracy=ACC, parameters=parameters, cache=cache, report=report)
     return stack.data / PSF_SCALE
 
 
@@ -97,15 +97,23 @@ def test_gradcheck_psf_projector_unrolled_rl_loss():
         image = ShiftInvariantProjector(_psf(*_nominal()), VOLUME).forward(truth)
     weights = torch.rand(len(DEPTHS), *VOLUME, generator=gen, dtype=F64)
 
+    # A coarse SLM phase on the MLA plane (6 x 6 samples of 150 um over all lenslets); its
+    # trainable phase is the last gradcheck input (perturbed in place, so the mask sees it).
+    mask = PhaseMask(Grid(6, 150 * um), 0.5 * torch.randn(6, 6, generator=gen, dtype=F64), trainable=True)
+
     def loss(*values):
-        projector = ShiftInvariantProjector(_psf(*values), VOLUME)
+        *optics, phase = values
+        assert phase is mask.phase
+        projector = ShiftInvariantProjector(_psf(*optics, mask=mask), VOLUME)
         return (weights * richardson_lucy_unrolled(projector, image, 3)).sum()
 
     inputs = _nominal()
-    loss(*inputs).backward()
+    loss(*inputs, mask.phase).backward()
     for value in inputs:  # every parameter moves the loss (the NA through the pupil rim)
         assert bool((value.grad != 0).all()), value.grad
-    assert torch.autograd.gradcheck(loss, tuple(_nominal()), eps=1e-6, atol=1e-6, rtol=1e-4)
+    assert int((mask.phase.grad != 0).sum()) >= 12  # the mask samples next to lit patches
+    inputs = (*_nominal(), mask.phase)
+    assert torch.autograd.gradcheck(loss, inputs, eps=1e-6, atol=1e-6, rtol=1e-4)
 
 
 def test_centre_gradient_equals_a_central_difference_of_the_psf_loss():
