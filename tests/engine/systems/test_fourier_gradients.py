@@ -3,9 +3,10 @@
 Tiny float64 system: 20x/0.12 water objective (f_obj = 9 mm), Fourier lens 60 mm (relayed
 pupil radius 0.36 mm on the MLA, so the rim cuts the outer lenslets and the NA has a
 gradient), three 0.25 mm lenslets (two circles, one square) of 5 mm focal length, camera
-5 mm behind, 8 um pixels, 2 sub-samples: windows of 30 samples. No lenslet sits on the axis: a
-patch sample there would fall on a knot of the bilinear phase mask (a kink in the centre). Parameters are passed in
-mm / um / plain numbers so that gradcheck's finite-difference step (1e-6) is well scaled.
+5 mm behind, 8 um pixels, 2 sub-samples: windows of 30 samples. No lenslet sits on the axis
+(its centre sample would fall on a knot of the bilinear phase mask: a kink in the centre
+gradient). Parameters are passed in mm / um / plain numbers so that gradcheck's
+finite-difference step (1e-6) is well scaled.
 """
 
 from __future__ import annotations
