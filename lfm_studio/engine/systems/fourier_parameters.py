@@ -98,7 +98,7 @@ class FourierParameters:
                 Lenslet(
                     _pick(self.centers, i, lens.center),
                     _pick(self.aperture_diameters, i, lens.aperture_diameter),
-                    _pick(self.focal_lengths, i, _value(lens.focal_length)),
+                    _pick(self.focal_lengths, i, lens.focal_length),  # a tensor in the lens stays
                     lens.shape,
                 )
             )
@@ -165,7 +165,7 @@ class LensletOptics:
             focal_length=lens.focal_length,
             wavelength=system.wavelength,
             mla_to_camera=system.mla_to_camera,
-            relay_magnification=system.relay_magnification,
+            relay_magnification=system.fourier_focal_length / system.objective.tube_lens_focal_length,
             objective=system.objective,
         )
 

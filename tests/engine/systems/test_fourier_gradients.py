@@ -209,3 +209,33 @@ def test_parameter_errors_are_named():
             accuracy=FourierAccuracy(method="full_field", oversampling=2, dtype=F64),
             parameters=FourierParameters(wavelength=torch.tensor(525 * nm, dtype=F64)),
         )
+
+
+def test_tensor_fields_of_the_objective_and_lenslets_get_central_difference_gradients():
+    # Without FourierParameters: tensors held by the spec objects themselves (ObjectiveLens and
+    # Lenslet accept 0-d tensors) carry gradients through every place they enter. (The tube
+    # lens is not among them: the relay m_r = F / f_tube and f_obj = f_tube / M meet only as
+    # f_obj m_r = F / M, so it cancels.)
+    weights = torch.rand(
+        len(DEPTHS), *SYSTEM.sensor_shape, generator=torch.Generator().manual_seed(5), dtype=F64
+    )
+
+    def loss(magnification: torch.Tensor, index: torch.Tensor, focal_mm: torch.Tensor) -> torch.Tensor:
+        objective = ObjectiveLens(magnification, 0.12, index, 180 * mm)
+        lenses = tuple(
+            Lenslet(c, 0.25 * mm, focal_mm * mm if i == 2 else 5 * mm, s)
+            for i, (c, s) in enumerate(zip(CENTRES, SHAPES, strict=True))
+        )
+        system = dataclasses.replace(SYSTEM, objective=objective, mla=MicrolensArray(lenses))
+        return (weights * fourier_psf_stack(system, DEPTHS, accuracy=ACC).data / PSF_SCALE).sum()
+
+    values = [torch.tensor(v, dtype=F64, requires_grad=True) for v in (20.0, 1.33, 5.0)]
+    loss(*values).backward()
+    h = 1e-6
+    for i, value in enumerate(values):
+        with torch.no_grad():
+            up = [v.detach() + (h if j == i else 0.0) for j, v in enumerate(values)]
+            down = [v.detach() - (h if j == i else 0.0) for j, v in enumerate(values)]
+            numeric = float((loss(*up) - loss(*down)) / (2 * h))
+        assert abs(numeric) > 1e-4
+        assert float(value.grad) == pytest.approx(numeric, rel=1e-5)
