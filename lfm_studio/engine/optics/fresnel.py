@@ -24,6 +24,7 @@ import math
 import torch
 
 from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.phase_kernels import fresnel_chirp, wavenumber
 from lfm_studio.engine.optics.sampling import fft_frequencies
 
 Scalar = float | torch.Tensor
@@ -99,7 +100,7 @@ def _ir_axis(n: int, d: float, wavelength: float, z: Scalar, sign: float, device
     ramp = (2.0 * math.pi * sign * c / n) * k
     xi = (k - c) * d
     f_out = (k - c) / (n * d)  # k x_m^2 / (2 z) = pi l z f_out^2
-    phase_in = (math.pi / wavelength) * xi**2 / z + ramp
+    phase_in = fresnel_chirp(xi, 0.0, z, wavenumber(wavelength)) + ramp
     phase_out = (math.pi * wavelength) * f_out**2 * z + ramp
     constant = -2.0 * math.pi * sign * c * c / n
     return phase_in, phase_out, constant

@@ -19,6 +19,7 @@ from lfm_studio.engine.errors import require_finite, require_positive
 from lfm_studio.engine.fft import centered_fft2
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.phase_kernels import lens_phase, unit_phasor
 from lfm_studio.engine.optics.pupils import circular_pupil
 from lfm_studio.engine.optics.sampling import check_quadratic_phase_sampling
 
@@ -43,11 +44,6 @@ def _farthest_coordinate(grid: Grid, center: tuple[float, float]) -> float:
     x_far = max(grid.nx // 2 * grid.dx + center[0], (grid.nx - 1 - grid.nx // 2) * grid.dx - center[0])
     y_far = max(grid.ny // 2 * grid.dy + center[1], (grid.ny - 1 - grid.ny // 2) * grid.dy - center[1])
     return max(x_far, y_far)
-
-
-def _unit_phasor(phase: torch.Tensor, dtype: torch.dtype) -> torch.Tensor:
-    """``exp(j phase)`` from a float64 phase, cast to the complex ``dtype``."""
-    return torch.complex(torch.cos(phase), torch.sin(phase)).to(dtype)
 
 
 def thin_lens(
@@ -97,9 +93,9 @@ def thin_lens(
     check_quadratic_phase_sampling(grid, field.medium_wavelength, _value(focal_length), r_max)
 
     y, x = grid.axes(device=field.device)
-    r2 = (x - float(center[0]))[None, :] ** 2 + (y - float(center[1]))[:, None] ** 2
-    phase = (-0.5 * field.k) * r2 / _float64(focal_length, field.device)
-    transmission = _unit_phasor(phase, field.dtype)
+    center_xy = (float(center[0]), float(center[1]))
+    phase = lens_phase(x[None, :], y[:, None], _float64(focal_length, field.device), field.k, center_xy)
+    transmission = unit_phasor(phase, field.dtype)
     out = field.data * transmission
     if aperture_diameter is not None:
         pupil = circular_pupil(

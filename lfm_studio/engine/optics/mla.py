@@ -59,7 +59,7 @@ from lfm_studio.engine.errors import require_finite_tensor, require_positive
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla_layout import MicrolensArray
-from lfm_studio.engine.optics.pupils import disk_coverage, square_coverage
+from lfm_studio.engine.optics.phase_kernels import aperture_coverage, lens_phase, unit_phasor
 from lfm_studio.engine.optics.sampling import check_quadratic_phase_sampling
 
 Device = torch.device | str | None
@@ -254,13 +254,10 @@ def _place_group(
     py = torch.arange(-hy, hy + 1, dtype=f64, device=device) * dy
     xr = px[None, None, :] - sub_x[rep][:, None, None]
     yr = py[None, :, None] - sub_y[rep][:, None, None]
-    half_width = half_widths[rep][:, None, None]
-    if shape == "circle":
-        coverage = disk_coverage(xr, yr, half_width, grid.spacing, antialias=antialias)
-    else:
-        coverage = square_coverage(xr, yr, 2.0 * half_width, grid.spacing, antialias=antialias)
-    phase = (-0.5 * k) * (xr * xr + yr * yr) / fg[rep][:, None, None]
-    patch = (coverage * torch.complex(torch.cos(phase), torch.sin(phase))).to(dtype)  # (U, Py, Px)
+    diameter = 2.0 * half_widths[rep][:, None, None]
+    coverage = aperture_coverage(shape, xr, yr, diameter, grid.spacing, antialias=antialias)
+    phase = lens_phase(xr, yr, fg[rep][:, None, None], k)
+    patch = (coverage * unit_phasor(phase, torch.complex128)).to(dtype)  # (U, Py, Px)
     if inverse is not None:
         patch, coverage = patch[inverse], coverage[inverse]
 

@@ -146,5 +146,28 @@ class PhaseMask(nn.Module):
             )
         return apply_phase(field, self.effective_phase())
 
+    def sample(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """The effective phase (rad) at arbitrary points ``x``, ``y`` (metres, same frame as the grid).
+
+        Bilinear interpolation between the mask's sample centres (sample ``i`` at
+        ``(i - n // 2) d``); beyond the outer sample centres the phase falls linearly to
+        zero (no modulation) over one sample.
+        At the sample centres it returns the samples exactly. Differentiable with respect
+        to the phase and (piecewise) to the coordinates; float64, the broadcast shape of
+        ``x`` and ``y``.
+        """
+        xb, yb = torch.broadcast_tensors(x.to(torch.float64), y.to(torch.float64))
+        ny, nx = self.grid.shape
+        dy, dx = self.grid.spacing
+        # grid_sample with align_corners=True maps -1 .. 1 onto sample 0 .. n - 1.
+        gx = (xb / dx + nx // 2) * (2.0 / max(nx - 1, 1)) - 1.0
+        gy = (yb / dy + ny // 2) * (2.0 / max(ny - 1, 1)) - 1.0
+        coords = torch.stack((gx, gy), dim=-1).reshape(1, 1, -1, 2)
+        phase = self.effective_phase().to(device=xb.device, dtype=torch.float64)[None, None]
+        values = torch.nn.functional.grid_sample(
+            phase, coords, mode="bilinear", padding_mode="zeros", align_corners=True
+        )
+        return values.reshape(xb.shape)
+
     def extra_repr(self) -> str:
         return f"grid={self.grid}, trainable={self.trainable}, wrap={self.wrap}, levels={self.levels}"

@@ -38,6 +38,8 @@ from lfm_studio.engine.optics.debye import Device, Scalar, _depths
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import Apodization, ObjectiveLens, _value, resolve_apodization
+from lfm_studio.engine.optics.phase_kernels import shift_ramp, wavenumber
+from lfm_studio.engine.optics.pupils import disk_coverage, radial_distance
 
 _MODELS = ("debye", "paraxial")
 
@@ -157,10 +159,43 @@ def pupil_terms(
     ``defocus = n k (cos(theta) - 1)`` in rad per metre of depth, ``tilt`` in rad. A
     caller imaging many depths builds these once and forms only the phase per depth.
     """
+    device = torch.device("cpu") if device is None else torch.device(device)
+    y, x = grid.axes(device=device)
+    return pupil_terms_at(
+        objective,
+        (x + float(center[0]))[None, :],
+        (y + float(center[1]))[:, None],
+        wavelength,
+        position=position,
+        model=model,
+        apodization=apodization,
+    )
+
+
+def pupil_terms_at(
+    objective: ObjectiveLens,
+    x: torch.Tensor,
+    y: torch.Tensor,
+    wavelength: Scalar,
+    *,
+    position: tuple[Scalar, Scalar] = (0.0, 0.0),
+    model: str = "debye",
+    apodization: Apodization = "aplanatic",
+    soft_edge_spacing: Scalar | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`pupil_terms` at pupil-plane coordinates ``x``, ``y`` (float64, metres, broadcastable).
+
+    Every input may be a tensor (coordinates, wavelength, the objective's fields, the
+    source position): the terms keep their graphs. The pupil rim is binary (samples
+    inside ``NA f_obj`` count) unless ``soft_edge_spacing`` (the sample spacing of square
+    samples, metres, float or 0-d tensor) is given: then the amplitude is weighted by the
+    antialiased area coverage of the disk of radius ``NA f_obj`` (:func:`disk_coverage`,
+    evaluated in units of samples), which is differentiable in the NA and the spacing.
+    """
     if model not in _MODELS:
         raise ValueError(f"model must be one of {_MODELS}; got {model!r}. Fix: use 'debye' at high NA.")
     apod = resolve_apodization(apodization)
-    device = torch.device("cpu") if device is None else torch.device(device)
+    device = x.device
 
     def as_t(v: Scalar) -> torch.Tensor:
         return (
@@ -169,17 +204,23 @@ def pupil_terms(
             else torch.tensor(float(v), dtype=torch.float64, device=device)
         )
 
-    x0, y0 = (float(p) for p in position)
+    x0, y0 = position
     n, f = as_t(objective.immersion_index), as_t(objective.focal_length)
-    k = 2.0 * math.pi / wavelength
-    y, x = grid.axes(device=device)
-    y, x = y + float(center[1]), x + float(center[0])
-    rho = torch.sqrt(y[:, None] ** 2 + x[None, :] ** 2)
-    na_limit = _value(objective.numerical_aperture) / _value(objective.immersion_index)
+    k = wavenumber(wavelength)
+    rho = radial_distance(x, y)
     sin_t = rho / (n * f)
-    # Samples on the rim (to 1e-9 of the radius) count as inside.
-    inside = sin_t.detach() <= na_limit * (1.0 + 1e-9)
-    sin_t = torch.where(inside, sin_t.clamp(max=na_limit), torch.zeros_like(sin_t))
+    if soft_edge_spacing is None:
+        na_limit = _value(objective.numerical_aperture) / _value(objective.immersion_index)
+        # Samples on the rim (to 1e-9 of the radius) count as inside.
+        inside = sin_t.detach() <= na_limit * (1.0 + 1e-9)
+        sin_t = torch.where(inside, sin_t.clamp(max=na_limit), torch.zeros_like(sin_t))
+        weight = None
+    else:
+        radius = as_t(objective.numerical_aperture) * f
+        h = soft_edge_spacing
+        weight = disk_coverage(x / h, y / h, radius / h, (1.0, 1.0), antialias=True)
+        inside = weight.detach() > 0
+        sin_t = torch.where(inside, sin_t.clamp(max=1.0 - 1e-9), torch.zeros_like(sin_t))
     sin2 = sin_t**2
     if model == "debye":
         cos_t = torch.sqrt(1.0 - sin2)
@@ -191,5 +232,8 @@ def pupil_terms(
     amplitude = torch.where(inside, amplitude, torch.zeros_like(amplitude)) / (
         math.sqrt(4.0 * math.pi) * n * f
     )
-    tilt = -k * (x[None, :] * x0 + y[:, None] * y0) / f
+    if weight is not None:
+        amplitude = amplitude * weight
+    tilt = shift_ramp(x, y, (x0, y0), k, f)  # -k (x x0 + y y0) / f_obj
+    amplitude, defocus, tilt = torch.broadcast_tensors(amplitude, defocus, tilt)
     return amplitude, defocus, tilt

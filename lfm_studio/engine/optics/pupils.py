@@ -35,6 +35,19 @@ Scalar = float | torch.Tensor
 _RIM_TOLERANCE_PIXELS = 1e-9
 
 
+def radial_distance(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    """``sqrt(x^2 + y^2)`` with a zero (not NaN) gradient at the origin.
+
+    The plain square root has an infinite derivative at ``r = 0``, which turns into NaN
+    gradients for every radially symmetric function evaluated on a sample at the centre.
+    """
+    r2 = x * x + y * y
+    positive = r2 > 0
+    return torch.where(
+        positive, torch.sqrt(torch.where(positive, r2, torch.ones_like(r2))), torch.zeros_like(r2)
+    )
+
+
 def disk_coverage(
     x: torch.Tensor, y: torch.Tensor, radius: Scalar, spacing: tuple[float, float], *, antialias: bool
 ) -> torch.Tensor:
@@ -59,7 +72,7 @@ def disk_coverage(
     Real tensor of the broadcast shape, values in ``[0, 1]``.
     """
     dy, dx = spacing
-    r = torch.sqrt(x * x + y * y)
+    r = radial_distance(x, y)
     if not antialias:
         return (r <= radius + _RIM_TOLERANCE_PIXELS * min(dx, dy)).to(r.dtype)
     differentiable = any(isinstance(v, torch.Tensor) and v.requires_grad for v in (x, y, radius))

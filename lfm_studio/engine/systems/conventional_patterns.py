@@ -27,11 +27,19 @@ import torch
 
 from lfm_studio.engine.optics.debye import debye_psf
 from lfm_studio.engine.optics.grid import Grid
-from lfm_studio.engine.optics.pupils import disk_coverage
+from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.optics.phase_kernels import (
+    aperture_coverage,
+    fresnel_chirp,
+    lens_phase,
+    shift_ramp,
+    wavenumber,
+)
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 
 DEBYE_DEPTHS = 4  # depths per Debye evaluation of the NIP fields (bounds its temporaries)
+Scalar = float | torch.Tensor
 OUTPUT_OVERSAMPLING = 1.4  # sensor-field samples per Nyquist interval of the sub-image intensity
 
 
@@ -43,7 +51,7 @@ def light_radius(system: ConventionalLFMSystem, depths: tuple[float, ...], margi
     pattern by 0.25 % (margin 8), 0.1 % (12, default) or < 0.02 % (20), measured on the
     10x/0.3 test system.
     """
-    na_image = float(system.objective.numerical_aperture) / system.magnification
+    na_image = _value(system.objective.numerical_aperture) / system.magnification
     return max(system.blur_radius(z) for z in depths) + margin * system.wavelength / na_image
 
 
@@ -59,7 +67,7 @@ def samples_per_pitch(system: ConventionalLFMSystem, oversampling: float = 1.0) 
             f"NIP oversampling must be >= 1; got {oversampling!r}. Fix: use 1 (the minimum grid)."
         )
     s = system.voxels_per_lenslet
-    na_image = float(system.objective.numerical_aperture) / system.magnification
+    na_image = _value(system.objective.numerical_aperture) / system.magnification
     nyquist = math.ceil(2.0 * system.pitch * na_image / system.wavelength) + 1
     alias_free = math.floor(3.0 * system.pitch**2 / (system.wavelength * system.mla_to_camera)) + 1
     per_voxel = math.ceil(max(alias_free, nyquist) * oversampling / s)
@@ -168,31 +176,47 @@ def sub_samples(system: ConventionalLFMSystem, oversampling: float = OUTPUT_OVER
 
 
 def lenslet_transform(
-    system: ConventionalLFMSystem, ns: int, out_n: int, *, device: torch.device | str = "cpu"
+    system: ConventionalLFMSystem,
+    ns: int,
+    out_n: int,
+    *,
+    device: torch.device | str = "cpu",
+    lenslet_focal_length: Scalar | None = None,
+    mla_to_camera: Scalar | None = None,
 ) -> torch.Tensor:
     """Separable Fresnel transform of one lenslet, as an ``(out_n, ns)`` complex128 matrix ``T``.
 
     The sensor field behind a lenslet, at output samples ``u = (i - out_n//2) P / (Q m)``
     about its centre, from NIP samples ``x = (k - ns//2) P / ns`` of its patch, is
-    ``T @ patch @ T.T`` with (thesis eq. 3.11, per axis)
+    ``T @ patch @ T.T`` with (thesis eq. 3.11, per axis; the phases of
+    :mod:`~lfm_studio.engine.optics.phase_kernels`)
 
         T[i, k] = dx / sqrt(lambda d) exp(j k [u^2 / (2d) - u x / d + x^2 (1/d - 1/f) / 2]).
 
     The output chirp is kept: adjacent lenslets' fields add coherently on the sensor.
     The constant ``exp(j k d) / j`` is common to all lenslets and dropped.
+    ``lenslet_focal_length`` and ``mla_to_camera`` (floats or 0-d tensors, metres) override
+    the system's values in the physics (gradients flow to them); the sampling stays planned
+    from the system.
     """
     dx = system.pitch / ns
     out_step = system.pitch * 3 / out_n  # out_n spans three pitches
     x = (torch.arange(ns, device=device, dtype=torch.float64) - ns // 2) * dx
     u = (torch.arange(out_n, device=device, dtype=torch.float64) - out_n // 2) * out_step
-    k = 2.0 * math.pi / system.wavelength
-    d, f = system.mla_to_camera, system.lenslet_focal_length
-    phase = k * (
-        u[:, None] ** 2 / (2.0 * d)
-        - u[:, None] * x[None, :] / d
-        + x[None, :] ** 2 * (1.0 / d - 1.0 / f) / 2.0
+    k = wavenumber(system.wavelength)
+    d = system.mla_to_camera if mla_to_camera is None else mla_to_camera
+    f = system.lenslet_focal_length if lenslet_focal_length is None else lenslet_focal_length
+    xs, us = x[None, :], u[:, None]
+    phase = (
+        fresnel_chirp(us, 0.0, d, k)
+        + shift_ramp(xs, 0.0, (us, 0.0), k, d)
+        + fresnel_chirp(xs, 0.0, d, k)
+        + lens_phase(xs, 0.0, f, k)
     )
-    return torch.polar(torch.full_like(phase, dx / math.sqrt(system.wavelength * d)), phase)
+    amplitude = dx / (system.wavelength * d) ** 0.5
+    if not isinstance(amplitude, torch.Tensor):
+        amplitude = torch.tensor(amplitude, dtype=torch.float64, device=device)
+    return torch.polar(amplitude.to(torch.float64).expand_as(phase), phase)
 
 
 def conventional_patterns(
@@ -208,6 +232,8 @@ def conventional_patterns(
     nip_oversampling: float = 1.0,
     pixel_oversampling: float = OUTPUT_OVERSAMPLING,
     light_margin: float = 12.0,
+    lenslet_focal_length: Scalar | None = None,
+    mla_to_camera: Scalar | None = None,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -224,6 +250,11 @@ def conventional_patterns(
     nip_oversampling, pixel_oversampling, light_margin : accuracy knobs: the NIP grid factor
         (:func:`samples_per_pitch`), the sensor-field samples per intensity Nyquist interval
         (:func:`sub_samples`) and the diffraction margin of :func:`light_radius`.
+    lenslet_focal_length, mla_to_camera : optional 0-d tensors (metres) overriding the
+        system's values in the lenslet transform, for gradients; the sampling is planned
+        from the system's floats, so pass a system holding the same values. The NA reaches
+        the patterns through the NIP field (a tensor NA in ``system.objective``, or a
+        ``nip_field`` that carries a graph: :func:`debye_psf` is differentiable in it).
 
     Returns
     -------
@@ -249,6 +280,7 @@ def conventional_patterns(
         unique[(a, b)] = offset_pattern(
             system, base, a, b, reach=reach, dtype=dtype, light_radius=radius,
             oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
+            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
         )  # fmt: skip
     checkpoint(cancel, progress, len(offsets), len(offsets), "patterns done")
     return _expand_symmetric(unique, s)
@@ -265,6 +297,8 @@ def offset_pattern(
     oversampling: float = OUTPUT_OVERSAMPLING,
     light_radius: float | None = None,
     nip_oversampling: float = 1.0,
+    lenslet_focal_length: Scalar | None = None,
+    mla_to_camera: Scalar | None = None,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -275,7 +309,8 @@ def offset_pattern(
     (:func:`sub_samples` samples per pixel, from ``oversampling``). Lenslets farther than
     ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
     light and are skipped; ``None`` computes them all. ``nip_oversampling``: the NIP grid
-    factor ``base`` was computed with (:func:`nip_fields`).
+    factor ``base`` was computed with (:func:`nip_fields`). ``lenslet_focal_length``,
+    ``mla_to_camera``: tensor overrides for gradients (:func:`lenslet_transform`).
     """
     m = sub_samples(system, oversampling)
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
@@ -285,13 +320,15 @@ def offset_pattern(
     per_lenslet = q * m  # output samples per pitch (odd)
     out_n = 3 * per_lenslet  # window: the lenslet and one neighbour each side
     cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
-    transform = lenslet_transform(system, ns, out_n, device=base.device).to(cdtype)
+    transform = lenslet_transform(
+        system, ns, out_n, device=base.device, lenslet_focal_length=lenslet_focal_length,
+        mla_to_camera=mla_to_camera,
+    ).to(cdtype)  # fmt: skip
     if system.lenslet_shape == "circle":
         dx = system.pitch / ns
         y, x = Grid(ns, dx).axes(device=base.device)
-        aperture = disk_coverage(x[None, :], y[:, None], system.pitch / 2.0, (dx, dx), antialias=True).to(
-            cdtype
-        )
+        aperture = aperture_coverage("circle", x[None, :], y[:, None], system.pitch, (dx, dx), antialias=True)
+        aperture = aperture.to(cdtype)
     else:
         aperture = None
     lit = torch.ones((2 * reach + 1, 2 * reach + 1), dtype=torch.bool)  # lenslets that receive light

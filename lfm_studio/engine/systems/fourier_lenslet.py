@@ -12,6 +12,12 @@ sensor with the Fresnel impulse response in single-FFT form (thesis eq. 3.12):
 is dropped (only intensity is recorded), and a linear input phase moves the output
 samples onto sensor sub-pixel centres (exact Fourier shift). The result is power
 per sensor pixel of a unit-power emitter, ``(Z, N/s, N/s)``.
+
+Every phase and aperture comes from :mod:`~lfm_studio.engine.optics.phase_kernels` (the
+same functions as the public elements). The window (``N``, placement) is planned from
+floats; the physics is evaluated from :class:`LensletOptics`, whose values may be 0-d
+tensors: the result is then differentiable in the lenslet's focal length, aperture and
+centre, the wavelength, NA, the relay and camera distances and a pupil phase mask.
 """
 
 from __future__ import annotations
@@ -22,12 +28,17 @@ import torch
 
 from lfm_studio.engine import fft
 from lfm_studio.engine.dtypes import real_dtype
-from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla_layout import Lenslet
-from lfm_studio.engine.optics.objective import _value
+from lfm_studio.engine.optics.phase_kernels import (
+    aperture_coverage,
+    fresnel_chirp,
+    lens_phase,
+    shift_ramp,
+    wavenumber,
+)
 from lfm_studio.engine.optics.pixel_integration import integrate_pixels
-from lfm_studio.engine.optics.pupil_field import pupil_terms
-from lfm_studio.engine.optics.pupils import disk_coverage, square_coverage
+from lfm_studio.engine.optics.pupil_field import pupil_terms_at
+from lfm_studio.engine.systems.fourier_parameters import LensletOptics
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 from lfm_studio.engine.systems.fourier_windows import LensletWindow
 
@@ -45,6 +56,7 @@ def lenslet_psf(
     source_position: tuple[float, float] = (0.0, 0.0),
     depth_chunk: int = 8,
     pixel_integration: str = "midpoint",
+    optics: LensletOptics | None = None,
 ) -> torch.Tensor:
     """Power per sensor pixel behind one lenslet for each depth.
 
@@ -64,24 +76,48 @@ def lenslet_psf(
         ``+r / m_r`` with the source at ``(-x0, -y0)``.
     depth_chunk : depths per FFT batch (bounds memory; small chunks are cache-friendly on CPU).
     pixel_integration : ``"midpoint"`` or ``"fourier"`` (:func:`integrate_pixels`).
+    optics : the values the physics uses (:class:`LensletOptics`, possibly tensors carrying
+        gradients); default the plain floats of ``system`` and ``lens``. The window stays the
+        one planned from floats.
 
     Returns
     -------
     Tensor ``(Z, N/s, N/s)`` on ``depths.device``: power per pixel (W per W emitted).
     """
-    n, dx = window.samples, window.input_spacing
-    m_r = system.relay_magnification
+    v = optics if optics is not None else LensletOptics.of(system, lens)
+    n, s, p = window.samples, oversampling, system.pixel_pitch
+    lam, d, m_r = _f64(v.wavelength), _f64(v.mla_to_camera), _f64(v.relay_magnification)
     device = depths.device
-    cx, cy = lens.center
-    amplitude, defocus, tilt = pupil_terms(
-        system.objective, Grid(n, dx / m_r), system.wavelength,
-        position=(-source_position[0], -source_position[1]), center=(cx / m_r, cy / m_r), model=model, device=device,
+    # Input spacing lambda d s / (N p) keeps the output on the sensor's sub-pixel grid.
+    dx = lam * d * s / (n * p)
+    index = torch.arange(n, dtype=torch.float64, device=device) - n // 2
+    ix, iy = index[None, :], index[:, None]
+    x, y = ix * dx, iy * dx  # about the lens centre
+    cx, cy = (_f64(c) for c in v.center)
+    amplitude, defocus, tilt = pupil_terms_at(
+        v.objective, (x + cx) / m_r, (y + cy) / m_r, lam,
+        position=(-source_position[0], -source_position[1]), model=model,
+        soft_edge_spacing=dx / m_r if v.soft_pupil_edge else None,
     )  # fmt: skip
-    aperture, static_phase = _lenslet_transmission(system, lens, window, antialias=antialias, device=device)
-    step = system.pixel_pitch / oversampling
-    scale = (dx * dx / (system.wavelength * system.mla_to_camera)) ** 2 * step * step / (m_r * m_r)
-    amplitude = (amplitude * aperture * math.sqrt(scale)).to(real_dtype(dtype))
-    static_phase = static_phase + tilt
+    # Coverage in units of samples (scale-free): the aperture then follows dx's gradient too.
+    aperture = aperture_coverage(
+        lens.shape, ix, iy, _f64(v.aperture_diameter) / dx, (1.0, 1.0), antialias=antialias
+    )
+    k = wavenumber(lam)
+    sy, sx = window.shift
+    # The window was placed for the planned centre; a moved centre shifts the output back.
+    shift = (sx + (lens.center[0] - cx), sy + (lens.center[1] - cy))
+    static_phase = (
+        lens_phase(x, y, _f64(v.focal_length), k)
+        + fresnel_chirp(x, y, d, k)
+        + shift_ramp(x, y, shift, k, d)
+        + tilt
+    )
+    if v.pupil_phase is not None:
+        static_phase = static_phase + v.pupil_phase.sample(x + cx, y + cy)
+    step = p / s
+    scale = (dx * dx / (lam * d)) ** 2 * step * step / (m_r * m_r)
+    amplitude = (amplitude * aperture * scale**0.5).to(real_dtype(dtype))
     parts = []
     for start in range(0, depths.numel(), depth_chunk):
         phase = depths[start : start + depth_chunk, None, None] * defocus + static_phase  # float64
@@ -97,19 +133,6 @@ def lenslet_psf(
     return torch.cat(parts, dim=0)
 
 
-def _lenslet_transmission(
-    system: FourierLFMSystem, lens: Lenslet, window: LensletWindow, *, antialias: bool, device
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """Aperture coverage and phase (lens + Fresnel chirp + output-shift ramp) on the lenslet patch, float64."""
-    n, dx = window.samples, window.input_spacing
-    y, x = Grid(n, dx).axes(device=device)
-    xx, yy = x[None, :], y[:, None]
-    if lens.shape == "circle":
-        aperture = disk_coverage(xx, yy, lens.aperture_diameter / 2.0, (dx, dx), antialias=antialias)
-    else:
-        aperture = square_coverage(xx, yy, lens.aperture_diameter, (dx, dx), antialias=antialias)
-    k = 2.0 * math.pi / system.wavelength
-    d, f = system.mla_to_camera, float(_value(lens.focal_length))
-    sy, sx = window.shift
-    phase = 0.5 * k * (1.0 / d - 1.0 / f) * (xx**2 + yy**2) - k / d * (xx * sx + yy * sy)
-    return aperture.to(torch.float64), phase
+def _f64(value: float | torch.Tensor) -> float | torch.Tensor:
+    """A float stays a float; a tensor becomes float64 (graph kept)."""
+    return value.to(torch.float64) if isinstance(value, torch.Tensor) else float(value)

@@ -7,6 +7,11 @@ placed on the sensor and cached per lenslet, so editing one lenslet recomputes o
 whole MLA transmission, propagated with :func:`propagate` and integrated on pixels:
 the straightforward reference, and the fallback when sub-images overlap (their fields
 interfere, which separate lenslets cannot represent).
+
+Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierParameters`
+(tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
+to the per-lenslet path; the cache is then bypassed. Cache keys are derived from the spec
+objects' fields (:func:`lenslet_key`), never from a hand-written list.
 """
 
 from __future__ import annotations
@@ -21,16 +26,20 @@ from lfm_studio.engine.dtypes import complex_dtype
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
-from lfm_studio.engine.optics.objective import _value
 from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS, integrate_pixels
 from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
+from lfm_studio.engine.systems.fourier_parameters import (
+    FourierParameters,
+    LensletOptics,
+    parameters_require_grad,
+)
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
 from lfm_studio.engine.systems.fourier_windows import LensletWindow, plan_window, windows_overlap
-from lfm_studio.engine.systems.lenslet_cache import LensletCache, stable_key
+from lfm_studio.engine.systems.lenslet_cache import LensletCache, spec_parts, stable_key
 
 _METHODS = ("auto", "per_lenslet", "full_field")
 
@@ -99,25 +108,27 @@ class FourierPSFReport:
     lenslets_cached: list[int] = field(default_factory=list)
 
 
-def _lenslet_key(
+# Accuracy fields that do not change a per-lenslet patch (tested by computing both): the
+# path choice, the depth batching and the full-field propagation knobs.
+KEY_EXEMPT_ACCURACY = ("method", "depth_chunk", "propagator", "padding")
+
+
+def lenslet_key(
     system: FourierLFMSystem, lens: Lenslet, depths: tuple[float, ...], acc: FourierAccuracy, device
 ) -> str:
-    obj = system.objective
-    optics = (
-        _value(obj.magnification), _value(obj.numerical_aperture), _value(obj.immersion_index),
-        _value(obj.tube_lens_focal_length), system.fourier_focal_length, system.mla_to_camera,
-        system.pixel_pitch, system.sensor_shape, system.wavelength,
-    )  # fmt: skip
-    lens_key = (lens.center, lens.aperture_diameter, float(_value(lens.focal_length)), lens.shape)
-    knobs = (
-        acc.oversampling,
-        acc.margin_airy,
-        acc.model,
-        acc.antialias,
-        str(acc.dtype),
-        acc.pixel_integration,
+    """Cache key of one lenslet's patch, derived from the spec objects' fields (:func:`spec_key`).
+
+    Every field of ``system`` (recursively, the objective included) except ``mla`` (the
+    patch depends on its own lenslet only, keyed in full), every field of ``acc`` except
+    :data:`KEY_EXEMPT_ACCURACY`, the depths and the device.
+    """
+    return stable_key(
+        spec_parts(system, exclude=("mla",)),
+        spec_parts(lens),
+        spec_parts(depths),
+        spec_parts(acc, exclude=KEY_EXEMPT_ACCURACY),
+        str(torch.device(device)),
     )
-    return stable_key(optics, lens_key, depths, knobs, str(torch.device(device)))
 
 
 def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) -> None:
@@ -171,6 +182,7 @@ def fourier_psf_stack(
     report: FourierPSFReport | None = None,
     design: Design | None = None,
     source_position: tuple[float, float] = (0.0, 0.0),
+    parameters: FourierParameters | None = None,
 ) -> PSFStack:
     """PSF stack of a Fourier LFM: power per sensor pixel of a unit-power on-axis emitter per depth.
 
@@ -187,6 +199,10 @@ def fourier_psf_stack(
     source_position : lateral emitter position (x0, y0) in metres; the stack of a
         shift-invariant system uses the on-axis source (the default). Off-axis sources
         are for checks (every sub-image moves by ``magnification * x0``) and are not cached.
+    parameters : tensor overrides of the optics (:class:`FourierParameters`) for gradients:
+        the geometry is planned from their values, the physics evaluated from the tensors
+        (per-lenslet path only). The cache is bypassed whenever parameters are given or any
+        input (a lenslet focal length, an objective field) requires grad.
 
     Returns
     -------
@@ -197,15 +213,24 @@ def fourier_psf_stack(
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
     report = report if report is not None else FourierPSFReport()
+    if parameters is not None:
+        system = parameters.applied_to(system)  # geometry from the values
     method, windows = resolve_method(system, depths, acc)
     report.method = method
     z = torch.tensor(depths, dtype=torch.float64, device=device)
+    if parameters is not None and method != "per_lenslet":
+        raise ValueError(
+            f"parameters need the per-lenslet path; this design resolved to method {method!r} "
+            "(lenslet footprints overlap, or it was asked for). Fix: use FourierAccuracy(method="
+            "'per_lenslet') on a design whose sub-images do not overlap, or drop parameters."
+        )
     if method == "per_lenslet":
-        if source_position != (0.0, 0.0):
+        if source_position != (0.0, 0.0) or parameters is not None or parameters_require_grad(None, system):
             cache = None
         data = _per_lenslet(
-            system, windows, depths, z, acc, device, cache, progress, cancel, report, source_position
-        )
+            system, windows, depths, z, acc, device, cache, progress, cancel, report, source_position,
+            parameters,
+        )  # fmt: skip
     else:
         data = _full_field(system, z, acc, device, progress, cancel, source_position)
     return PSFStack(
@@ -225,19 +250,24 @@ def fourier_psf_stack(
 
 
 def _per_lenslet(
-    system, windows, depths, z, acc, device, cache, progress, cancel, report, source
+    system, windows, depths, z, acc, device, cache, progress, cancel, report, source, parameters
 ) -> torch.Tensor:
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
     for index, (lens, window) in enumerate(zip(system.mla.lenslets, windows, strict=True)):
         checkpoint(cancel, progress, index, total, f"lenslet {index + 1}/{total}")
-        key = _lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
+        key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
         patch = cache.get(key) if cache is not None else None
         if patch is None:
+            optics = (
+                parameters.lenslet(system, index)
+                if parameters is not None
+                else LensletOptics.of(system, lens)
+            )
             patch = lenslet_psf(
                 system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
                 antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
-                pixel_integration=acc.pixel_integration,
+                pixel_integration=acc.pixel_integration, optics=optics,
             )  # fmt: skip
             report.lenslets_computed.append(index)
             if cache is not None:

@@ -1,0 +1,68 @@
+"""Richardson-Lucy unrolled for a fixed number of iterations: a differentiable reconstruction.
+
+Plain multiplicative updates (Richardson 1972, Lucy 1974)::
+
+    x_{k+1} = x_k * A^T(y / (A x_k + eps)) / (A^T 1 + eps)
+
+with no safeguards, stopping rules or in-place writes, so gradients flow from the
+result to the image, the start volume and, through the projector, to the PSF and the
+optics it came from (end-to-end design studies, learned unrolled solvers). The
+production solver with its checks is :mod:`~lfm_studio.engine.reconstruct.richardson_lucy`.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import torch
+
+
+class _Projector(Protocol):
+    volume_shape: tuple[int, int, int]
+
+    def forward(self, volume: torch.Tensor) -> torch.Tensor: ...
+
+    def adjoint(self, image: torch.Tensor) -> torch.Tensor: ...
+
+
+def richardson_lucy_unrolled(
+    projector: _Projector,
+    image: torch.Tensor,
+    iterations: int,
+    *,
+    initial: torch.Tensor | None = None,
+    eps: float = 1e-12,
+) -> torch.Tensor:
+    """``iterations`` Richardson-Lucy updates of ``initial`` for ``image``; differentiable.
+
+    Parameters
+    ----------
+    projector : any projector with ``forward`` (volume -> image), ``adjoint`` and ``volume_shape``.
+    image : non-negative camera image (the projector's image shape), photons or W.
+    iterations : number of updates (>= 0; 0 returns the start volume).
+    initial : start volume (positive, the projector's volume shape); default the flat
+        volume whose projection carries the image's total signal.
+    eps : added to the denominators (same unit as they are), keeps them non-zero.
+
+    Returns
+    -------
+    Volume ``(Z, Vy, Vx)`` in the projector's dtype.
+    """
+    if isinstance(iterations, bool) or not isinstance(iterations, int) or iterations < 0:
+        raise ValueError(f"iterations must be an integer >= 0; got {iterations!r}. Fix: use e.g. 3.")
+    if not eps > 0:
+        raise ValueError(f"eps must be > 0; got {eps!r}. Fix: use 1e-12.")
+    sensitivity = projector.adjoint(torch.ones_like(image))
+    if initial is None:
+        ones = torch.ones(projector.volume_shape, dtype=sensitivity.dtype, device=sensitivity.device)
+        initial = ones * (image.sum() / (projector.forward(ones).sum() + eps))
+    if tuple(initial.shape) != tuple(projector.volume_shape):
+        raise ValueError(
+            f"initial must have the projector's volume shape {tuple(projector.volume_shape)}; "
+            f"got {tuple(initial.shape)}."
+        )
+    volume = initial
+    for _ in range(iterations):
+        ratio = image / (projector.forward(volume) + eps)
+        volume = volume * projector.adjoint(ratio) / (sensitivity + eps)
+    return volume

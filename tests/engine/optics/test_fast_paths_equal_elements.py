@@ -1,0 +1,173 @@
+"""The fast PSF paths equal compositions of the public optical elements (float64, small grids).
+
+Fourier LFM, one lenslet: ``pupil_field`` (relayed by ``m_r``) -> ``thin_lens`` (circle) or
+``apply_mla`` (square) -> ``propagate(method="fresnel_ir")`` -> intensity -> ``s x s`` bins,
+against :func:`lenslet_psf`. The lenslet centre is moved onto the window's sample
+lattice (output shift 0: both sides then sample the same points; the sub-pixel shift
+ramp is checked by the centre-gradient and sub-image position tests).
+
+Conventional LFM: the native-image-plane Debye field of an offset source -> ``apply_mla``
+(one lenslet at a time) -> zero padding -> ``fresnel_ir`` (distance chosen so that its
+output spacing is the sensor sub-sample) -> each lenslet's three-pitch window added as a
+complex field -> intensity -> bins, against :func:`offset_pattern`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import warnings
+
+import pytest
+import torch
+
+from lfm_studio.engine.errors import SamplingWarning
+from lfm_studio.engine.optics.debye import debye_psf
+from lfm_studio.engine.optics.field import Field
+from lfm_studio.engine.optics.grid import Grid
+from lfm_studio.engine.optics.lenses import thin_lens
+from lfm_studio.engine.optics.mla import apply_mla
+from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
+from lfm_studio.engine.optics.objective import ObjectiveLens
+from lfm_studio.engine.optics.padding import pad_field
+from lfm_studio.engine.optics.propagation import propagate
+from lfm_studio.engine.optics.pupil_field import pupil_field
+from lfm_studio.engine.systems.conventional_patterns import offset_pattern, samples_per_pitch, sub_samples
+from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
+from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
+from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
+from lfm_studio.engine.systems.fourier_windows import plan_window
+from lfm_studio.engine.units import mm, nm, um
+
+F64, C128 = torch.float64, torch.complex128
+TOLERANCE = 1e-6
+
+
+def _relative_error(fast: torch.Tensor, reference: torch.Tensor) -> float:
+    return float((fast - reference).abs().max() / reference.abs().max())
+
+
+def _bin(power: torch.Tensor, s: int) -> torch.Tensor:
+    z, ny, nx = power.shape
+    return power.reshape(z, ny // s, s, nx // s, s).sum(dim=(2, 4))
+
+
+# -- Fourier LFM ------------------------------------------------------------------------------
+FOURIER_DEPTHS = (-6 * um, 0.0, 5 * um)
+
+
+def _fourier_case(centre: tuple[float, float], shape: str):
+    """A one-lenslet system with the lens moved onto its window's sample lattice (zero output shift)."""
+    objective = ObjectiveLens(20.0, 0.5, 1.33, 180 * mm)
+
+    def system_with(c):
+        lens = Lenslet(c, 0.25 * mm, 4 * mm, shape)
+        return FourierLFMSystem(
+            objective, 60 * mm, MicrolensArray((lens,)), 5 * mm, 8 * um, (128, 128), 525 * nm
+        ), lens
+
+    system, lens = system_with(centre)
+    window = plan_window(system, lens, FOURIER_DEPTHS, oversampling=2, margin_airy=4)
+    system, lens = system_with((centre[0] + window.shift[1], centre[1] + window.shift[0]))
+    window = plan_window(system, lens, FOURIER_DEPTHS, oversampling=2, margin_airy=4)
+    assert max(abs(v) for v in window.shift) < 1e-15  # metres
+    return system, lens, window
+
+
+@pytest.mark.parametrize(
+    ("centre", "shape"),
+    [((0.0, 0.0), "circle"), ((0.21 * mm, -0.13 * mm), "circle"), ((0.0, 0.0), "square"), ((-0.17 * mm, 0.24 * mm), "square")],
+)  # fmt: skip
+def test_fourier_lenslet_equals_pupil_lens_fresnel_composition(centre, shape):
+    system, lens, window = _fourier_case(centre, shape)
+    z = torch.tensor(FOURIER_DEPTHS, dtype=F64)
+    fast = lenslet_psf(system, lens, window, z, oversampling=2, dtype=F64, antialias=True)
+
+    n, dx, m_r, s = window.samples, window.input_spacing, system.relay_magnification, 2
+    cx, cy = lens.center
+    pupil = pupil_field(
+        system.objective, Grid(n, dx / m_r), system.wavelength, z, center=(cx / m_r, cy / m_r),
+        check_sampling=False, dtype=C128,
+    )  # fmt: skip
+    relayed = Field(pupil.data / m_r, Grid(n, dx), system.wavelength)  # 4f relay: scale m_r, amplitude 1/m_r
+    with warnings.catch_warnings():
+        # The lens phase alone is undersampled on this patch; with the Fresnel input chirp
+        # of an in-focus camera the product is smooth (the fast path forms that product).
+        warnings.simplefilter("ignore", SamplingWarning)
+        if shape == "circle":
+            lensed = thin_lens(
+                relayed, lens.focal_length, aperture_diameter=lens.aperture_diameter, antialias=True
+            )
+        else:
+            array = MicrolensArray((dataclasses.replace(lens, center=(0.0, 0.0)),))
+            lensed = apply_mla(relayed, array, antialias=True)
+        sensor = propagate(
+            lensed, system.mla_to_camera, method="fresnel_ir", padding=1.0, check_sampling=False
+        )
+    assert sensor.grid.dx == pytest.approx(system.pixel_pitch / s, rel=1e-12)
+    reference = _bin(sensor.intensity() * sensor.grid.pixel_area, s)
+    assert fast.shape == reference.shape == (len(FOURIER_DEPTHS), n // s, n // s)
+    assert _relative_error(fast, reference) <= TOLERANCE
+
+
+# -- Conventional LFM -------------------------------------------------------------------------
+def _conventional_case() -> tuple[ConventionalLFMSystem, int]:
+    """A system whose Fresnel-IR output spacing ``lambda d / (M dx)`` is the sensor sub-sample for an odd ``M``."""
+    pitch, wavelength, q = 50 * um, 525 * nm, 5
+    system = ConventionalLFMSystem(
+        ObjectiveLens(10.0, 0.3, 1.0, 200 * mm), pitch, 1 * mm, "square", 1 * mm, (3, 3), q, 3, wavelength
+    )
+    ns, m = samples_per_pitch(system), sub_samples(system)
+    padded = 47
+    d = padded * pitch**2 / (wavelength * ns * q * m)
+    system = dataclasses.replace(system, mla_to_camera=d, lenslet_focal_length=d)
+    assert (samples_per_pitch(system), sub_samples(system)) == (ns, m)
+    assert padded >= 3 * ns and padded >= 3 * q * m
+    return system, padded
+
+
+@pytest.mark.parametrize(("a", "b"), [(0, 0), (0, 1), (1, 1)])
+def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b):
+    system, padded = _conventional_case()
+    reach, depths = 1, (0.0, 8 * um)
+    ns, m, q, s = (
+        samples_per_pitch(system),
+        sub_samples(system),
+        system.pixels_per_lenslet,
+        system.voxels_per_lenslet,
+    )
+    dx, step, mag = system.pitch / ns, ns // s, system.magnification
+    z = torch.tensor(depths, dtype=F64)
+    field_n = (2 * reach + 1) * ns + 2 * (s // 2) * step
+    base = debye_psf(system.objective, Grid(field_n, dx), system.wavelength, z, image_side=True,
+                     radial_sampling="exact", dtype=C128).data  # fmt: skip
+    fast = offset_pattern(system, base, a, b, reach=reach, dtype=F64, light_radius=None)
+
+    per_lenslet, out_n = q * m, 3 * q * m
+    canvas_n = (2 * reach + 3) * per_lenslet
+    canvas = torch.zeros((len(depths), canvas_n, canvas_n), dtype=C128)
+    lens = MicrolensArray((Lenslet((0.0, 0.0), system.pitch, system.lenslet_focal_length, "square"),))
+    for i in range(-reach, reach + 1):
+        for j in range(-reach, reach + 1):
+            # The NIP field on lenslet (i, j)'s own ns x ns patch, centred on its axis: the source's
+            # image sits at (b step dx - j P, a step dx - i P) from it (object side: / -M).
+            image_x, image_y = b * step * dx - j * system.pitch, a * step * dx - i * system.pitch
+            nip = debye_psf(
+                system.objective, Grid(ns, dx), system.wavelength, z, position=(-image_x / mag, -image_y / mag),
+                image_side=True, radial_sampling="exact", dtype=C128,
+            )  # fmt: skip
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SamplingWarning)
+                lensed = pad_field(apply_mla(nip, lens), shape=(padded, padded))
+                sensor = propagate(
+                    lensed, system.mla_to_camera, method="fresnel_ir", padding=1.0, check_sampling=False
+                )
+            assert sensor.grid.dx == pytest.approx(system.pitch / per_lenslet, rel=1e-12)
+            # The lenslet's three-pitch window, centred on its axis, onto the canvas (complex sum).
+            first = padded // 2 - out_n // 2
+            top, left = (reach + i) * per_lenslet, (reach + j) * per_lenslet
+            canvas[:, top : top + out_n, left : left + out_n] += sensor.data[
+                :, first : first + out_n, first : first + out_n
+            ]
+    reference = _bin((canvas.real**2 + canvas.imag**2) * sensor.grid.pixel_area, m)
+    assert fast.shape == reference.shape
+    assert _relative_error(fast, reference) <= TOLERANCE
