@@ -63,6 +63,20 @@ def richardson_lucy_unrolled(
         )
     volume = initial
     for _ in range(iterations):
-        ratio = image / (projector.forward(volume) + eps)
-        volume = volume * projector.adjoint(ratio) / (sensitivity + eps)
+        volume = volume * rl_ratio(projector, image, volume, sensitivity, eps=eps)
     return volume
+
+
+def rl_ratio(
+    projector: _Projector,
+    image: torch.Tensor,
+    volume: torch.Tensor,
+    sensitivity: torch.Tensor,
+    *,
+    background: float | torch.Tensor = 0.0,
+    eps: float = 1e-12,
+) -> torch.Tensor:
+    """The Richardson-Lucy update factor ``A^T(y / (A x + b + eps)) / (A^T 1 + eps)`` (differentiable):
+    one plain RL step is ``x * rl_ratio(...)``; learned unrolled solvers reshape it (an exponent, a
+    correction) between steps. ``sensitivity`` is ``A^T 1``, computed once by the caller."""
+    return projector.adjoint(image / (projector.forward(volume) + background + eps)) / (sensitivity + eps)

@@ -8,6 +8,7 @@ import torch
 from lfm_studio.engine.learned.data import TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss
 from lfm_studio.engine.learned.models import MODELS, build_model, parameter_count
+from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 from lfm_studio.engine.reconstruct.wiener import wiener
 
 
@@ -34,6 +35,8 @@ def test_an_untrained_unrolled_rl_is_plain_rl(system, request):
     model = build_model("unrolled-rl", setup.projector, iterations=4)
     with torch.no_grad():
         torch.testing.assert_close(model(image), _plain_rl(setup.projector, image, 4), rtol=1e-9, atol=1e-9)
+        plain = richardson_lucy_unrolled(setup.projector, image.clamp_min(0.0), 4)  # the engine's unrolled RL
+        torch.testing.assert_close(model(image), plain, rtol=1e-9, atol=1e-9)
 
 
 def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):

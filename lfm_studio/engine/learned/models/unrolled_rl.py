@@ -19,6 +19,7 @@ import torch
 from torch import nn
 
 from lfm_studio.engine.learned.models.common import adjoint_normaliser, image_scale, projector_dtype
+from lfm_studio.engine.reconstruct.unrolled import rl_ratio
 
 EXPONENT_RATE = 10.0
 """The exponent is ``exp(EXPONENT_RATE * p)`` for a parameter ``p`` started at 0: an Adam step of
@@ -83,7 +84,6 @@ class UnrolledRL(nn.Module):
         tiny = torch.finfo(y.dtype).eps
         x = torch.ones_like(self.norm) * (y.sum() / self.norm.sum())  # flat start (keeps the graph to y)
         for step, log_exponent in zip(self.steps, self.log_exponents, strict=True):
-            estimate = self.projector.forward(x) + background
-            ratio = self.projector.adjoint(y / estimate.clamp_min(tiny)) / self.norm
+            ratio = rl_ratio(self.projector, y, x, self.norm, background=background)
             x = step(x * ratio.clamp_min(tiny) ** torch.exp(EXPONENT_RATE * log_exponent))
         return x * scale
