@@ -11,7 +11,7 @@ venv="${LFM_VENV:-$repo_root/.venv}"
 torch_version="${LFM_TORCH_VERSION:-2.13.0}"
 
 # Runtime libraries for Qt (PySide6) and napari's OpenGL canvas, and Xvfb for
-# headless tests (PLATFORM.md, "Display").
+# headless tests (docs/platform.md, "Display").
 apt_packages=(libgl1 libegl1 libglib2.0-0 libfontconfig1 libdbus-1-3 libxkbcommon0
   libxkbcommon-x11-0 libxcb-cursor0 libxcb-icccm4 libxcb-keysyms1 libxcb-image0
   libxcb-render-util0 libxcb-shape0 libxcb-randr0 libxcb-xfixes0 xvfb xauth)
@@ -44,7 +44,7 @@ install_python_packages() {
   echo "lfm_studio: installing Python packages into $venv (first run takes a few minutes)"
   "$venv/bin/python" -m pip install -q --upgrade pip
   # torch first: with it present, the open range in pyproject installs nothing
-  # more (no multi-GB CUDA download on CPU machines; PLATFORM.md).
+  # more (no multi-GB CUDA download on CPU machines; docs/platform.md).
   "$venv/bin/python" -c "import torch" >/dev/null 2>&1 || "$venv/bin/python" -m pip install -q "torch==$torch_version"
   "$venv/bin/python" -m pip install -q -e "$repo_root[studio,scale,dev]"
   echo "$want" > "$stamp"

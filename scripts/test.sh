@@ -13,7 +13,7 @@ trap 'rm -rf "$scratch"' EXIT
 export XDG_CONFIG_HOME="$scratch/config" XDG_CACHE_HOME="$scratch/cache" MPLCONFIGDIR="$scratch/mpl"
 unset QT_QPA_PLATFORM   # pytest-xvfb provides a real X server for napari's OpenGL canvas
 # Idle OpenMP threads sleep instead of spinning: with another job on one of the 2 cores,
-# spinning 2-thread torch runs were up to 16x slower (PLATFORM.md). Results do not depend on it.
+# spinning 2-thread torch runs were up to 16x slower (docs/platform.md). Results do not depend on it.
 export OMP_WAIT_POLICY="${OMP_WAIT_POLICY:-PASSIVE}"
 # The CLI's default thread count follows the machine's load (engine/threads.py); tests call it
 # in-process, so fix it here: every test runs on the same number of threads, whatever the load.

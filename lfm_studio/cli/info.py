@@ -8,6 +8,8 @@ adds the values measured on it. ``--criterion`` picks the lateral resolution cri
 the closed forms: ``rayleigh`` (0.61 lambda / NA, the thesis' section 3.3.1; default),
 ``abbe`` (lambda / (2 NA)) or ``sparrow`` (0.47 lambda / NA); the report names it.
 Register with :func:`add_info_parser`.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 torch 2.13.0+cpu (MKL) with 2 threads returns a wrong scale (an extra 1/N^2) for
 2048 x 2048 complex64 transforms in every *scaled* direction (``ifft2`` with the
 default norm, ``fft2`` with ``norm="forward"`` or ``"ortho"``), batched or not;
-the *unscaled* directions are right (PLATFORM.md; ``tests/engine/test_fft.py``).
+the *unscaled* directions are right (docs/platform.md; ``tests/engine/test_fft.py``).
 So this module only ever asks torch for unscaled transforms and applies the
 ``1/N`` itself. Everything else in the engine calls these functions, never
 ``torch.fft`` directly.

@@ -1,6 +1,6 @@
 """Thread policy: how many torch CPU threads the engine's heavy work runs on, set on purpose.
 
-Measured on the 2-core development machine (PLATFORM.md, docs/benchmarks.md):
+Measured on the 2-core development machine (docs/platform.md, docs/benchmarks.md):
 
 - FFT-bound work (PSF stacks, projectors, Richardson-Lucy) gains 1.2-1.9x from 2 threads
   on a quiet machine;

@@ -1,4 +1,4 @@
-"""Regression guard for the torch CPU FFT scaling bug (PLATFORM.md).
+"""Regression guard for the torch CPU FFT scaling bug (docs/platform.md).
 
 torch 2.13.0+cpu with 2 threads returns ``ifft2(fft2(x))`` of a 2048 x 2048
 complex64 array scaled by 1/N^2. Our FFT module must round-trip and satisfy

@@ -85,7 +85,7 @@ SYSTEMS = {"fourier": (make_fourier, 10, 6), "conventional": (make_conventional,
 def reconstructed(request):
     """A real case: beads imaged with noise through a small simulated system, 30 RL iterations."""
     threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # small FFTs: 1 thread is faster on this CPU (PLATFORM.md)
+    torch.set_num_threads(1)  # small FFTs: 1 thread is faster on this CPU (docs/platform.md)
     try:
         build, count, seed = SYSTEMS[request.param]
         system = build()

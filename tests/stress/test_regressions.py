@@ -1,4 +1,4 @@
-"""Regression guards for the torch 2048 x 2048 FFT bug (PLATFORM.md) at the level of the engine's users.
+"""Regression guards for the torch 2048 x 2048 FFT bug (docs/platform.md) at the level of the engine's users.
 
 torch 2.13.0+cpu with 2 threads scales scaled-direction 2D transforms of exactly 2048^2
 complex64 by an extra 1/N^2; ``engine/fft.py`` only asks torch for unscaled transforms

@@ -1,7 +1,7 @@
 """Where the work runs: in-process (synchronous scheduler), a LocalCluster, or a cluster by address.
 
 :func:`get_client` is shared with design studies (the optimiser evaluates candidates on the
-same client). Workers run one torch thread each (PLATFORM.md: 2 threads per process were up
+same client). Workers run one torch thread each (docs/platform.md: 2 threads per process were up
 to 16x slower on a loaded 2-core machine), so a LocalCluster has ``threads_per_worker=1``
 and parallelism comes from processes.
 """

@@ -83,7 +83,7 @@ def process_chunk(task: ChunkTask) -> dict[str, Any]:
     if existing is not None:  # finished earlier (e.g. a task re-run after its worker died)
         return existing
     if in_dask_worker():
-        torch.set_num_threads(1)  # one thread per worker process (PLATFORM.md, threads)
+        torch.set_num_threads(1)  # one thread per worker process (docs/platform.md, threads)
         # Worker threads allocate from a non-main glibc arena that returns freed FFT buffers at once:
         # measured 2.1x the CPU time per frame of the same loop in a main thread, 1.0x with this.
         keep_freed_memory()

@@ -22,6 +22,8 @@ Example::
 
 Read NCC and F1 first: on a sparse phantom the all-zero volume already scores a high
 PSNR and an SSIM near 1 (see :mod:`.floors`).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from lfm_studio.engine.image_quality.basic import NORMALIZATIONS, data_range_of, match_scale, mse, psnr

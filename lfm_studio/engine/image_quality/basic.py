@@ -4,6 +4,8 @@ A reconstruction's intensity scale is arbitrary (Richardson-Lucy returns voxel v
 in image counts per unit PSF energy, Wiener in whatever the PSF normalisation gives);
 :func:`match_scale` puts an estimate on the truth's scale before comparing, when the
 question is "is the structure right" rather than "are the numbers right".
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

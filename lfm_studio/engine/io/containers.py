@@ -2,7 +2,7 @@
 
 Both are frozen dataclasses holding a tensor plus the sampling that gives it a
 physical size, so no function needs a loose voxel size passed alongside the data
-(DESIGN.md section 2). Lengths are SI metres.
+(docs/architecture.md section 2). Lengths are SI metres.
 
 Position convention (the same as :class:`~lfm_studio.engine.optics.grid.Grid`):
 voxel ``i`` of an axis with ``N`` voxels sits at ``(i - N // 2) * d``.

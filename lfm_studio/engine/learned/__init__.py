@@ -8,6 +8,8 @@ blind U-Net (no physics). :func:`.train.train` fits one under a time budget with
 early stopping; :mod:`.checkpoint` stores it as safetensors with a JSON header that ties it to
 the design and its sampling. The loss (:mod:`.losses`) is an energy-normalised MSE plus a
 high-pass term; every prediction is checked to be neither all zero nor constant.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from lfm_studio.engine.learned.checkpoint import load_model, load_model_for, read_checkpoint, save_checkpoint

@@ -10,7 +10,7 @@ FFT sizes avoid circular wrap-around (``>= V + P - 1``, 2-3-5 smooth); the PSF
 spectra (OTFs) are computed once and kept (in the same depth chunks, so the set-up
 is linear in depths). On CPU, depths are processed in chunks
 that keep the working set cache-sized (batching all depths at once was measured
-3-4x slower at 1024^2 here, PLATFORM.md); on CUDA all depths go in one batch.
+3-4x slower at 1024^2 here, docs/platform.md); on CUDA all depths go in one batch.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Differentiable Bessel functions ``J0``, ``J1`` and ``J1(x)/x`` of real tensors.
 
-``torch.special.bessel_j0/j1`` return results without ``grad_fn`` (PLATFORM.md), and
+``torch.special.bessel_j0/j1`` return results without ``grad_fn`` (docs/platform.md), and
 in torch 2.13 their float64 values are only good to about ``5e-7`` (absolute, worst
 just above ``x = 5``; ``2e-9`` up to ``x = 25``): the Cephes rational approximations
 there drop the implicit leading coefficient of the ``p1evl`` denominators. This

@@ -36,6 +36,8 @@ Everything runs in float64 and is cast to ``dtype`` at the end (peak memory is a
 ``Z * ny * nx`` complex128 values: chunk long depth stacks on the caller's side); the
 result is differentiable with respect to ``z`` and the numerical aperture (through
 :mod:`bessel`), not with respect to the magnification, index or source position.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

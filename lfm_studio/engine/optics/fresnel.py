@@ -15,6 +15,8 @@ work and memory, against O(M^2) for the ASM). Phases are formed in float64 and o
 the complex exponentials are cast. With a 0-d tensor ``distance`` every factor stays
 differentiable (the output sample positions of the impulse response move with ``z``,
 and the output chirp is written as ``pi l z f^2`` so that gradients include it).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

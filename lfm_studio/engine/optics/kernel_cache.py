@@ -1,7 +1,7 @@
 """A small LRU cache of propagation transfer functions with a byte budget.
 
 Building a transfer function costs most of one propagation (a 2048^2 ASM kernel is
-about 70% of the work, PLATFORM.md), and depth sweeps reuse the same few kernels.
+about 70% of the work, docs/platform.md), and depth sweeps reuse the same few kernels.
 Entries are keyed by exactly the inputs they depend on (:class:`KernelKey`), so a
 change of any of them is a miss, never a stale hit. Values are tensors or tuples of
 tensors that nobody modifies in place; a hit returns the very same objects.

@@ -1,12 +1,14 @@
 """Thin lens (thesis eq. 3.15) and Fourier lens (thesis eq. 3.17) as ``Field -> Field`` functions.
 
-Sign convention (DESIGN.md): time dependence ``exp(-j w t)``, so a converging lens
+Sign convention (docs/architecture.md): time dependence ``exp(-j w t)``, so a converging lens
 (``f > 0``) multiplies by ``exp(-j k (x^2 + y^2) / (2 f))``. ``k`` is the wavenumber
 in the field's medium. Phases are formed in float64 and only the complex
 exponential is cast to the field's dtype.
 
 ``focal_length`` and ``distance`` accept a float or a 0-d tensor; with a tensor,
 gradients flow through the lens phase and the Fourier-lens prefactor.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

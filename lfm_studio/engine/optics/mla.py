@@ -46,6 +46,8 @@ Differentiability: with respect to the field and to the focal lengths (tensor
 ``Lenslet.focal_length`` entries or the ``focal_lengths`` override, e.g. an
 ``nn.Parameter`` of shape ``(L,)``); then every lenslet gets its own patch.
 Centres and diameters are geometry (floats); their placement is discrete.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -7,6 +7,8 @@ and arbitrary layouts are the same object (thesis Algorithm 1 builds its phase m
 from such a list). Invariants are checked at construction: every lenslet lies inside
 the array aperture, and no two apertures overlap (touching is allowed). All lengths
 in metres; error messages show micrometres.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

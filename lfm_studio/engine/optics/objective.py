@@ -17,6 +17,8 @@ Debye integral (thesis eq. 3.14): ``"aplanatic"`` ``sqrt(cos theta)`` (an aplana
 objective imaging an isotropic emitter, Richards-Wolf / Gu), ``"flat"`` 1, ``"cos"``
 ``cos theta`` (Gu's Herschel-condition pupil, which focuses to the exact Airy
 pattern), or any callable ``theta -> P`` on a float64 tensor of angles in radians.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """The phase and aperture kernels every element and fast path is built from.
 
-One definition of each piece of thin-element physics (sign convention of DESIGN.md:
+One definition of each piece of thin-element physics (sign convention of docs/architecture.md:
 time dependence ``exp(-j w t)``, so a converging lens has a negative quadratic phase):
 
 - :func:`lens_phase` ``-k ((x - cx)^2 + (y - cy)^2) / (2 f)`` (thin lens, thesis eq. 3.15);
@@ -15,6 +15,8 @@ Every argument may be a float or a tensor (0-d for the scalars): the result is a
 float64 tensor that keeps the autograd graph of every tensor argument. Coordinates,
 wavenumbers and distances are in consistent units (metres and rad/m). Callers form
 the complex exponential once, from the summed phase.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@
 ``torch.nn.Module`` holding the phase, trainable (``nn.Parameter``) or fixed
 (buffer) as chosen at construction, with the optional behaviour of a real SLM:
 wrapping to ``[0, 2 pi)`` and quantisation to ``levels`` grey levels.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -20,6 +20,8 @@ Padding and cropping happen here only, through :mod:`padding` (centred zeros, de
 2x, FFT-friendly sizes). The inverse DFT is done as a forward DFT with its ``1/M`` folded
 into the cached kernel and the index reversal undone by the final crop, so a
 propagation costs two FFTs, one in-place multiply and the pad/crop copies.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ float64 in the stable form ``-n k z sin^2(theta) / (1 + cos(theta))``.
 
 ``P`` is the Debye apodization (:mod:`objective`); the ``1/cos(theta)`` is the
 Jacobian ``rho drho = n^2 f^2 sin(theta) cos(theta) dtheta``, so the tube lens
-(a Fourier lens, DESIGN.md eq. 3.17) turns this field into exactly the image-side
+(a Fourier lens, docs/architecture.md eq. 3.17) turns this field into exactly the image-side
 Debye field of :func:`debye_psf` (tested). For the aplanatic ``P = sqrt(cos theta)``
 the pupil amplitude is ``1/sqrt(cos theta)`` and the energy per solid angle is uniform:
 the normalisation ``C`` makes the pupil power ``integral |A|^2 dA`` equal to the

@@ -20,6 +20,8 @@ Warnings are :class:`SamplingWarning` and name the criterion and a grid that sat
 it; :class:`SamplingError` is raised before heavy work where no result can be right.
 The check that needs the field's spectrum (power removed by the band limit) is in
 :mod:`band_loss`.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """Field constructors: plane wave, point source (paraxial and exact spherical), Gaussian beam.
 
 All lengths in metres. ``dtype`` is the complex dtype of the result; phases are
-formed in float64 and only the complex exponential is cast (DESIGN.md section 4).
+formed in float64 and only the complex exponential is cast (docs/architecture.md section 4).
 """
 
 from __future__ import annotations

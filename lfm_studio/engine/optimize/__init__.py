@@ -19,6 +19,8 @@ MLA layouts: :func:`.algorithm2.algorithm2` (the thesis' Algorithm 2, greedy cel
 mask from a lenslet list). PSF-engineering losses of section 5.2.2 (:mod:`.psf_losses`):
 :func:`.psf_losses.depth_dissimilarity`, :func:`.psf_losses.mtf_support`,
 :func:`.psf_losses.axial_crb`.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from lfm_studio.engine.optimize import task_score as _task_score  # noqa: F401  (registers task_* objectives)

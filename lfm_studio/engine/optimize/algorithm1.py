@@ -30,6 +30,8 @@ into a transmission with :func:`~lfm_studio.engine.optics.mla.mla_transmission` 
 generalised to any centre); ``tests/engine/optimize/test_algorithm2.py`` checks that both
 give the same mask on a cell layout. This module is the literal algorithm, e.g. to export
 a candidate's mask for fabrication.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -42,6 +42,8 @@ What is implemented, and the choices where the pseudo-code is ambiguous
   scored is not scored again (the score is deterministic).
 - The thesis returns ``current_best``; its stated output is the lenslet list. We return
   both, with the best design (:class:`Algorithm2Result`).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -32,6 +32,8 @@ Symmetry classes
 ``"4-fold"`` (rotations by 90 degrees); ``"8-fold"`` (rotations and mirrors, the square's
 dihedral group). A merge under a symmetry merges the whole orbit of its block
 (:func:`orbit`); the pupil and the cell grid are invariant under all of them.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

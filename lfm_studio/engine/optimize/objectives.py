@@ -14,6 +14,8 @@ and ``direction`` ("minimize" or "maximize"). Kinds:
 
 Objectives compose: several at once are a multi-objective study (a Pareto front);
 :class:`WeightedSum` folds several into one minimised number.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -21,6 +21,8 @@ forward model can be optimised against it.
   ``sqrt(1 / I(z))`` (metres, **lower is better**). ``d mu / dz`` is a finite
   difference between neighbouring depths of the stack (second order, also for unequal
   steps, as ``numpy.gradient(edge_order=2)``).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

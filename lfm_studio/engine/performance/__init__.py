@@ -6,6 +6,8 @@ PSF stack (:func:`measure_metrics`: lateral FWHM, axial correlation width, two-p
 tests, depth of field), requirement checks (:data:`ZEBRAFISH_LARVA`: FoV >= 800 um,
 DoF >= 200 um, 3 x 3 x 5 um cells) and the report :class:`DesignMetrics` with JSON
 (units in key names), built by :func:`compute_design_metrics`. All values are SI.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from lfm_studio.engine.performance.closed_forms import ClosedFormMetrics, closed_form_metrics

@@ -8,6 +8,8 @@ Lateral resolution criterion (:data:`LATERAL_CRITERIA`): the diffraction limit i
 ``lambda / (2 NA)``) or 0.47 (Sparrow). The criterion is named in the metrics
 (``lateral_criterion``), the JSON, ``lfm-studio info`` and the studio's requirement
 table; docs/resolution_conventions.md compares every closed form with the thesis.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

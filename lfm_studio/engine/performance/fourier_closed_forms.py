@@ -39,6 +39,8 @@ side of a square) centred at radius ``r_i`` from the axis on the MLA.
   at the native image plane (``FS / M``), the nearest-neighbour spacing of the views on
   the sensor (``s / M_T``: sub-images wider than the lenslet spacing overlap; Guo 2019
   ``FOV = d_MLA / M_T``), and the short side of the sensor (``/ M_T``).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -4,6 +4,8 @@
 people read, in the key names (``lateral_resolution_um``, ``wavelength_nm``), and
 :meth:`DesignMetrics.from_dict` reads them back (a lossless round trip up to float
 rounding of the unit conversion).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

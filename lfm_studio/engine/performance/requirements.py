@@ -14,6 +14,8 @@ brain size (about 400 x 800 x 250 um^3) and the neuron soma diameter (3-7 um):
 Interpretation used here: a resolution (two-point distance) no larger than the cell
 size along that axis. Requirements are data (:class:`Requirement`); other organisms
 or tasks are new tuples of them.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

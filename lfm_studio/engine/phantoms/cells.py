@@ -2,6 +2,8 @@
 
 The larval zebrafish brain is about 400 x 800 x 250 um (x by y by z) and its
 neuron bodies are 3-7 um across (thesis section 2, citing [19]); the defaults follow.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Input checks and guarded divisions shared by every reconstruction method.
 
-Numerics rules (DESIGN.md section 4): divisions are guarded by a floor *relative to
+Numerics rules (docs/architecture.md section 4): divisions are guarded by a floor *relative to
 the data scale* (an absolute ``1e-12`` vanishes next to float32 counts of 1e4, and is
 below float32's smallest normal number times a typical PSF value), estimates stay
 non-negative, and NaN/Inf, negative or empty inputs are rejected with a ``ValueError``

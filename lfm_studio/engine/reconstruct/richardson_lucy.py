@@ -33,6 +33,8 @@ iterations; only result values below it are 0.
 Start (``initial=None``): the uniform volume whose projection carries the image's
 counts, ``x_0 = sum(y - b) / sum(A^T 1)`` in every voxel (RL keeps that total after
 its first step when ``b = 0``).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

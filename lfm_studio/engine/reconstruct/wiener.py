@@ -19,6 +19,8 @@ sub-image) is deconvolved the same way with a projector built from that view's P
 Limits: ``SNR -> 0`` gives 0; ``SNR = inf`` gives the pseudo-inverse ``Y / H_z``
 where ``|H_z| > 16 eps M_z`` and 0 elsewhere (the same threshold guards the finite-SNR
 division, so the two agree as SNR grows).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

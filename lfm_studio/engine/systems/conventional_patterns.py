@@ -17,6 +17,8 @@ full-field simulation; tests). ``|U|^2`` is then integrated on the rectified pix
 The square lattice is symmetric under x and y mirrors and the transpose, so of the
 ``S x S`` sub-positions only those with ``0 <= a <= b`` are simulated and the rest are
 mirrored copies (6 of 25 for ``S = 5``).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

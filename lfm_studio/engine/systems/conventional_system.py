@@ -10,6 +10,8 @@ The raw camera image is rectified (resampled) so that each lenslet covers exactl
 the volume has ``voxels_per_lenslet`` (odd) voxels per lenslet pitch laterally, i.e.
 a lateral voxel of ``P / (M * voxels_per_lenslet)`` in the sample. Both odd counts
 put a pixel and a voxel on each lenslet axis, which keeps the array's symmetries.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

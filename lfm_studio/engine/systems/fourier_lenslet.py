@@ -18,6 +18,8 @@ same functions as the public elements). The window (``N``, placement) is planned
 floats; the physics is evaluated from :class:`LensletOptics`, whose values may be 0-d
 tensors: the result is then differentiable in the lenslet's focal length, aperture and
 centre, the wavelength, NA, the relay and camera distances and a pupil phase mask.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

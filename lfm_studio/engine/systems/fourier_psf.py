@@ -12,6 +12,8 @@ Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierPar
 (tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
 to the per-lenslet path; the cache is then bypassed. Cache keys are derived from the spec
 objects' fields (:func:`lenslet_key`), never from a hand-written list.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

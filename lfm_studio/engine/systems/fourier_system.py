@@ -14,6 +14,8 @@ field by ``x0 / (m_r f_obj)`` and moves every sub-image by
 ``M_total x0`` with ``M_total = M_obj * mla_to_camera / f_fourier``, the same for all
 lenslets whatever their focal length, which is what makes the system laterally
 shift-invariant (in the paraxial limit; tested).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

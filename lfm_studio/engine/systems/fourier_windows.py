@@ -12,6 +12,8 @@ on ``N x N`` samples: output spacing ``p / s`` (``s`` sub-samples per sensor pix
 axis) needs an input spacing ``lambda d s / (N p)``; the output window of ``N p / s``
 covers the footprint. ``N`` is a multiple of ``s`` and the window starts on a pixel
 edge, so ``s x s`` binning is the exact area integral over each pixel.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

@@ -83,7 +83,7 @@ def test_napari_reader_opens_the_store_lazily_with_scales(video, store):
     napari = pytest.importorskip("napari")
     from npe2 import PluginManager
 
-    PluginManager.instance().discover()  # a bare ViewerModel does not (PLATFORM.md)
+    PluginManager.instance().discover()  # a bare ViewerModel does not (docs/platform.md)
     [layer] = napari.components.ViewerModel().open(str(store), plugin="lfm-studio")  # the manifest entry
     np.testing.assert_allclose(layer.scale, _expected_scale(video, 0), rtol=1e-12)
     assert layer.multiscale and layer.metadata["lfm_studio"]["method"] == METHOD

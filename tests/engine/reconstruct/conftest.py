@@ -65,7 +65,7 @@ def _one_torch_thread():
     """Run this package's small FFTs on one thread, restoring the setting afterwards.
 
     Measured here with other jobs on the 2 cores: an RL iteration of the FLFM system took
-    18-60 ms on one thread and 280-500 ms on two (PLATFORM.md: torch threads thrash under load).
+    18-60 ms on one thread and 280-500 ms on two (docs/platform.md: torch threads thrash under load).
     """
     threads = torch.get_num_threads()
     torch.set_num_threads(1)

@@ -9,6 +9,8 @@ stage is exactly the Wiener filter. Spatially varying (conventional) projector: 
 normalised adjoint ``A^T y / A^T 1`` with a learnable gain per depth (started at 1). A 2.5-D U-Net (depths as
 channels) then refines the stack; its output is added to the stage's and passed through a
 softplus (non-negative).
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations

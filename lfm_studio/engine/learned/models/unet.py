@@ -3,6 +3,8 @@
 The camera image is area-resampled onto the volume's lateral grid and a small 2-D U-Net maps
 it to one channel per depth (softplus: non-negative). It sees the light field only as an
 image, so whatever it learns about the optics comes from the training pairs.
+
+The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from __future__ import annotations
