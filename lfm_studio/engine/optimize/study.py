@@ -16,7 +16,7 @@ result) and its point evaluated again.
 
 Samplers (:data:`SAMPLERS`): ``grid`` (every grid point, in order: enumerated here rather
 than by Optuna's ``GridSampler``, which visits points in random order and can repeat one
-under parallel workers), ``tpe``, ``cmaes`` (needs ``pip install cmaes``) and ``random``.
+under parallel workers), ``tpe``, ``cmaes`` (the ``cmaes`` package, in the optimize extra) and ``random``.
 
 Parallel evaluation: pass a Dask ``client`` (``dask.distributed.Client``; a local cluster,
 or a scheduler address for a cluster); ``client=None`` evaluates in this process. Each
@@ -117,7 +117,7 @@ def make_sampler(name: str, seed: int) -> Any:
         raise ValueError(f"sampler must be one of {SAMPLERS}; got {name!r}.")
     if name == "cmaes":
         try:
-            import cmaes  # type: ignore[import-untyped]  # noqa: F401
+            import cmaes  # noqa: F401
         except ImportError as error:
             raise ValueError(
                 "sampler 'cmaes' needs the cmaes package. Fix: pip install cmaes, or use 'tpe'."
