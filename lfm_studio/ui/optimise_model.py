@@ -24,10 +24,11 @@ from typing import Any
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_from_json
-from lfm_studio.engine.optimize import DesignSpace, Evaluator, EvaluationSettings, Parameter, objective_named
+from lfm_studio.engine.optimize import DesignSpace, EvaluationSettings, Evaluator, Parameter, objective_named
 from lfm_studio.engine.optimize.objectives import sign
 from lfm_studio.engine.optimize.space import unit_of
 from lfm_studio.engine.optimize.study import record_of, run_study
+from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.ui.edits import read_path
 from lfm_studio.ui.parameter_fields import FIELDS
@@ -73,7 +74,9 @@ def freeable_fields(design: Design) -> tuple[FreeableField, ...]:
     lenslets = mla.get("lenslets") or []
     if lenslets:
         first = lenslets[0]["focal_length_mm"]
-        out.append(FreeableField("mla.lenslets[*].focal_length_mm", "All lenslets: focal length", "mm", first))
+        out.append(
+            FreeableField("mla.lenslets[*].focal_length_mm", "All lenslets: focal length", "mm", first)
+        )
         for i, lens in enumerate(lenslets):
             out.append(
                 FreeableField(f"mla.lenslets[{i}].focal_length_mm", f"Lenslet {i}: focal length", "mm",
@@ -162,7 +165,9 @@ class CandidateRow:
     def design(self) -> Design:
         """The candidate's design (refused for an infeasible candidate, which has none)."""
         if self.design_json is None:
-            raise ValueError(f"candidate {self.number} is infeasible ({self.reason}): it has no design to load.")
+            raise ValueError(
+                f"candidate {self.number} is infeasible ({self.reason}): it has no design to load."
+            )
         return design_from_json(self.design_json, origin=f"candidate {self.number}")
 
 
@@ -240,3 +245,49 @@ def run_optimisation(
             study = None
             shutil.rmtree(scratch, ignore_errors=True)
     return [rows[k] for k in sorted(rows)]
+
+
+# Closed-form metrics shown side by side: (attribute, label, unit; lengths are shown in µm).
+COMPARED_METRICS: tuple[tuple[str, str, str], ...] = (
+    ("lateral_resolution", "Lateral resolution", "µm"),
+    ("axial_resolution", "Axial resolution", "µm"),
+    ("depth_of_field", "Depth of field", "µm"),
+    ("field_of_view", "Field of view", "µm"),
+    ("number_of_views", "Number of views", ""),
+    ("effective_numerical_aperture", "Effective NA (one view)", ""),
+    ("magnification", "Magnification", "×"),
+)
+
+
+def _shown(value: Any, unit: str) -> str:
+    if value is None:
+        return "n/a"
+    scaled = value / 1e-6 if unit == "µm" else value
+    return f"{scaled:.4g} {unit}".rstrip()
+
+
+def comparison_rows(a: Design, b: Design) -> list[tuple[str, str, str]]:
+    """``(quantity, A, B)`` text rows: the closed-form metrics, then each requirement check of A and B."""
+    metrics_a, metrics_b = compute_design_metrics(a), compute_design_metrics(b)
+    rows = [
+        (
+            label,
+            _shown(getattr(metrics_a.closed_form, attr), unit),
+            _shown(getattr(metrics_b.closed_form, attr), unit),
+        )
+        for attr, label, unit in COMPARED_METRICS
+    ]
+    verdict = {True: "PASS", False: "FAIL", None: "?"}
+    for check_a, check_b in zip(metrics_a.requirements, metrics_b.requirements, strict=True):
+        unit = "µm" if check_a.unit == "um" else check_a.unit
+        limit = _shown(check_a.limit, unit)
+        rows.append(
+            (
+                f"Requirement: {check_a.quantity.replace('_', ' ')} {check_a.comparison} {limit}",
+                f"{verdict[check_a.passed]} ({_shown(check_a.value, unit)})",
+                f"{verdict[check_b.passed]} ({_shown(check_b.value, unit)})",
+            )
+        )
+    met = {True: "meets all", False: "fails some", None: "undecided"}
+    rows.append(("Requirements overall", met[metrics_a.requirements_met], met[metrics_b.requirements_met]))
+    return rows
