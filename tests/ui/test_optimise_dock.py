@@ -60,7 +60,7 @@ def _run_grid(qtbot, dock, objectives=("lateral_resolution",)):
 def test_the_dock_is_in_the_window_and_the_view_menu(window):
     docks = {d.windowTitle(): d for d in window.findChildren(QDockWidget)}
     assert docks["Optimise"].widget() is window.optimise
-    view = [m for m in window.menuBar().actions() if m.text() == "&View"][0].menu()
+    view = next(m for m in window.menuBar().actions() if m.text() == "&View").menu()
     assert "Optimise" in [a.text() for a in view.actions()]
     paths = [
         window.optimise.parameters.item(r, 0).data(Qt.ItemDataRole.UserRole)
