@@ -56,12 +56,14 @@ from lfm_studio.ui.optimise_model import (
     best_so_far,
     comparison_rows,
     freeable_fields,
+    psf_preview,
     run_optimisation,
 )
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 JOB_NAME = "optimise"
+PREVIEW_JOB = "optimise_psf"  # the Compare tab's PSF previews of A and B
 DEFAULT_OBJECTIVE = "lateral_resolution"
 FEASIBLE, INFEASIBLE, BEST = QColor("#1565c0"), QColor("#c62828"), QColor("#2e7d32")
 _FREE, _LABEL, _CURRENT, _LOW, _HIGH, _POINTS = range(6)
@@ -70,6 +72,14 @@ _FREE, _LABEL, _CURRENT, _LOW, _HIGH, _POINTS = range(6)
 def _run_job(ctx: Any, base: Any, request: OptimiseRequest) -> list[CandidateRow]:
     """Worker-thread body of the ``"optimise"`` job (each stored candidate goes out as a partial)."""
     return run_optimisation(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
+
+
+def _preview_job(ctx: Any, design_a: Any, design_b: Any) -> tuple[Any, Any]:
+    """Worker-thread body of the Compare tab's PSF previews."""
+    ctx.progress(0, 2, "PSF preview of A")
+    a = psf_preview(design_a, cancel=ctx.cancel)
+    ctx.progress(1, 2, "PSF preview of B")
+    return a, psf_preview(design_b, cancel=ctx.cancel)
 
 
 def _item(text: str, *, editable: bool = False, tip: str = "") -> QTableWidgetItem:
@@ -101,6 +111,7 @@ class OptimiseDock(QWidget):
         self.request: OptimiseRequest | None = None
         self._directions: dict[str, str] = {}
         self._objective_order: list[str] = []
+        self._units: dict[str, str] = {}
 
         splitter = QSplitter(Qt.Orientation.Horizontal, self)
         outer = QVBoxLayout(self)
@@ -159,6 +170,7 @@ class OptimiseDock(QWidget):
         self.study_path = QLineEdit()
         self.study_path.setPlaceholderText("none: not stored")
         browse = QPushButton("…")
+        browse.setMaximumWidth(32)
         browse.setToolTip("Choose a SQLite study file to store the candidates in (and resume later)")
         browse.clicked.connect(self._browse_study)
         self.resume = QCheckBox("Resume")
@@ -235,9 +247,30 @@ class OptimiseDock(QWidget):
         self.compare_table.setHorizontalHeaderLabels(["Quantity", "A", "B"])
         self.compare_table.verticalHeader().setVisible(False)
         self.compare_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.compare_table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        self.compare_table.horizontalHeader().setStretchLastSection(True)
-        column.addWidget(self.compare_table, 1)
+        header = self.compare_table.horizontalHeader()
+        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
+        for section in (1, 2):
+            header.setSectionResizeMode(section, QHeaderView.ResizeMode.Stretch)
+        split = QSplitter(Qt.Orientation.Horizontal)
+        split.addWidget(self.compare_table)
+        self.psf_views = pg.GraphicsLayoutWidget()
+        self.psf_views.setBackground("w")
+        self.psf_images = []
+        for column_index, name in enumerate(("A", "B")):
+            box = self.psf_views.addViewBox(row=1, col=column_index, lockAspect=True, invertY=True)
+            box.setMouseEnabled(x=True, y=True)
+            image = pg.ImageItem()
+            box.addItem(image)
+            self.psf_images.append(image)
+            self.psf_views.addLabel(f"PSF of {name}", row=0, col=column_index, color="k")
+        self.psf_views.addLabel(
+            "on-axis point at the native focal plane, √ intensity, central 512² px", row=2, col=0, colspan=2,
+            color="#555", size="8pt",
+        )  # fmt: skip
+        split.addWidget(self.psf_views)
+        split.setStretchFactor(0, 3)
+        split.setStretchFactor(1, 2)
+        column.addWidget(split, 1)
         return view
 
     def _fill_parameters(self) -> None:
@@ -333,7 +366,9 @@ class OptimiseDock(QWidget):
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return
         self.request = request
-        self._directions = {n: objective_named(n).direction for n in request.objectives}
+        built = [objective_named(n) for n in request.objectives]
+        self._directions = {n: o.direction for n, o in zip(request.objectives, built, strict=True)}
+        self._units = {n: o.unit for n, o in zip(request.objectives, built, strict=True)}
         self.rows = []
         self._show_rows()
         self.message.setText("Running…")
@@ -423,7 +458,8 @@ class OptimiseDock(QWidget):
             for curve in (self.best_curve, self.feasible_dots, self.infeasible_marks):
                 curve.setData([], [])
             return
-        item.setLabel("left", name)
+        unit = self._units.get(name, "")
+        item.setLabel("left", f"{name} ({unit})" if unit else name)
         item.setTitle(f"{name} ({self._directions[name]}) against evaluation", color="k", size="9pt")
         best = best_so_far(self.rows, name, self._directions[name])
         xs = [r.number for r in self.rows]
@@ -488,6 +524,13 @@ class OptimiseDock(QWidget):
         params = lambda row: ", ".join(f"{k} = {v:.6g}" for k, v in row.params.items())  # noqa: E731
         self.compare_title.setText(f"<b>A</b>: {params(a)}<br><b>B</b>: {params(b)}")
         self.tabs.setCurrentIndex(1)
+        for image in self.psf_images:
+            image.clear()
+        self.runner.submit(PREVIEW_JOB, _preview_job, design_a, design_b, on_result=self._on_previews)
+
+    def _on_previews(self, images: tuple[Any, Any]) -> None:
+        for item, image in zip(self.psf_images, images, strict=True):
+            item.setImage(image.T, levels=(0.0, 1.0))  # pyqtgraph images are (x, y)
 
     def compare_rows(self) -> list[tuple[str, str, str]]:
         """The Compare table as text (for tests and screen readers)."""

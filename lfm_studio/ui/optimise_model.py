@@ -30,6 +30,7 @@ from lfm_studio.engine.optimize.space import unit_of
 from lfm_studio.engine.optimize.study import record_of, run_study
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
+from lfm_studio.engine.simulation import simulate_psf
 from lfm_studio.ui.edits import read_path
 from lfm_studio.ui.parameter_fields import FIELDS
 
@@ -259,6 +260,9 @@ COMPARED_METRICS: tuple[tuple[str, str, str], ...] = (
 )
 
 
+_SYMBOLS = {">=": "≥", "<=": "≤"}
+
+
 def _shown(value: Any, unit: str) -> str:
     if value is None:
         return "n/a"
@@ -283,7 +287,7 @@ def comparison_rows(a: Design, b: Design) -> list[tuple[str, str, str]]:
         limit = _shown(check_a.limit, unit)
         rows.append(
             (
-                f"Requirement: {check_a.quantity.replace('_', ' ')} {check_a.comparison} {limit}",
+                f"Requirement: {check_a.quantity.replace('_', ' ')} {_SYMBOLS.get(check_a.comparison, check_a.comparison)} {limit}",
                 f"{verdict[check_a.passed]} ({_shown(check_a.value, unit)})",
                 f"{verdict[check_b.passed]} ({_shown(check_b.value, unit)})",
             )
@@ -291,3 +295,22 @@ def comparison_rows(a: Design, b: Design) -> list[tuple[str, str, str]]:
     met = {True: "meets all", False: "fails some", None: "undecided"}
     rows.append(("Requirements overall", met[metrics_a.requirements_met], met[metrics_b.requirements_met]))
     return rows
+
+
+PREVIEW_CROP = 512  # camera pixels kept about the axis in the Compare tab's PSF preview
+
+
+def psf_preview(design: Design, *, crop: int = PREVIEW_CROP, cancel: CancelToken = None) -> Any:
+    """A quick look at ``design``'s PSF at the native focal plane (depth 0): a 2-D numpy array.
+
+    Fourier designs: the sensor image of a point on the axis, the central ``crop`` x ``crop``
+    pixels, square-rooted (so dim views show) and scaled to a peak of 1. Conventional designs:
+    the pattern behind the central lenslet for the on-axis source.
+    """
+    stack = simulate_psf(design, depths=(0.0,), crop=crop, cancel=cancel)
+    data = stack.data.detach().cpu().double()
+    if data.ndim == 5:  # conventional (S, S, Z, H, H): the central source position
+        data = data[data.shape[0] // 2, data.shape[1] // 2]
+    image = data[0].clamp(min=0).sqrt()
+    peak = float(image.max())
+    return (image / peak if peak > 0 else image).numpy()

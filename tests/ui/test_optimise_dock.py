@@ -8,6 +8,7 @@ import gc
 import re
 import threading
 
+import numpy as np
 import pytest
 from qtpy.QtCore import QSettings, Qt
 from qtpy.QtWidgets import QApplication, QDockWidget
@@ -131,6 +132,15 @@ def test_compare_shows_both_candidates_metrics(qtbot, window):
     assert len(requirement_rows) == 4  # FoV, DoF, lateral and axial resolution of the zebrafish spec
     assert all(v.split()[0] in ("PASS", "FAIL", "?") for k in requirement_rows for v in table[k])
     assert table["Requirements overall"] == ("fails some", "fails some")  # a 50 um field of view
+    # Their PSFs, side by side (a quick preview job): an on-axis point focuses under each lenslet's centre.
+    qtbot.waitUntil(lambda: all(i.image is not None for i in dock.psf_images), timeout=TIMEOUT_MS)
+    a_img, b_img = (i.image.T for i in dock.psf_images)
+    assert a_img.shape == b_img.shape == (256, 256)  # the whole 256^2 sensor (under the 512 px crop)
+    assert a_img.max() == pytest.approx(1.0) and b_img.max() == pytest.approx(1.0)
+    centre_px = np.hypot(600.0, 600.0) / design.camera.pixel_pitch_um  # lenslets at (+-600, +-600) um
+    for img in (a_img, b_img):
+        bright = np.argwhere(img > 0.5) - (np.array(img.shape) - 1) / 2
+        assert len(bright) >= 4 and np.hypot(*bright.T) == pytest.approx(centre_px, abs=3.0)
 
 
 def test_cancel_mid_run_keeps_the_candidates_evaluated(qtbot, tmp_path, monkeypatch):
