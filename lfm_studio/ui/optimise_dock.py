@@ -48,6 +48,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.optimize import objective_named, objective_names
 from lfm_studio.ui.optimise_model import (
+    PREVIEW_CROP,
     SAMPLERS,
     CandidateRow,
     FreeParameter,
@@ -124,6 +125,7 @@ class OptimiseDock(QWidget):
         splitter.addWidget(self.tabs)
         splitter.setStretchFactor(0, 2)
         splitter.setStretchFactor(1, 3)
+        splitter.setSizes([520, 880])  # pixels; the setup column keeps its labels readable
 
         self.runner.ended.connect(self._on_ended)
         self.runner.progressed.connect(self._on_progress)
@@ -255,6 +257,7 @@ class OptimiseDock(QWidget):
         split.addWidget(self.compare_table)
         self.psf_views = pg.GraphicsLayoutWidget()
         self.psf_views.setBackground("w")
+        self.psf_views.setMaximumWidth(420)  # the metrics table keeps the room
         self.psf_images = []
         for column_index, name in enumerate(("A", "B")):
             box = self.psf_views.addViewBox(row=1, col=column_index, lockAspect=True, invertY=True)
@@ -264,7 +267,7 @@ class OptimiseDock(QWidget):
             self.psf_images.append(image)
             self.psf_views.addLabel(f"PSF of {name}", row=0, col=column_index, color="k")
         self.psf_views.addLabel(
-            "on-axis point at the native focal plane, √ intensity, central 512² px", row=2, col=0, colspan=2,
+            f"on-axis point at the native focal plane, √ intensity, central {PREVIEW_CROP}² px", row=2, col=0, colspan=2,
             color="#555", size="8pt",
         )  # fmt: skip
         split.addWidget(self.psf_views)
