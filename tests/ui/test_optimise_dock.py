@@ -191,3 +191,36 @@ def test_bad_settings_are_refused_with_the_parameter_named(qtbot, window):
     dock.parameters.item(dock.parameter_row(RELAY), 5).setText("two")
     dock.run_button.click()
     assert f"points of {RELAY} must be a number" in dock.message.text() and not dock.is_running()
+
+
+def test_a_study_file_stores_the_candidates_and_resume_evaluates_only_new_ones(
+    qtbot, window, monkeypatch, tmp_path
+):
+    calls = []
+
+    class Counted(ClosedForm):
+        def __call__(self, candidate):
+            calls.append(candidate.design.relay.focal_length_mm)
+            return super().__call__(candidate)
+
+    factory = (lambda options: Counted("lateral_resolution"), "test: counted closed form")
+    monkeypatch.setitem(objectives_module._REGISTRY, "lateral_resolution", factory)
+    dock = window.optimise
+    dock.study_path.setText(str(tmp_path / "study.db"))
+    dock.free(RELAY, 80.0, 110.0, 4)
+    dock.set_objectives(["lateral_resolution"])
+    dock.budget.setValue(2)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "done", timeout=TIMEOUT_MS)
+    assert [r.params[RELAY] for r in dock.rows] == pytest.approx([80.0, 90.0]) and calls == [80.0, 90.0]
+    dock.run_button.click()  # the study exists: refused unless resumed
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "failed", timeout=TIMEOUT_MS)
+    assert "already exists" in dock.message.text() and len(calls) == 2
+    dock.resume.setChecked(True)
+    dock.budget.setValue(4)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "done", timeout=TIMEOUT_MS)
+    assert [r.params[RELAY] for r in dock.rows] == pytest.approx(
+        [80.0, 90.0, 100.0, 110.0]
+    )  # stored ones too
+    assert calls == [80.0, 90.0, 100.0, 110.0]  # the stored candidates were not evaluated again
