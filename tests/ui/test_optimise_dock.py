@@ -13,6 +13,8 @@ import pytest
 from qtpy.QtCore import QSettings, Qt
 from qtpy.QtWidgets import QApplication, QDockWidget
 
+from lfm_studio.engine.design import list_presets, load_preset
+from lfm_studio.engine.optimize import DesignSpace, Parameter
 from lfm_studio.engine.optimize import objectives as objectives_module
 from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.engine.performance import closed_form_metrics
@@ -20,6 +22,7 @@ from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.edits import apply_changes
 from lfm_studio.ui.main_window import MainWindow
 from lfm_studio.ui.optimise_dock import JOB_NAME
+from lfm_studio.ui.optimise_model import freeable_fields
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
 
 TIMEOUT_MS = 60_000
@@ -224,3 +227,20 @@ def test_a_study_file_stores_the_candidates_and_resume_evaluates_only_new_ones(
         [80.0, 90.0, 100.0, 110.0]
     )  # stored ones too
     assert calls == [80.0, 90.0, 100.0, 110.0]  # the stored candidates were not evaluated again
+
+
+@pytest.mark.parametrize("preset", list_presets())
+def test_every_freeable_field_is_a_design_space_path_with_its_current_value(preset):
+    design = load_preset(preset)
+    fields = freeable_fields(design)
+    space = DesignSpace(tuple(Parameter(f.path, low=f.value, high=f.value, points=1) for f in fields))
+    stored = space.values_of(design)  # the engine's own reading of each path
+    for f in fields:
+        assert float(stored[f.path]) == pytest.approx(f.value), f.path
+    paths = {f.path for f in fields}
+    explicit = design.mla.model_dump().get("lenslets")  # a regular array lists none (freed by pitch)
+    assert ("mla.pitch_um" in paths) == (not explicit)
+    if explicit:
+        count = len(explicit)
+        assert {f"mla.lenslets[{count - 1}].center_um[0]", "mla.lenslets[*].focal_length_mm"} <= paths
+    assert ("relay.focal_length_mm" in paths) == (design.kind == "fourier")
