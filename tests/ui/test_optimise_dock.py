@@ -1,6 +1,7 @@
 """The studio's "Optimise" dock, in the window ``lfm-studio gui`` builds: a tiny grid on a closed-form
 objective runs to the candidate the closed form predicts (infeasible ones recorded with their reason),
-cancel keeps what was evaluated, a double-click loads a candidate, Compare shows both designs' metrics."""
+cancel keeps the candidates shown and starts no more, a double-click loads a candidate, Compare shows both
+designs' metrics and PSFs, a study file is resumed without re-evaluating, bad settings are refused by name."""
 
 from __future__ import annotations
 
