@@ -3,7 +3,7 @@
 Centre: the PSF / image / reconstruction viewer. Docks: design parameters with the
 design metrics against the requirements under them (left, full height), the PSF profile /
 RL convergence plots (right, in tabs), the MLA layout editor and the simulate-and-
-reconstruct workflow (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes, stops the jobs
+reconstruct workflow and the Optimise dock (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes, stops the jobs
 and closes the viewer.
 """
 
@@ -19,6 +19,7 @@ from lfm_studio.ui import pipeline
 from lfm_studio.ui.controllers import MLAEditorBinding, StudioController, ViewerBinding
 from lfm_studio.ui.failure_notices import JobFailureNotices
 from lfm_studio.ui.file_menu import FileActions
+from lfm_studio.ui.optimise_dock import OptimiseDock
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.parameter_panel import ParameterPanel
 from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
@@ -105,6 +106,8 @@ class MainWindow(QMainWindow):
         self.workflow_panel.reconstruct_requested.connect(controller.request_reconstruction)
         workflow = self._dock("Simulate and reconstruct", self.workflow_panel, Area.BottomDockWidgetArea)
         self.tabifyDockWidget(mla_dock, workflow)
+        self.optimise = OptimiseDock(state, controller.runner)  # free parameters, run a study, compare
+        self.tabifyDockWidget(workflow, self._dock("Optimise", self.optimise, Area.BottomDockWidgetArea))
         mla_dock.raise_()
 
         self.resizeDocks([params, plots], [PARAMETERS_WIDTH, PLOTS_WIDTH], Qt.Orientation.Horizontal)
@@ -164,7 +167,8 @@ class MainWindow(QMainWindow):
         ):
             signal.disconnect(slot)
         for part in (*self._bindings, self.parameter_panel, self.workflow_panel, self.requirements, self.profiles,
-                     self.convergence, self.stale_marks, self.file_actions, self.job_status, self.failure_notices):  # fmt: skip
+                     self.convergence, self.stale_marks, self.file_actions, self.job_status, self.failure_notices,
+                     self.optimise):  # fmt: skip
             part.disconnect_state()
         close_viewer = getattr(self.viewer, "close_viewer", None)
         if close_viewer is not None:
