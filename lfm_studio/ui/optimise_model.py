@@ -31,6 +31,7 @@ from lfm_studio.engine.optimize.study import record_of, run_study
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.simulation import simulate_psf
+from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.ui.edits import read_path
 from lfm_studio.ui.parameter_fields import FIELDS
 
@@ -63,7 +64,7 @@ def freeable_fields(design: Design) -> tuple[FreeableField, ...]:
     """The numeric design values the dock offers to free, panel fields first, then the MLA's."""
     out: list[FreeableField] = []
     for spec in FIELDS:
-        if spec.parts != 1 or design.kind not in spec.kinds:
+        if spec.parts != 1 or kind_of(design) not in spec.kinds:
             continue
         try:
             value = read_path(design, spec.path)

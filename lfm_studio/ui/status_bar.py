@@ -18,6 +18,8 @@ JOB_TITLES = {
     "image": "Light-field image",
     "reconstruction": "Reconstruction",
     "export": "Export",
+    "optimise": "Optimise",
+    "raw frame": "Raw light field",
 }
 
 
