@@ -41,7 +41,7 @@ from lfm_studio.engine.optimize.constraints import (
     first_violation,
 )
 from lfm_studio.engine.optimize.evaluate import DEFAULT_CACHE_BYTES, score_design
-from lfm_studio.engine.optimize.mla_cells import Block, MLAPlane
+from lfm_studio.engine.optimize.mla_cells import Block, MLAPlane, check_symmetry
 from lfm_studio.engine.optimize.objectives import Objective
 from lfm_studio.engine.optimize.study import (
     DEFAULT_STUDY_NAME,
@@ -148,6 +148,7 @@ def run_algorithm2_study(
     """
     optuna = require_optuna()
     plane = MLAPlane.from_design(design, float(min_lenslet_um))
+    check_symmetry(symmetry)
     settings = settings or EvaluationSettings()
     if constraints is None:
         constraints = DEFAULT_CONSTRAINTS if design.kind == "fourier" else ()

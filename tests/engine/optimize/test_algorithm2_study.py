@@ -139,7 +139,7 @@ def test_resume_refuses_another_search(xlfm, tmp_path):
             db,
             min_lenslet_um=2000.0,
             sizes=SIZES,
-            symmetry="mirror-x",
+            symmetry="mirror",
             constraints=(),
             resume=True,
         )
