@@ -239,15 +239,22 @@ register_objective(
 
 
 # (b) The PSF-engineering losses of thesis 5.2.2 (:mod:`.psf_losses`) as named objectives.
-def stack_intensity(stack: Any) -> torch.Tensor:
-    """The ``(Z, Y, X)`` intensity of a :class:`~lfm_studio.engine.psf_stack.PSFStack` (leading axes summed)."""
+def stack_intensities(stack: Any) -> torch.Tensor:
+    """The PSFs of a :class:`~lfm_studio.engine.psf_stack.PSFStack` as ``(N, Z, Y, X)``: one ``(Z, Y, X)``
+    stack per lateral source position (``N = 1`` for a shift-invariant stack; a conventional
+    LFM stores one per position behind a lenslet, the leading axes)."""
     data = torch.as_tensor(stack.data)
-    return data.reshape(-1, *data.shape[-3:]).sum(dim=0) if data.ndim > 3 else data
+    return data.reshape(-1, *data.shape[-3:])
+
+
+def _mean_over_positions(stack: Any, loss: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """``loss`` of every source position's ``(Z, Y, X)`` stack, averaged over positions."""
+    return torch.stack([loss(psf) for psf in stack_intensities(stack)]).mean()
 
 
 @dataclass(frozen=True)
 class AxialCRBLoss:
-    """Mean over depths of the axial Cramer-Rao bound (:func:`.psf_losses.axial_crb`), micrometres.
+    """Mean over depths (and source positions) of the axial Cramer-Rao bound (:func:`.psf_losses.axial_crb`), um.
 
     ``photons`` detected per emitter, ``background`` photons per pixel (Poisson).
     """
@@ -257,10 +264,15 @@ class AxialCRBLoss:
 
     def __call__(self, stack: Any) -> torch.Tensor:
         depths = torch.as_tensor(stack.depths, dtype=torch.float64)
-        crb = psf_losses.axial_crb(
-            stack_intensity(stack), depths, photons=self.photons, background=self.background
+        return (
+            _mean_over_positions(
+                stack,
+                lambda psf: psf_losses.axial_crb(
+                    psf, depths, photons=self.photons, background=self.background
+                ).mean(),
+            )
+            * 1e6
         )
-        return crb.mean() * 1e6
 
 
 @dataclass(frozen=True)
@@ -268,7 +280,7 @@ class DepthDissimilarityLoss:
     """Mean normalised cross-correlation of the slices of all depth pairs (:func:`.psf_losses.depth_dissimilarity`)."""
 
     def __call__(self, stack: Any) -> torch.Tensor:
-        return psf_losses.depth_dissimilarity(stack_intensity(stack), reduction="mean")
+        return _mean_over_positions(stack, lambda psf: psf_losses.depth_dissimilarity(psf, reduction="mean"))
 
 
 @dataclass(frozen=True)
@@ -279,7 +291,9 @@ class MTFSupportLoss:
     band: float = 0.5
 
     def __call__(self, stack: Any) -> torch.Tensor:
-        return psf_losses.mtf_support(stack_intensity(stack), threshold=self.threshold, band=self.band).mean()
+        return _mean_over_positions(
+            stack, lambda psf: psf_losses.mtf_support(psf, threshold=self.threshold, band=self.band).mean()
+        )
 
 
 def _psf_loss_factory(name: str) -> ObjectiveFactory:

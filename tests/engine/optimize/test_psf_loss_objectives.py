@@ -52,3 +52,23 @@ def test_axial_crb_objective_scales_with_photons(candidate):
     low = objective_named("axial_crb", {"photons": 100.0, "background": 0.0})(candidate)
     high = objective_named("axial_crb", {"photons": 10000.0, "background": 0.0})(candidate)
     assert low / high == pytest.approx(10.0, rel=1e-3)
+
+
+def test_shift_variant_stacks_average_the_source_positions():
+    """A conventional LFM stack holds one (Z, Y, X) stack per source position: the loss is their mean."""
+    from types import SimpleNamespace
+
+    from lfm_studio.engine.optimize.objectives import AxialCRBLoss, DepthDissimilarityLoss, MTFSupportLoss
+
+    gen = torch.Generator().manual_seed(3)
+    data = torch.rand((2, 3, 4, 16, 16), generator=gen, dtype=torch.float64)
+    depths = (-10e-6, 0.0, 10e-6, 25e-6)
+    stack = SimpleNamespace(data=data, depths=depths)
+    flat = data.reshape(6, 4, 16, 16)
+    z = torch.tensor(depths, dtype=torch.float64)
+    crb = torch.stack([axial_crb(p, z, photons=1000.0, background=1.0).mean() for p in flat]).mean() * 1e6
+    assert float(AxialCRBLoss()(stack)) == pytest.approx(float(crb), rel=1e-12)
+    dis = torch.stack([depth_dissimilarity(p) for p in flat]).mean()
+    assert float(DepthDissimilarityLoss()(stack)) == pytest.approx(float(dis), rel=1e-12)
+    sup = torch.stack([mtf_support(p).mean() for p in flat]).mean()
+    assert float(MTFSupportLoss()(stack)) == pytest.approx(float(sup), rel=1e-12)
