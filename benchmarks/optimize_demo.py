@@ -8,7 +8,8 @@ Two starting designs, each searched on a stored SQLite study (grid sampler, :fun
 - ``xlfm``: the shipped XLFM (``xlfm_cong2017``); the focal length of the second lenslet
   group (12 lenslets tied; hand design 28.5 mm) over ``--xlfm-focals``;
 - ``lfm``: the conventional ``lfm_10x_na03`` (regular square MLA, 125 um pitch); the MLA
-  focal length over ``--lfm-focals`` (hand design 1.875 mm).
+  focal length over ``--lfm-focals`` (hand design 1.875 mm), or with ``--lfm-parameter
+  pitch`` the MLA pitch over ``--lfm-pitches`` (hand 125 um; the lenslet count is kept).
 
 Every candidate must keep the closed-form field of view and depth of field at least the
 hand design's (:class:`NoWorseFieldAndDepth`, plus the default checks). Cropped so one run
@@ -94,6 +95,9 @@ def case(name: str, args: argparse.Namespace) -> tuple[Design, DesignSpace, floa
         path = f"mla.lenslets[{second}].focal_length_mm"  # the whole second group moves together
         return base, DesignSpace((Parameter(path, choices=tuple(args.xlfm_focals)),)), 28.5
     base = with_depths("lfm_10x_na03", args.depths)
+    if args.lfm_parameter == "pitch":
+        space = DesignSpace((Parameter("mla.pitch_um", choices=tuple(args.lfm_pitches)),))
+        return base, space, base.mla.pitch_um
     hand = base.mla.focal_length_mm
     return base, DesignSpace((Parameter("mla.focal_length_mm", choices=tuple(args.lfm_focals)),)), hand
 
@@ -202,7 +206,14 @@ def main() -> None:
     parser.add_argument(
         "--xlfm-focals", type=float, nargs="+", default=[27.0, 27.5, 28.0, 28.5, 29.0, 29.5, 30.0]
     )
+    parser.add_argument(
+        "--lfm-parameter",
+        choices=("focal", "pitch"),
+        default="focal",
+        help="the conventional MLA field searched",
+    )
     parser.add_argument("--lfm-focals", type=float, nargs="+", default=[1.5, 1.875, 2.25, 2.625])
+    parser.add_argument("--lfm-pitches", type=float, nargs="+", default=[100.0, 112.5, 125.0, 137.5, 150.0])
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(describe_threads())
