@@ -9,7 +9,9 @@ Two starting designs, each searched on a stored SQLite study (grid sampler, :fun
   group (12 lenslets tied; hand design 28.5 mm) over ``--xlfm-focals``;
 - ``lfm``: the conventional ``lfm_10x_na03`` (regular square MLA, 125 um pitch); the MLA
   focal length over ``--lfm-focals`` (hand design 1.875 mm), or with ``--lfm-parameter
-  pitch`` the MLA pitch over ``--lfm-pitches`` (hand 125 um; the lenslet count is kept).
+  pitch`` the MLA pitch over ``--lfm-pitches`` (hand 125 um; the lenslet count is kept), or
+  with ``focal-refocused`` the focal length with the camera moved to the lenslets' back
+  focal plane (``mla_to_camera_distance_mm`` = f, as in the hand design).
 
 Every candidate must keep the closed-form field of view and depth of field at least the
 hand design's (:class:`NoWorseFieldAndDepth`, plus the default checks). Cropped so one run
@@ -78,6 +80,16 @@ class NoWorseFieldAndDepth:
         return None
 
 
+@dataclass(frozen=True)
+class RefocusedMLASpace(DesignSpace):
+    """A space over the MLA focal length that keeps the camera in the lenslets' back focal plane
+    (``mla_to_camera_distance_mm`` = the focal length, as in the hand design)."""
+
+    def apply(self, design: Design, point) -> Design:
+        moved = super().apply(design, point)
+        return moved.updated(mla_to_camera_distance_mm=moved.mla.focal_length_mm)
+
+
 def with_depths(name: str, depths: int) -> Design:
     """Preset ``name`` with ``depths`` depths over +-40 um."""
     with warnings.catch_warnings():
@@ -99,7 +111,8 @@ def case(name: str, args: argparse.Namespace) -> tuple[Design, DesignSpace, floa
         space = DesignSpace((Parameter("mla.pitch_um", choices=tuple(args.lfm_pitches)),))
         return base, space, base.mla.pitch_um
     hand = base.mla.focal_length_mm
-    return base, DesignSpace((Parameter("mla.focal_length_mm", choices=tuple(args.lfm_focals)),)), hand
+    kind = RefocusedMLASpace if args.lfm_parameter == "focal-refocused" else DesignSpace
+    return base, kind((Parameter("mla.focal_length_mm", choices=tuple(args.lfm_focals)),)), hand
 
 
 def check(design: Design, settings: EvaluationSettings, args: argparse.Namespace) -> dict[str, list[float]]:
