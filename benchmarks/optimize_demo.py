@@ -221,9 +221,9 @@ def main() -> None:
     )
     parser.add_argument(
         "--lfm-parameter",
-        choices=("focal", "pitch"),
+        choices=("focal", "focal-refocused", "pitch"),
         default="focal",
-        help="the conventional MLA field searched",
+        help="the conventional MLA field searched (focal-refocused: the camera follows the focal plane)",
     )
     parser.add_argument("--lfm-focals", type=float, nargs="+", default=[1.5, 1.875, 2.25, 2.625])
     parser.add_argument("--lfm-pitches", type=float, nargs="+", default=[100.0, 112.5, 125.0, 137.5, 150.0])
