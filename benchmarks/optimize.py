@@ -34,10 +34,10 @@ import statistics
 import tempfile
 import time
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
+from optimize_demo import NoWorseFieldAndDepth  # benchmarks/ is the script's folder
 
 from lfm_studio.engine.design import load_preset
 from lfm_studio.engine.design.errors import DesignWarning
@@ -47,7 +47,6 @@ from lfm_studio.engine.optimize import (
     DesignSpace,
     EvaluationSettings,
     Evaluator,
-    Infeasible,
     Parameter,
     TaskScore,
     grid_search,
@@ -97,25 +96,6 @@ def run(count: int, args: argparse.Namespace, folder: Path) -> list[dict]:
         last[0] = time.perf_counter()
         run_study(evaluator, f"sqlite:///{folder / f'n{count}.db'}", callbacks=[timed])
     return rows
-
-
-@dataclass(frozen=True)
-class NoWorseFieldAndDepth:
-    """Constraint of the demo: closed-form field of view and depth of field at least ``fov_um``/``dof_um``."""
-
-    fov_um: float
-    dof_um: float
-    name: str = "no_worse_fov_dof"
-
-    def check(self, design):
-        m = closed_form_metrics(design)
-        fov, dof = m.field_of_view * 1e6, m.depth_of_field * 1e6
-        if fov < self.fov_um - 1e-6 or dof < self.dof_um - 1e-6:
-            return Infeasible(
-                "requirement_failed",
-                f"FoV {fov:.4g} um / DoF {dof:.4g} um below the hand design's {self.fov_um:.4g} / {self.dof_um:.4g} um",
-            )
-        return None
 
 
 def demo(args: argparse.Namespace) -> None:

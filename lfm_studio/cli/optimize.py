@@ -6,13 +6,19 @@ stores every candidate in the study database, prints the best design and writes 
 design file. ``--resume`` continues a stored study without evaluating any stored candidate
 again; ``--workers N`` evaluates on a local Dask cluster. ``study show STUDY`` prints the
 trials and the best candidate (one objective) or the Pareto front (several).
-See docs/optimize.md.
+
+``optimize DESIGN --algorithm2 --min-lenslet-um D [--symmetry S] [--sizes 2,3] --objective NAME
+--study sqlite:///s.db --out best.json`` runs the thesis' Algorithm 2 (greedy merges of
+``D``-um cells of the MLA plane) on one objective, recording every layout in the study
+(``--resume`` takes stored layouts' scores from it). See docs/optimize.md.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
+import sys
+import warnings
 from collections.abc import Iterator
 from typing import Any
 
@@ -89,15 +95,101 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
         yield client
 
 
+def _settings(args: argparse.Namespace):
+    from lfm_studio.cli.simulate import parse_depths, resolve_device
+    from lfm_studio.engine.optimize import EvaluationSettings
+    from lfm_studio.engine.simulation import depth_grid
+
+    depths = parse_depths(args.depths)
+    return EvaluationSettings(
+        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
+        crop=args.crop,
+        device=resolve_device(args.device),
+    )
+
+
+def _sizes(text: str) -> tuple[int, ...]:
+    try:
+        return tuple(int(v) for v in text.split(","))
+    except ValueError as error:
+        raise argparse.ArgumentTypeError(
+            f"--sizes must be comma-separated integers (cells); got {text!r}"
+        ) from error
+
+
+def run_algorithm2(args: argparse.Namespace) -> int:
+    """``optimize --algorithm2``: Algorithm 2 recorded into a resumable study; writes the best layout's design."""
+    from lfm_studio.cli.simulate import _design_file
+    from lfm_studio.engine.design import resolve_design, save_design
+    from lfm_studio.engine.design.errors import DesignWarning
+    from lfm_studio.engine.io import check_output
+    from lfm_studio.engine.optimize import run_algorithm2_study
+    from lfm_studio.engine.optimize.algorithm2_study import layout_key
+
+    if args.space is not None:
+        raise ValueError(
+            f"--space {args.space} does not apply to --algorithm2 (it searches the MLA layout). Fix: drop --space."
+        )
+    if args.min_lenslet_um is None:
+        raise ValueError(
+            "--algorithm2 needs --min-lenslet-um (the cell size, um). Fix: e.g. --min-lenslet-um 2000."
+        )
+    out = check_output(
+        args.out, overwrite=args.overwrite, inputs=[_design_file(args.design), _study_file(args.study)]
+    )
+    objectives = _objectives(args)
+    if len(objectives) != 1:
+        raise ValueError(
+            f"--algorithm2 optimises one objective (a greedy search); got --objective {args.objective!r}. "
+            "Fix: name one objective."
+        )
+    design = resolve_design(args.design)
+    with progress_bar("optimise (algorithm 2)") as progress:
+        result, study = run_algorithm2_study(
+            design, objectives[0], args.study, min_lenslet_um=args.min_lenslet_um, symmetry=args.symmetry,
+            sizes=args.sizes, study_name=args.study_name, resume=args.resume, settings=_settings(args),
+            seed=args.seed, progress=progress,
+        )  # fmt: skip
+    print(
+        f"{len(study.trials)} layouts stored: {result.evaluated} scored now, {result.reused} from the study, "
+        f"{result.infeasible} infeasible"
+    )
+    if result.design is None:
+        raise ValueError(
+            "no layout was feasible, nothing to write (see 'lfm-studio study show' for the reasons). "
+            "Fix: a smaller --min-lenslet-um or relax the constraints."
+        )
+    objective = objectives[0]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DesignWarning)
+        chosen = result.design.updated(
+            name=f"{design.name} (Algorithm 2)",
+            description=f"{design.description} Optimised by lfm-studio optimize --algorithm2: study "
+            f"{args.study_name!r} in {args.study}, {objective.name} = {result.score:.6g} {objective.unit}, "
+            f"layout {layout_key(result.blocks)} (cells of {args.min_lenslet_um:g} um).".strip(),
+        )
+        save_design(chosen, out, overwrite=args.overwrite)
+    for note in dict.fromkeys(str(w.message) for w in caught):
+        print(f"design warning: {note}", file=sys.stderr)
+    print(
+        f"best layout: {len(result.blocks)} lenslets, {objective.name} = {result.score:.6g} {objective.unit}"
+    )
+    print(f"wrote {out}")
+    return 0
+
+
 def run_optimize(args: argparse.Namespace) -> int:
-    from lfm_studio.cli.simulate import _design_file, parse_depths, resolve_device
+    if args.algorithm2:
+        return run_algorithm2(args)
+    if args.space is None:
+        raise ValueError("optimize needs --space space.json (or --algorithm2). Fix: see docs/optimize.md.")
+    from lfm_studio.cli.simulate import _design_file
     from lfm_studio.engine.design import resolve_design, save_design
     from lfm_studio.engine.design.design_io import design_from_json
     from lfm_studio.engine.io import check_output
-    from lfm_studio.engine.optimize import EvaluationSettings, Evaluator, FocalLengthCatalogue, load_space
+    from lfm_studio.engine.optimize import Evaluator, FocalLengthCatalogue, load_space
     from lfm_studio.engine.optimize.study import record_of, run_study
     from lfm_studio.engine.optimize.study_report import format_front, pareto_front, summary
-    from lfm_studio.engine.simulation import depth_grid
 
     out = check_output(
         args.out,
@@ -108,12 +200,7 @@ def run_optimize(args: argparse.Namespace) -> int:
         raise ValueError(f"--workers must be >= 1; got {args.workers}.")
     design = resolve_design(args.design)
     space = load_space(args.space)
-    depths = parse_depths(args.depths)
-    settings = EvaluationSettings(
-        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
-        crop=args.crop,
-        device=resolve_device(args.device),
-    )
+    settings = _settings(args)
     evaluator = Evaluator(
         design,
         space,
@@ -182,7 +269,9 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
         )
     )
     opt.add_argument("design", help="starting design file (.json) or preset name")
-    opt.add_argument("--space", required=True, help="design space JSON (docs/optimize.md)")
+    opt.add_argument(
+        "--space", default=None, help="design space JSON (docs/optimize.md); not with --algorithm2"
+    )
     opt.add_argument(
         "--objective", required=True, help="objective name, or several comma-separated (a Pareto front)"
     )
@@ -213,11 +302,24 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
     task.add_argument("--iterations", type=int, default=20)
     task.add_argument("--photons", type=float, default=1e5, help="expected photons per image")
     task.add_argument("--task-seeds", type=_seeds, default=(1000, 1001), help="held-out phantom seeds")
+    alg2 = opt.add_argument_group("Algorithm 2 (MLA layout search; cells of --min-lenslet-um)")
+    alg2.add_argument("--algorithm2", action="store_true", help="run Algorithm 2 instead of a space search")
+    alg2.add_argument(
+        "--symmetry",
+        default="none",
+        help="none, mirror, mirror-xy, 4-fold or 8-fold: every merge applies to the block's symmetric images",
+    )
+    alg2.add_argument("--sizes", type=_sizes, default=None, help="block sizes to try, cells (default 1..M-1)")
     cons = opt.add_argument_group("constraints")
     cons.add_argument(
         "--catalogue", type=_floats, default=None, help="stock lenslet focal lengths in mm (snap)"
     )
-    cons.add_argument("--min-lenslet-um", type=float, default=None, help="smallest lenslet aperture, um")
+    cons.add_argument(
+        "--min-lenslet-um",
+        type=float,
+        default=None,
+        help="smallest lenslet aperture, um (with --algorithm2: the cell size)",
+    )
     cons.add_argument(
         "--require-zebrafish", action="store_true", help="refuse designs failing the zebrafish spec"
     )

@@ -120,3 +120,58 @@ def test_task_objective_through_the_cli(tmp_path, capsys):
     assert "complete 1, infeasible 1" in out and "sub_image_overlap" in out  # 3.0 mm: sub-images overlap
     assert "task_ncc" in out and "best design (trial 0)" in out
     assert load_design(tmp_path / "best.json").relay.field_stop_diameter_mm == 2.66
+
+
+def _algorithm2(tmp_path, *extra):
+    return main(
+        [
+            "optimize", "flfm_guo2019", "--algorithm2", "--min-lenslet-um", "600", "--sizes", "2",
+            "--objective", "effective_numerical_aperture", "--study", f"sqlite:///{tmp_path / 'a2.db'}",
+            "--out", str(tmp_path / "a2.json"), *extra,
+        ]
+    )  # fmt: skip
+
+
+@pytest.mark.filterwarnings(
+    "ignore::lfm_studio.engine.design.errors.DesignWarning"
+)  # 1.2 mm lenslets undersample
+def test_algorithm2_through_the_cli_stores_every_layout_and_resumes(tmp_path, capsys):
+    """FLFM pupil on 600 um cells, 2x2 merges: merging doubles a lenslet's aperture, so its NA."""
+    from lfm_studio.engine.optimize.study import load_study, record_of
+
+    assert _algorithm2(tmp_path) == 0
+    out = capsys.readouterr().out
+    assert "0 from the study" in out and "wrote" in out
+    study = load_study(str(tmp_path / "a2.db"))
+    complete = [t for t in study.trials if t.state.name == "COMPLETE"]
+    initial = next(t for t in complete if t.params["base"] == "initial")
+    best = load_design(tmp_path / "a2.json")
+    apertures = {lens.aperture_diameter_um for lens in best.mla.lenslets}
+    assert apertures == {600.0, 1200.0}  # one cell and one 2x2 block
+    assert max(t.values[0] for t in complete) == pytest.approx(2 * initial.values[0], rel=1e-9)
+    assert all(record_of(t)["infeasible_reason"] for t in study.trials if t.state.name == "FAIL")
+    stored = len(study.trials)
+    assert _algorithm2(tmp_path, "--resume", "--overwrite") == 0
+    out = capsys.readouterr().out
+    assert f"{stored} layouts stored: 0 scored now, {len(complete)} from the study" in out
+    assert load_design(tmp_path / "a2.json").mla.count == best.mla.count
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--space", "space.json"], "does not apply to --algorithm2"),
+        (["--objective", "lateral_resolution,axial_resolution"], "optimises one objective"),
+        (["--symmetry", "5-fold"], "symmetry must be one of"),
+    ],
+)
+def test_algorithm2_bad_input(tmp_path, capsys, args, message):
+    code = _algorithm2(tmp_path, *args)
+    assert code == 2 and message in capsys.readouterr().err
+    assert not (tmp_path / "a2.json").exists()
+
+
+def test_algorithm2_needs_the_cell_size(tmp_path, capsys):
+    code = main(["optimize", "flfm_guo2019", "--algorithm2", "--objective", "axial_crb",
+                 "--study", str(tmp_path / "s.db"), "--out", str(tmp_path / "b.json")])  # fmt: skip
+    assert code == 2 and "needs --min-lenslet-um" in capsys.readouterr().err

@@ -15,16 +15,19 @@ Example::
 :mod:`.study` needs Optuna (``pip install "lfm-studio[optimize]"``); the rest does not.
 
 MLA layouts: :func:`.algorithm2.algorithm2` (the thesis' Algorithm 2, greedy cell merges on the
-:class:`.mla_cells.MLAPlane`) and :func:`.algorithm1.concatenate` (Algorithm 1, the MLA phase
+:class:`.mla_cells.MLAPlane`; :func:`.algorithm2_study.run_algorithm2_study` records it into the
+same resumable study format) and :func:`.algorithm1.concatenate` (Algorithm 1, the MLA phase
 mask from a lenslet list). PSF-engineering losses of section 5.2.2 (:mod:`.psf_losses`):
 :func:`.psf_losses.depth_dissimilarity`, :func:`.psf_losses.mtf_support`,
-:func:`.psf_losses.axial_crb`.
+:func:`.psf_losses.axial_crb`, also the named objectives ``axial_crb`` (um),
+``depth_dissimilarity`` and ``mtf_support``.
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
 from lfm_studio.engine.optimize import task_score as _task_score  # noqa: F401  (registers task_* objectives)
-from lfm_studio.engine.optimize.algorithm2 import Algorithm2Result, algorithm2
+from lfm_studio.engine.optimize.algorithm2 import Algorithm2Result, LayoutTrial, algorithm2
+from lfm_studio.engine.optimize.algorithm2_study import run_algorithm2_study
 from lfm_studio.engine.optimize.candidate import Candidate, EvaluationSettings
 from lfm_studio.engine.optimize.constraints import (
     DEFAULT_CONSTRAINTS,
@@ -65,6 +68,7 @@ __all__ = [
     "FocalLengthCatalogue",
     "Infeasible",
     "InsidePupil",
+    "LayoutTrial",
     "MLAPlane",
     "MinimumLensletSize",
     "NoSubImageOverlap",
@@ -87,6 +91,7 @@ __all__ = [
     "objective_named",
     "objective_names",
     "register_objective",
+    "run_algorithm2_study",
     "score_volume",
     "space_from_json",
 ]

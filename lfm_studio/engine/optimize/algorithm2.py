@@ -62,8 +62,12 @@ Score = Callable[[Design], float]
 
 
 @dataclass(frozen=True)
-class Candidate:
-    """One candidate layout Algorithm 2 considered, as passed to ``record``.
+class LayoutTrial:
+    """One step of Algorithm 2: a candidate layout it considered, as passed to ``record``.
+
+    (Not to be confused with :class:`~.candidate.Candidate`, a design being simulated and
+    scored; a stored study keeps each step as an
+    :class:`~.evaluate.EvaluationRecord`-format trial, see :mod:`.algorithm2_study`.)
 
     Attributes
     ----------
@@ -87,6 +91,8 @@ class Candidate:
     warnings : tuple of str
         Warnings raised while building and scoring it (e.g. overlapping sub-images); they
         are caught and kept here rather than shown once per candidate.
+    reused : bool
+        True when its score (or reason) came from ``lookup`` (a stored study), not from scoring.
     """
 
     index: int
@@ -98,6 +104,11 @@ class Candidate:
     accepted: bool
     seconds: float
     warnings: tuple[str, ...] = ()
+    reused: bool = False
+
+
+Lookup = Callable[[tuple[Block, ...]], "tuple[float | None, str] | None"]
+"""``lookup(layout)``: the stored ``(score, reason)`` of a layout scored before, or None."""
 
 
 @dataclass(frozen=True)
@@ -106,6 +117,8 @@ class Algorithm2Result:
 
     ``score`` is the best score (``-inf`` / ``inf`` for maximize / minimize when no
     layout was feasible; ``design`` is then None); ``history`` lists the accepted scores.
+    ``evaluated`` counts layouts scored in this run, ``reused`` those whose score came
+    from ``lookup``.
     """
 
     blocks: tuple[Block, ...]
@@ -114,6 +127,7 @@ class Algorithm2Result:
     evaluated: int
     infeasible: int
     history: tuple[float, ...] = field(default=())
+    reused: int = 0
 
 
 def _evaluate(
@@ -175,7 +189,8 @@ def algorithm2(
     direction: str = "maximize",
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
-    record: Callable[[Candidate], None] | None = None,
+    record: Callable[[LayoutTrial], None] | None = None,
+    lookup: Lookup | None = None,
 ) -> Algorithm2Result:
     """Run Algorithm 2 on the cell grid ``plane`` of ``design`` (see the module docstring).
 
@@ -198,7 +213,11 @@ def algorithm2(
         ``progress(done, total, message)`` per position; ``cancel`` is checked between
         candidates and raises :class:`~lfm_studio.engine.progress.CancelledError`.
     record : callable, optional
-        Receives every :class:`Candidate` considered, feasible or not, in order.
+        Receives every :class:`LayoutTrial` considered, feasible or not, in order.
+    lookup : callable, optional
+        ``lookup(layout) -> (score, reason) | None``: a layout it knows is not built nor
+        scored again (resuming a stored study; the search is deterministic, so it follows
+        the same path).
 
     Returns
     -------
@@ -219,7 +238,7 @@ def algorithm2(
     order = _sizes(sizes, m)
     total = sum((m - d + 1) ** 2 for d in order)
     seen: set[tuple[Block, ...]] = set()
-    counters = {"index": 0, "evaluated": 0, "infeasible": 0}
+    counters = {"index": 0, "evaluated": 0, "infeasible": 0, "reused": 0}
 
     def consider(blocks: tuple[Block, ...], params: dict, reason: str, best: float) -> float | None:
         """Score ``blocks`` (unless refused or already seen) and report it; the score or None."""
@@ -227,18 +246,24 @@ def algorithm2(
         candidate: Design | None = None
         value: float | None = None
         notes: tuple[str, ...] = ()
+        stored = None
         if not reason:
             seen.add(blocks)
-            candidate, value, reason, notes = _evaluate(plane, design, blocks, score)
-            counters["evaluated"] += 1
+            stored = None if lookup is None else lookup(blocks)
+            if stored is not None:
+                value, reason = stored
+                counters["reused"] += 1
+            else:
+                candidate, value, reason, notes = _evaluate(plane, design, blocks, score)
+                counters["evaluated"] += 1
         if reason:
             counters["infeasible"] += 1
         accepted = value is not None and sign * value > best
         if record is not None:
             record(
-                Candidate(
+                LayoutTrial(
                     counters["index"], params, blocks, value, candidate, reason, accepted,
-                    time.perf_counter() - start, notes,
+                    time.perf_counter() - start, notes, stored is not None,
                 )
             )  # fmt: skip
         counters["index"] += 1
@@ -277,5 +302,11 @@ def algorithm2(
             warnings.simplefilter("ignore")
             best_design = plane.design_with(design, best_blocks)
     return Algorithm2Result(
-        best_blocks, best_design, sign * best, counters["evaluated"], counters["infeasible"], tuple(history)
+        best_blocks,
+        best_design,
+        sign * best,
+        counters["evaluated"],
+        counters["infeasible"],
+        tuple(history),
+        counters["reused"],
     )

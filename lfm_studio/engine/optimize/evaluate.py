@@ -70,6 +70,29 @@ class EvaluationRecord:
         }
 
 
+def score_design(
+    design: Design,
+    objectives: Sequence[Objective],
+    settings: EvaluationSettings,
+    *,
+    seed: int = 0,
+    cache: LensletCache | None = None,
+) -> tuple[dict[str, float] | None, Infeasible | None, dict[str, float]]:
+    """Score a built design: ``(values, None, timing)``, or ``(None, reason, timing)`` when an
+    objective refused it with a ``ValueError`` (e.g. a rejected reconstruction).
+
+    ``values`` maps objective names to values in their units; ``timing`` holds seconds per stage.
+    """
+    candidate = Candidate(design, settings, seed=seed, cache=cache)
+    try:
+        values = {o.name: float(o(candidate)) for o in objectives}
+    except MemoryBudgetError:
+        raise
+    except ValueError as error:
+        return None, Infeasible("evaluation_refused", str(error)), dict(candidate.timing)
+    return values, None, dict(candidate.timing)
+
+
 class Evaluator:
     """Scores points of ``space`` applied to ``base`` (picklable for Dask: the cache is rebuilt).
 
@@ -138,19 +161,14 @@ class Evaluator:
     def __call__(self, point: Mapping[str, Any]) -> EvaluationRecord:
         start = time.perf_counter()
         design, infeasible, notes = self.build(point)
-        values = None
+        values: dict[str, float] | None = None
         timing: dict[str, float] = {}
         hits, misses = self.cache.hits, self.cache.misses
         if design is not None:
-            candidate = Candidate(design, self.settings, seed=self.seed, cache=self.cache)
-            try:
-                values = {o.name: float(o(candidate)) for o in self.objectives}
-                self.evaluations += 1
-            except MemoryBudgetError:
-                raise
-            except ValueError as error:  # a named refusal while scoring (e.g. a rejected reconstruction)
-                infeasible, values = Infeasible("evaluation_refused", str(error)), None
-            timing = dict(candidate.timing)
+            values, infeasible, timing = score_design(
+                design, self.objectives, self.settings, seed=self.seed, cache=self.cache
+            )
+            self.evaluations += values is not None
         total = time.perf_counter() - start
         timing["total_s"] = total
         timing["overhead_s"] = max(0.0, total - sum(v for k, v in timing.items() if k not in ("total_s",)))

@@ -28,6 +28,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.errors import fmt
+from lfm_studio.engine.optimize import psf_losses
 from lfm_studio.engine.optimize.candidate import Candidate
 from lfm_studio.engine.optimize.constraints import Infeasible
 from lfm_studio.engine.performance import (
@@ -237,3 +238,86 @@ register_objective(
     _penalty_factory("measured"),
     "relative shortfall from the zebrafish requirements measured on the PSF (unitless, minimize)",
 )
+
+
+# (b) The PSF-engineering losses of thesis 5.2.2 (:mod:`.psf_losses`) as named objectives.
+def stack_intensities(stack: Any) -> torch.Tensor:
+    """The PSFs of a :class:`~lfm_studio.engine.psf_stack.PSFStack` as ``(N, Z, Y, X)``: one ``(Z, Y, X)``
+    stack per lateral source position (``N = 1`` for a shift-invariant stack; a conventional
+    LFM stores one per position behind a lenslet, the leading axes)."""
+    data = torch.as_tensor(stack.data)
+    return data.reshape(-1, *data.shape[-3:])
+
+
+def _mean_over_positions(stack: Any, loss: Callable[[torch.Tensor], torch.Tensor]) -> torch.Tensor:
+    """``loss`` of every source position's ``(Z, Y, X)`` stack, averaged over positions."""
+    return torch.stack([loss(psf) for psf in stack_intensities(stack)]).mean()
+
+
+@dataclass(frozen=True)
+class AxialCRBLoss:
+    """Mean over depths (and source positions) of the axial Cramer-Rao bound (:func:`.psf_losses.axial_crb`), um.
+
+    ``photons`` detected per emitter, ``background`` photons per pixel (Poisson).
+    """
+
+    photons: float = 1000.0
+    background: float = 1.0
+
+    def __call__(self, stack: Any) -> torch.Tensor:
+        depths = torch.as_tensor(stack.depths, dtype=torch.float64)
+        return (
+            _mean_over_positions(
+                stack,
+                lambda psf: psf_losses.axial_crb(
+                    psf, depths, photons=self.photons, background=self.background
+                ).mean(),
+            )
+            * 1e6
+        )
+
+
+@dataclass(frozen=True)
+class DepthDissimilarityLoss:
+    """Mean normalised cross-correlation of the slices of all depth pairs (:func:`.psf_losses.depth_dissimilarity`)."""
+
+    def __call__(self, stack: Any) -> torch.Tensor:
+        return _mean_over_positions(stack, lambda psf: psf_losses.depth_dissimilarity(psf, reduction="mean"))
+
+
+@dataclass(frozen=True)
+class MTFSupportLoss:
+    """Mean over depths of the MTF support fraction (:func:`.psf_losses.mtf_support`), in ``[0, 1]``."""
+
+    threshold: float = 0.1
+    band: float = 0.5
+
+    def __call__(self, stack: Any) -> torch.Tensor:
+        return _mean_over_positions(
+            stack, lambda psf: psf_losses.mtf_support(psf, threshold=self.threshold, band=self.band).mean()
+        )
+
+
+def _psf_loss_factory(name: str) -> ObjectiveFactory:
+    def build(options: Mapping[str, Any]) -> Objective:
+        if name == "axial_crb":
+            photons = float(options.get("photons", 1000.0))
+            background = float(options.get("background", 1.0))
+            return PSFLoss(name, AxialCRBLoss(photons, background), "um", "minimize")
+        if name == "depth_dissimilarity":
+            return PSFLoss(name, DepthDissimilarityLoss(), "", "minimize")
+        return PSFLoss(name, MTFSupportLoss(), "", "maximize")
+
+    return build
+
+
+PSF_LOSS_OBJECTIVES: dict[str, str] = {
+    "axial_crb": "axial Cramer-Rao bound of a point emitter, mean over depths, Poisson noise at "
+    "options photons (default 1000) and background (default 1 photon/pixel) (um, minimize)",
+    "depth_dissimilarity": "mean normalised cross-correlation of the PSF slices of every depth pair "
+    "(unitless in [0, 1], minimize)",
+    "mtf_support": "fraction of the band up to Nyquist where the MTF exceeds 0.1, mean over depths "
+    "(unitless in [0, 1], maximize)",
+}
+for _name, _text in PSF_LOSS_OBJECTIVES.items():
+    register_objective(_name, _psf_loss_factory(_name), _text)

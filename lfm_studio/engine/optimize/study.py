@@ -164,10 +164,30 @@ def open_study(
     resume: bool = False,
 ) -> Any:
     """Create the study, or (``resume=True``) load it after checking it is the same search."""
+    return open_stored(
+        study_attrs(evaluator, sampler),
+        [o.direction for o in evaluator.objectives],
+        storage,
+        study_name=study_name,
+        sampler=make_sampler("random" if sampler == "grid" else sampler, evaluator.seed),
+        resume=resume,
+    )
+
+
+def open_stored(
+    attrs: dict[str, Any],
+    directions: Sequence[str],
+    storage: str,
+    *,
+    study_name: str = DEFAULT_STUDY_NAME,
+    sampler: Any = None,
+    resume: bool = False,
+) -> Any:
+    """Create a study described by ``attrs`` (:func:`study_attrs` keys), or (``resume=True``) load
+    it after checking that its stored ``attrs`` match (:class:`StudyMismatchError` otherwise)."""
     optuna = require_optuna()
     url = storage_url(storage)
     rdb = make_storage(storage)
-    directions = [o.direction for o in evaluator.objectives]
     names = optuna.study.get_all_study_names(storage=rdb)
     exists = study_name in names
     if exists and not resume:
@@ -175,12 +195,11 @@ def open_study(
             f"study {study_name!r} already exists in {url}. Fix: pass --resume to continue it, or choose "
             "another --study-name or database."
         )
-    attrs = study_attrs(evaluator, sampler)
     study = optuna.create_study(
         storage=rdb,
         study_name=study_name,
-        directions=directions,
-        sampler=make_sampler("random" if sampler == "grid" else sampler, evaluator.seed),
+        directions=list(directions),
+        sampler=sampler,
         load_if_exists=True,
     )
     if exists:
