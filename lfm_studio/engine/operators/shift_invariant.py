@@ -43,6 +43,11 @@ def _zero_padded(rows: torch.Tensor, length: int) -> torch.Tensor:
     return torch.nn.functional.pad(rows, (0, length - rows.shape[-1]))
 
 
+def _tracked(*tensors: torch.Tensor) -> bool:
+    """Whether autograd records operations on any of ``tensors`` (then no in-place buffer reuse)."""
+    return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
+
+
 def _multiply_accumulate(total: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
     """``total + sum_i spectra[i] * otf[i]``, one fused pass per depth (no ``(c, Kx, Fy)`` product
     temporary); in place unless autograd tracks the values."""
@@ -150,18 +155,28 @@ class ShiftInvariantProjector:
             )
         volume = volume.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
-        total = None
+        tracked = _tracked(volume, self.otf_t)
+        total, window = None, None
         for part in self.depth_chunks():
             rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Vy), a view
-            spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            if tracked:
+                spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            else:  # one zeroed window per call; each chunk only overwrites its Vy rows (no pad pass)
+                if window is None:
+                    window = rows.new_zeros((self.depth_chunk, rows.shape[1], fy))
+                block = window[: rows.shape[0]]
+                block[..., : rows.shape[-1]].copy_(rows)
+                spectra = fft.fft_along(block, fy, dim=-1)
             if total is None:
                 total = spectra.new_zeros(spectra.shape[1:])
             total = _multiply_accumulate(total, spectra, self.otf_t[part])
         assert total is not None  # at least one depth
         oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
         ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
-        columns = fft.ifft_along_unscaled(total, dim=-1)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
-        image = fft.irfft_along_unscaled(columns.transpose(0, 1).contiguous(), fx, dim=-1)
+        # ifft(T) = conj(fft(conj(T))): torch's forward c2c ran ~1.7x faster than its inverse here.
+        columns = fft.fft_along(total.conj().resolve_conj(), fy, dim=-1)[:, oy : oy + self.psf_shape[0]]
+        columns = columns.transpose(0, 1).conj().resolve_conj().contiguous()  # (Py, Kx)
+        image = fft.irfft_along_unscaled(columns, fx, dim=-1)
         return image[:, ox : ox + self.psf_shape[1]] * (1.0 / (fy * fx))
 
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:
@@ -198,8 +213,15 @@ class ShiftInvariantProjector:
             spectrum, filters_t = spectrum.conj().resolve_conj(), filters_t.conj()
         scale = 1.0 / (fy * fx)
         out, parts = spectrum.real.new_empty(self.volume_shape), []
+        tracked = _tracked(spectrum, filters_t)
+        product = None
         for part in self.depth_chunks():
-            product = spectrum * filters_t[part]  # (c, Kx, Fy)
+            if tracked:
+                product = spectrum * filters_t[part]  # (c, Kx, Fy)
+            else:  # one product buffer per call, reused by every chunk
+                if product is None:
+                    product = spectrum.new_empty((self.depth_chunk, *spectrum.shape))
+                product = torch.mul(spectrum, filters_t[part], out=product[: part.stop - part.start])
             if flipped:
                 columns = fft.fft_along(product, fy, dim=-1)[..., :vy].conj()  # (c, Kx, Vy)
             else:
