@@ -173,10 +173,8 @@ class ShiftInvariantProjector:
         assert total is not None  # at least one depth
         oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
         ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
-        # ifft(T) = conj(fft(conj(T))): torch's forward c2c ran ~1.7x faster than its inverse here.
-        columns = fft.fft_along(total.conj().resolve_conj(), fy, dim=-1)[:, oy : oy + self.psf_shape[0]]
-        columns = columns.transpose(0, 1).conj().resolve_conj().contiguous()  # (Py, Kx)
-        image = fft.irfft_along_unscaled(columns, fx, dim=-1)
+        columns = fft.ifft_along_unscaled(total, dim=-1)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
+        image = fft.irfft_along_unscaled(columns.transpose(0, 1).contiguous(), fx, dim=-1)
         return image[:, ox : ox + self.psf_shape[1]] * (1.0 / (fy * fx))
 
     def adjoint(self, image: torch.Tensor) -> torch.Tensor:
