@@ -8,6 +8,9 @@ So this module only ever asks torch for unscaled transforms and applies the
 ``1/N`` itself. Everything else in the engine calls these functions, never
 ``torch.fft`` directly.
 
+:func:`column_fft` and :func:`column_ifft_unscaled` use ``scipy.fft`` (pocketfft; also only the
+unscaled directions) for untracked CPU tensors when scipy is installed, torch otherwise.
+
 Conventions match numpy: ``ifft2(fft2(x)) == x``; the ``centered_*`` variants
 treat index ``N // 2`` as the origin in both domains (see ``Grid``).
 """

@@ -11,6 +11,12 @@ spectra (OTFs) are computed once and kept (in the same depth chunks, so the set-
 is linear in depths). On CPU, depths are processed in chunks
 that keep the working set cache-sized (batching all depths at once was measured
 3-4x slower at 1024^2 here, PLATFORM.md); on CUDA all depths go in one batch.
+
+Without autograd (RL, Landweber: nothing requires grad) the column transforms go through
+pocketfft (:func:`lfm_studio.engine.fft.column_fft`, faster than MKL here), the forward zeroes one
+column window per call and the back projection reuses one product buffer; with autograd every
+step is a pure torch function (differentiable in the volume, the image and the PSF). The two
+paths agree to float rounding (``tests/engine/operators/test_shift_invariant.py``).
 """
 
 from __future__ import annotations
