@@ -7,6 +7,7 @@ Parseval at every size, batched or not, complex64 and complex128, 1 and 2 thread
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -77,3 +78,29 @@ def test_separable_1d_transforms_equal_the_2d_real_transform(threads, n):
     assert float((spectrum - reference).abs().max() / reference.abs().max()) < 1e-5
     back = fft.irfft_along_unscaled(fft.ifft_along_unscaled(spectrum, dim=-2), n, dim=-1) / (128 * n)
     assert float((back[:, :64] - x).abs().max() / x.abs().max()) < 1e-5
+
+
+@pytest.mark.parametrize("dtype", [torch.complex64, torch.complex128])
+def test_column_transforms_equal_numpy_with_and_without_autograd(dtype):
+    """column_fft / column_ifft_unscaled are numpy's unnormalised DFTs along the last dim, tracked or
+    not (the projector's no-grad and autograd paths), and stay differentiable."""
+    rng = np.random.default_rng(3)
+    block = rng.standard_normal((3, 5, 48)) + 1j * rng.standard_normal((3, 5, 48))
+    x = torch.from_numpy(block).to(dtype)
+    tol = 1e-5 if dtype == torch.complex64 else 1e-12
+    reference_fft, reference_ifft = np.fft.fft(block, axis=-1), np.fft.ifft(block, axis=-1) * 48
+    for tracked in (False, True):
+        source = x.clone().requires_grad_(tracked)
+        forward, inverse = fft.column_fft(source), fft.column_ifft_unscaled(source)
+        assert forward.requires_grad == tracked and inverse.requires_grad == tracked
+        scale = np.abs(reference_fft).max()
+        np.testing.assert_allclose(forward.detach().numpy(), reference_fft, rtol=0, atol=tol * scale)
+        np.testing.assert_allclose(inverse.detach().numpy(), reference_ifft, rtol=0, atol=tol * scale)
+    # a strided (transposed) input and a lazily conjugated one go through the same definitions
+    strided = x.transpose(-2, -1)
+    np.testing.assert_allclose(
+        fft.column_fft(strided).numpy(), np.fft.fft(block.transpose(0, 2, 1), axis=-1), atol=tol * scale
+    )
+    np.testing.assert_allclose(
+        fft.column_fft(x.conj()).numpy(), np.fft.fft(block.conj(), axis=-1), atol=tol * scale
+    )

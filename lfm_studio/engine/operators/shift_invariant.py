@@ -11,6 +11,12 @@ spectra (OTFs) are computed once and kept (in the same depth chunks, so the set-
 is linear in depths). On CPU, depths are processed in chunks
 that keep the working set cache-sized (batching all depths at once was measured
 3-4x slower at 1024^2 here, docs/platform.md); on CUDA all depths go in one batch.
+
+Without autograd (RL, Landweber: nothing requires grad) the forward zeroes one column window
+per call and the back projection reuses one product buffer; with autograd every step is a pure
+torch function (differentiable in the volume, the image and the PSF). The two agree to float
+rounding (``tests/engine/operators/test_shift_invariant.py``). Every transform is torch's
+(:mod:`lfm_studio.engine.fft`): one FFT implementation, whatever else is installed.
 """
 
 from __future__ import annotations
@@ -41,6 +47,11 @@ def _zero_padded(rows: torch.Tensor, length: int) -> torch.Tensor:
     against 38 ms padded first (1 thread); with kept memory both take the same time.
     """
     return torch.nn.functional.pad(rows, (0, length - rows.shape[-1]))
+
+
+def _tracked(*tensors: torch.Tensor) -> bool:
+    """Whether autograd records operations on any of ``tensors`` (then no in-place buffer reuse)."""
+    return torch.is_grad_enabled() and any(t.requires_grad for t in tensors)
 
 
 def _multiply_accumulate(total: torch.Tensor, spectra: torch.Tensor, otf: torch.Tensor) -> torch.Tensor:
@@ -150,17 +161,25 @@ class ShiftInvariantProjector:
             )
         volume = volume.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
-        total = None
+        tracked = _tracked(volume, self.otf_t)
+        total, window = None, None
         for part in self.depth_chunks():
             rows = fft.rfft_along(volume[part], fx, dim=-1).transpose(-2, -1)  # (c, Kx, Vy), a view
-            spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            if tracked:
+                spectra = fft.fft_along(_zero_padded(rows, fy), fy, dim=-1)  # (c, Kx, Fy)
+            else:  # one zeroed window per call; each chunk only overwrites its Vy rows (no pad pass)
+                if window is None:
+                    window = rows.new_zeros((self.depth_chunk, rows.shape[1], fy))
+                block = window[: rows.shape[0]]
+                block[..., : rows.shape[-1]].copy_(rows)
+                spectra = fft.column_fft(block)
             if total is None:
                 total = spectra.new_zeros(spectra.shape[1:])
             total = _multiply_accumulate(total, spectra, self.otf_t[part])
         assert total is not None  # at least one depth
         oy = _centre_offset(self.full_shape[0], self.psf_shape[0])
         ox = _centre_offset(self.full_shape[1], self.psf_shape[1])
-        columns = fft.ifft_along_unscaled(total, dim=-1)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
+        columns = fft.column_ifft_unscaled(total)[:, oy : oy + self.psf_shape[0]]  # (Kx, Py)
         image = fft.irfft_along_unscaled(columns.transpose(0, 1).contiguous(), fx, dim=-1)
         return image[:, ox : ox + self.psf_shape[1]] * (1.0 / (fy * fx))
 
@@ -189,7 +208,7 @@ class ShiftInvariantProjector:
         ox = _centre_offset(self.full_shape[1], px)
         rows = fft.rfft_along(torch.nn.functional.pad(image, (ox, fx - ox - px)), fx, dim=-1)  # (Py, Kx)
         rows = torch.nn.functional.pad(rows.transpose(0, 1), (oy, fy - oy - py))  # (Kx, Fy), image rows at oy
-        spectrum = fft.fft_along(rows, fy, dim=-1)
+        spectrum = fft.column_fft(rows)
         # ifft(S H*) = conj(fft(conj(S) H)): with the adjoint's conj(otf) filters every depth then
         # multiplies plain tensors (a product with a lazily conjugated operand runs ~1.7x slower
         # here) and only the cropped (Kx, Vy) columns are conjugated.
@@ -198,13 +217,25 @@ class ShiftInvariantProjector:
             spectrum, filters_t = spectrum.conj().resolve_conj(), filters_t.conj()
         scale = 1.0 / (fy * fx)
         out, parts = spectrum.real.new_empty(self.volume_shape), []
+        tracked = _tracked(spectrum, filters_t)
+        buffer = None
         for part in self.depth_chunks():
-            product = spectrum * filters_t[part]  # (c, Kx, Fy)
+            if tracked:
+                product = spectrum * filters_t[part]  # (c, Kx, Fy)
+            else:  # one product buffer per call, reused by every chunk (the last may be shorter)
+                if buffer is None:
+                    buffer = spectrum.new_empty((self.depth_chunk, *spectrum.shape))
+                product = torch.mul(spectrum, filters_t[part], out=buffer[: part.stop - part.start])
             if flipped:
-                columns = fft.fft_along(product, fy, dim=-1)[..., :vy].conj()  # (c, Kx, Vy)
+                columns = fft.column_fft(product)[..., :vy].conj()  # (c, Kx, Vy)
             else:
-                columns = fft.ifft_along_unscaled(product, dim=-1)[..., :vy]
-            back = fft.irfft_along_unscaled(columns.transpose(-2, -1).resolve_conj().contiguous(), fx, dim=-1)
+                columns = fft.column_ifft_unscaled(product)[..., :vy]
+            rows_t = columns.transpose(-2, -1)  # (c, Vy, Kx), a (lazily conjugated) view
+            if tracked:
+                rows_t = rows_t.resolve_conj().contiguous()
+            else:  # transposed and conjugated in one copy pass
+                rows_t = torch.empty(rows_t.shape, dtype=rows_t.dtype, device=rows_t.device).copy_(rows_t)
+            back = fft.irfft_along_unscaled(rows_t, fx, dim=-1)
             if back.requires_grad:  # autograd: no writes into a shared output
                 parts.append(back[..., :vx] * scale)
             else:  # scaled straight into the output: no concatenation pass
