@@ -273,14 +273,15 @@ def conventional_patterns(
         raise ValueError(f"nip_field is {nip_field.shape[-1]} samples wide; reach {reach} needs {field_n}.")
     base = nip_field[:, cut : cut + field_n, cut : cut + field_n]
     unique = {}
-    radius = light_radius(system, depths, light_margin)
+    # Each depth's own light radius (its blur plus the margin), not the group's widest.
+    radii = [light_radius(system, (z,), light_margin) for z in depths]
     offsets = _unique_offsets(s // 2)
     rows = sorted({a for a, _ in offsets})
     for done, a in enumerate(rows):  # the sub-positions of one row share their row transform
         checkpoint(cancel, progress, done, len(rows), f"pattern row {done + 1}/{len(rows)}")
         bs = tuple(b for row, b in offsets if row == a)
         found = offset_row_patterns(
-            system, base, a, bs, reach=reach, dtype=dtype, light_radius=radius,
+            system, base, a, bs, reach=reach, dtype=dtype, light_radius=radii,
             oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
             lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
         )  # fmt: skip
@@ -347,7 +348,7 @@ def offset_row_patterns(
     reach: int,
     dtype: torch.dtype,
     oversampling: float = OUTPUT_OVERSAMPLING,
-    light_radius: float | None = None,
+    light_radius: float | list[float] | None = None,
     nip_oversampling: float = 1.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
@@ -358,7 +359,8 @@ def offset_row_patterns(
     (the first of the two GEMMs, :func:`_row_transform`) is done once on the band of
     columns all of them need, and each ``b`` crops it and zeroes its unlit lenslets after
     it (exact: the row transform keeps tiles apart). Round lenslets: the aperture is not
-    separable, so each ``b`` is transformed on its own.
+    separable, so each ``b`` is transformed on its own. ``light_radius``: one radius for all
+    depths, a list with one per depth of ``base``, or ``None`` (every lenslet lit).
     """
     m = sub_samples(system, oversampling)
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
@@ -379,8 +381,11 @@ def offset_row_patterns(
     # lenslets -reach..reach tile one (2 reach + 1) ns square region of it.
     top = field_n // 2 - a * step - reach * ns - ns // 2
     lefts = [field_n // 2 - b * step - reach * ns - ns // 2 for b in bs]
-    lits = [lit_lenslets(system, reach, a, b, light_radius).to(device=base.device) for b in bs]
-    masks = [lit.repeat_interleave(ns, 1) for lit in lits]  # (tiles, span) per b: lenslet row i, NIP column
+    radii = list(light_radius) if isinstance(light_radius, (list, tuple)) else [light_radius] * base.shape[0]
+    if len(radii) != base.shape[0]:
+        raise ValueError(
+            f"light_radius has {len(radii)} entries for {base.shape[0]} depths. Fix: one per depth."
+        )
     # Bands of NIP columns to row-transform: (first column, width, pre-transform weights, the b's).
     bands: list[tuple[int, int, torch.Tensor | None, list[int]]]
     if system.lenslet_shape == "circle":
@@ -388,15 +393,13 @@ def offset_row_patterns(
         y, x = Grid(ns, dx).axes(device=base.device)
         aperture = aperture_coverage("circle", x[None, :], y[:, None], system.pitch, (dx, dx), antialias=True)
         aperture = aperture.to(cdtype).repeat(tiles, tiles)
-        bands = [
-            (left, span, masks[i].repeat_interleave(ns, 0).to(cdtype) * aperture, [i])
-            for i, left in enumerate(lefts)
-        ]
+        bands = [(left, span, aperture, [i]) for i, left in enumerate(lefts)]
     else:
         bands = [(min(lefts), span + max(lefts) - min(lefts), None, list(range(len(bs))))]
     out_step = system.pitch / per_lenslet
     patterns: list[list[torch.Tensor]] = [[] for _ in bs]
     for z in range(base.shape[0]):  # one depth at a time: the GEMM temporaries stay ~50 MB
+        lits = [lit_lenslets(system, reach, a, b, radii[z]).to(device=base.device) for b in bs]
         for first, width, weights, members in bands:
             region = base[z, top : top + span, first : first + width].to(cdtype)
             if weights is not None:
@@ -404,8 +407,8 @@ def offset_row_patterns(
             rows = _row_transform(transform, region, tiles)  # (3, p, tiles, width)
             for index in members:
                 crop = rows[..., lefts[index] - first : lefts[index] - first + span]
-                if weights is None:  # unlit lenslets zeroed after the row transform
-                    crop = crop * masks[index].to(cdtype)
+                # unlit lenslets zeroed after the row transform (tile row i, NIP column)
+                crop = crop * lits[index].repeat_interleave(ns, 1).to(cdtype)
                 field = _column_transform(transform, crop, lits[index])
                 power = (field.real**2 + field.imag**2) * (out_step * out_step)
                 patterns[index].append(_bin(power[None], m).to(dtype))
