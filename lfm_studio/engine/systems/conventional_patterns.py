@@ -449,14 +449,13 @@ def _column_transform(transform: torch.Tensor, rows: torch.Tensor, lit: torch.Te
         active[block : block + tiles] |= lit
     r, j = active.nonzero(as_tuple=True)
     blocks = strip.reshape(tiles + 2, per_lenslet, tiles, ns)[r, :, j]  # (blocks, p, ns)
-    cols = (blocks @ transform.T).reshape(-1, per_lenslet, 3, per_lenslet)
-    field = rows.new_zeros(((tiles + 2) * (tiles + 2), per_lenslet, per_lenslet))  # (block row, col), p, p
+    cols = rows.new_zeros((tiles + 2, tiles, per_lenslet, 3, per_lenslet))  # dark blocks stay zero
+    cols[r, j] = (blocks @ transform.T).reshape(-1, per_lenslet, 3, per_lenslet)
+    field = rows.new_zeros((tiles + 2, per_lenslet, tiles + 2, per_lenslet))
     for block in range(3):  # window block ``block`` of tile column j lands on canvas block j + block
-        field = field.index_add(0, r * (tiles + 2) + j + block, cols[:, :, block])
+        field[:, :, block : block + tiles] += cols[:, :, :, block].transpose(1, 2)
     canvas = (tiles + 2) * per_lenslet
-    return (
-        field.reshape(tiles + 2, tiles + 2, per_lenslet, per_lenslet).transpose(1, 2).reshape(canvas, canvas)
-    )
+    return field.reshape(canvas, canvas)
 
 
 def _bin(power: torch.Tensor, factor: int) -> torch.Tensor:
