@@ -407,8 +407,6 @@ def offset_row_patterns(
             rows = _row_transform(transform, region, tiles)  # (3, p, tiles, width)
             for index in members:
                 crop = rows[..., lefts[index] - first : lefts[index] - first + span]
-                # unlit lenslets zeroed after the row transform (tile row i, NIP column)
-                crop = crop * lits[index].repeat_interleave(ns, 1).to(cdtype)
                 field = _column_transform(transform, crop, lits[index])
                 power = (field.real**2 + field.imag**2) * (out_step * out_step)
                 patterns[index].append(_bin(power[None], m).to(dtype))
@@ -426,7 +424,8 @@ def _row_transform(transform: torch.Tensor, region: torch.Tensor, tiles: int) ->
 
 def _column_transform(transform: torch.Tensor, rows: torch.Tensor, lit: torch.Tensor) -> torch.Tensor:
     """The sensor canvas ``(C, C)``, ``C = (tiles + 2) p``, from row-transformed tiles ``rows``
-    ``(3, p, tiles, tiles ns)`` (:func:`_row_transform`) of the lenslets ``lit (tiles, tiles)``.
+    ``(3, p, tiles, tiles ns)`` (:func:`_row_transform`) of the lenslets ``lit (tiles, tiles)``
+    (the others are zeroed as they are added: exact, the row transform keeps tiles apart).
 
     The canvas is ``Tb @ region @ Tb.T`` with the block-banded ``Tb`` (``T`` in every tile
     row). Tile row ``i``'s window block ``k`` lands on canvas block ``i + k``: the row
@@ -444,8 +443,9 @@ def _column_transform(transform: torch.Tensor, rows: torch.Tensor, lit: torch.Te
     tiles = lit.shape[0]
     strip = rows.new_zeros((tiles + 2, per_lenslet, tiles * ns))
     active = torch.zeros((tiles + 2, tiles), dtype=torch.bool, device=lit.device)
+    mask = lit.repeat_interleave(ns, 1)[:, None, :].to(rows.dtype)  # unlit lenslets zeroed here
     for block in range(3):  # window block ``block`` of tile row i lands on canvas block i + block
-        strip[block : block + tiles] += rows[block].permute(1, 0, 2)
+        strip[block : block + tiles].addcmul_(rows[block].permute(1, 0, 2), mask)
         active[block : block + tiles] |= lit
     r, j = active.nonzero(as_tuple=True)
     blocks = strip.reshape(tiles + 2, per_lenslet, tiles, ns)[r, :, j]  # (blocks, p, ns)
