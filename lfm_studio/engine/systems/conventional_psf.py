@@ -101,12 +101,6 @@ def conventional_psf_stack(
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
     groups = depth_groups(system, depths)
-    # One Debye evaluation for every depth, on the widest grid any group needs; kept as quadrants
-    # (a quarter of the memory) and expanded per chunk of depths.
-    quadrants = nip_quadrants(
-        system, depths, reach=max(groups), dtype=dtype, device=device, radial_sampling=acc.radial_sampling,
-        model=acc.model, n_quadrature=acc.debye_points, oversampling=acc.nip_oversampling,
-    )  # fmt: skip
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
     width = (2 * max(groups) + 3) * q
     data = torch.zeros((s, s, len(depths), width, width), dtype=dtype, device=device)
@@ -120,7 +114,15 @@ def conventional_psf_stack(
         checkpoint(
             cancel, progress, done, len(chunks), f"depth group {done + 1}/{len(chunks)} (reach {reach})"
         )
-        fields = mirrored(quadrants[indices], nip_field_size(system, reach, acc.nip_oversampling))
+        # The Debye NIP fields of this chunk only, on the grid its reach needs (a quadrant, mirrored):
+        # near focus a fifth of the widest group's area, and no fields held for all depths at once.
+        quadrants = nip_quadrants(
+            system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
+            radial_sampling=acc.radial_sampling, model=acc.model, n_quadrature=acc.debye_points,
+            oversampling=acc.nip_oversampling,
+        )  # fmt: skip
+        fields = mirrored(quadrants, nip_field_size(system, reach, acc.nip_oversampling))
+        del quadrants
         patterns = conventional_patterns(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
             cancel=cancel, nip_field=fields, nip_oversampling=acc.nip_oversampling,
