@@ -3,8 +3,8 @@
 Top: model, time budget (minutes), max steps, photon budgets, phantoms, seed; "Train" runs
 :func:`lfm_studio.ui.training.train_model` as job "train" on the studio's job runner on the
 current full PSF stack (the status bar shows its progress and a Cancel button; the dock has its
-own Cancel). A live pyqtgraph curve shows the training loss per step (line) and the validation
-loss (points), log scale. A cancelled or failed run leaves the previous model and its curve.
+own Cancel). A live pyqtgraph curve shows the training loss per step (thin line), its running mean
+(thick line) and the validation loss (points), log scale. A cancelled or failed run leaves the previous model and its curve.
 
 After a run: "Save checkpoint…" writes the model (safetensors, atomic; an existing file only
 after a yes to the overwrite question) and "Compare with RL" reconstructs the studio's current
@@ -49,6 +49,7 @@ from lfm_studio.ui.training import (
     compare_with_rl,
     comparison_rows,
     parse_photons,
+    running_mean,
     save_trained,
     train_model,
 )
@@ -56,6 +57,7 @@ from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
 TABLE_HEADER = ("score", "RL", "learned", "all-zero")
+MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
 
 
 class TrainDock(QWidget):
@@ -117,7 +119,10 @@ class TrainDock(QWidget):
         self.plot.setLabel("left", "loss (energy-normalised MSE + high-pass)")
         self.plot.setLogMode(y=True)
         self.plot.addLegend(offset=(-10, 10))
-        self.loss_curve = self.plot.plot([], [], pen=pg.mkPen("#1f77b4", width=1.5), name="training")
+        self.loss_curve = self.plot.plot([], [], pen=pg.mkPen("#9ecae1", width=1), name="training (per step)")
+        self.mean_curve = self.plot.plot(
+            [], [], pen=pg.mkPen("#1f77b4", width=2.5), name=f"training (mean of {MEAN_STEPS} steps)"
+        )
         self.validation_points = self.plot.plot(
             [], [], pen=None, symbol="o", symbolSize=7, symbolBrush="#d62728", name="validation"
         )
@@ -281,6 +286,7 @@ class TrainDock(QWidget):
         losses = [loss for _, loss, _ in history if loss > 0]
         checked = [(s, v) for s, _, v in history if not math.isnan(v) and v > 0]
         self.loss_curve.setData(steps, losses)
+        self.mean_curve.setData(steps, running_mean(losses, MEAN_STEPS))
         self.validation_points.setData([s for s, _ in checked], [v for _, v in checked])
 
     def _say(self, text: str, *, error: bool = False) -> None:

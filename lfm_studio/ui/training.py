@@ -189,3 +189,14 @@ def comparison_rows(comparison: Comparison) -> list[tuple[str, str, str, str]]:
         floor = left.floors.get("zero")
         rows.append((label, _text(left.value, key), _text(right.value, key), _text(floor, key)))
     return rows
+
+
+def running_mean(values: list[float], window: int) -> list[float]:
+    """Mean of the last ``window`` values (fewer at the start) at each position."""
+    out, total = [], 0.0
+    for i, value in enumerate(values):
+        total += value
+        if i >= window:
+            total -= values[i - window]
+        out.append(total / min(i + 1, window))
+    return out

@@ -13,7 +13,7 @@ from qtpy.QtCore import QSettings
 from qtpy.QtWidgets import QDockWidget
 
 from lfm_studio.ui.app import build_studio
-from lfm_studio.ui.training import TrainSettings, parse_photons
+from lfm_studio.ui.training import TrainSettings, parse_photons, running_mean
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
 
 TIMEOUT_MS = 600_000  # generous: the machine is shared; never a statement about speed
@@ -53,6 +53,7 @@ def test_settings_refuse_bad_input_naming_the_field():
         TrainSettings(model="resnet")
     with pytest.raises(ValueError, match="minutes must be a positive"):
         TrainSettings(minutes=0.0)
+    assert running_mean([1.0, 3.0, 5.0, 7.0], 2) == pytest.approx([1.0, 2.0, 4.0, 6.0])
 
 
 def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_path, monkeypatch):
