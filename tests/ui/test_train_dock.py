@@ -60,9 +60,6 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     dock = window.train_dock
     assert "Train" in {d.windowTitle() for d in window.findChildren(QDockWidget)}
     assert not dock.save_button.isEnabled() and not dock.compare_button.isEnabled()
-    gui_threads = torch.get_num_threads()
-    seen_threads: list[int] = []
-    dock.runner.progressed.connect(lambda *_: seen_threads.append(torch.get_num_threads()))
 
     # A tiny training: 4 steps, validation every 10 steps and at the last one.
     dock.max_steps.setValue(4)
@@ -75,7 +72,6 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     assert all(math.isfinite(loss) and loss > 0 for _, loss, _ in first.result.history)
     assert first.result.header.training["best_validation"] < first.result.header.training["zero_floor"]
     assert "4 steps" in dock.message.text() and "unrolled-rl" in dock.message.text()
-    assert seen_threads and set(seen_threads) == {gui_threads}  # the worker's 1 thread is the worker's only
 
     # Cancel: a long run is stopped after its first steps; the previous model and its curve stay.
     dock.max_steps.setValue(100_000)
