@@ -64,9 +64,15 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     # A tiny training: 4 steps, validation every 10 steps and at the last one.
     dock.max_steps.setValue(4)
     dock.photons.setText("1e5, 1e6")
+    live: list[tuple[int, float, float]] = []
+    on_step = dock._on_step
+    monkeypatch.setattr(dock, "_on_step", lambda point: (live.append(point), on_step(point)))
     assert dock.start_training()
     qtbot.waitUntil(lambda: dock.trained is not None, timeout=TIMEOUT_MS)
     first = dock.trained
+    # every step reached the GUI while training ran (engine on_step -> ctx.partial), as the history says
+    assert [(s, loss) for s, loss, _ in live] == [(s, loss) for s, loss, _ in first.result.history]
+    assert [math.isnan(v) for *_, v in live] == [True, True, True, False]
     assert [step for step, _, _ in first.result.history] == [1, 2, 3, 4]
     assert _points(dock) == (4, 1)  # a loss point per step, the final validation point
     assert all(math.isfinite(loss) and loss > 0 for _, loss, _ in first.result.history)
