@@ -2,8 +2,8 @@
 
 Centre: the PSF / image / reconstruction viewer. Docks: design parameters with the
 design metrics against the requirements under them (left, full height), the PSF profile /
-RL convergence plots (right, in tabs), the MLA layout editor and the simulate-and-
-reconstruct workflow and the Optimise dock (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes, stops the jobs
+RL convergence plots (right, in tabs), the MLA layout editor, the simulate-and-reconstruct
+workflow, the Optimise dock and the learned-model training (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes, stops the jobs
 and closes the viewer.
 """
 
@@ -26,6 +26,7 @@ from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
 from lfm_studio.ui.stale_marks import StaleMarks
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.status_bar import JobStatusBar
+from lfm_studio.ui.train_dock import TrainDock
 from lfm_studio.ui.widget_factories import unavailable
 from lfm_studio.ui.workflow_panel import WorkflowPanel
 
@@ -108,6 +109,8 @@ class MainWindow(QMainWindow):
         self.tabifyDockWidget(mla_dock, workflow)
         self.optimise = OptimiseDock(state, controller.runner)  # free parameters, run a study, compare
         self.tabifyDockWidget(workflow, self._dock("Optimise", self.optimise, Area.BottomDockWidgetArea))
+        self.train_dock = TrainDock(state, controller.runner, viewer)  # learned model from the design
+        self.tabifyDockWidget(workflow, self._dock("Train", self.train_dock, Area.BottomDockWidgetArea))
         mla_dock.raise_()
 
         self.resizeDocks([params, plots], [PARAMETERS_WIDTH, PLOTS_WIDTH], Qt.Orientation.Horizontal)
@@ -166,9 +169,9 @@ class MainWindow(QMainWindow):
             (state.design_changed, self._update_title),
         ):
             signal.disconnect(slot)
-        for part in (*self._bindings, self.parameter_panel, self.workflow_panel, self.requirements, self.profiles,
-                     self.convergence, self.stale_marks, self.file_actions, self.job_status, self.failure_notices,
-                     self.optimise):  # fmt: skip
+        for part in (*self._bindings, self.parameter_panel, self.workflow_panel, self.train_dock, self.requirements,
+                     self.profiles, self.convergence, self.stale_marks, self.file_actions, self.job_status,
+                     self.failure_notices, self.optimise):  # fmt: skip
             part.disconnect_state()
         close_viewer = getattr(self.viewer, "close_viewer", None)
         if close_viewer is not None:

@@ -58,7 +58,7 @@ def test_the_window_opens_on_the_default_design_and_closes_cleanly(qtbot, settin
     assert window.centralWidget() is window.viewer
     docks = {d.windowTitle() for d in window.findChildren(QDockWidget)}
     assert docks == {"Design parameters", "Design metrics vs larval zebrafish", "Plots", "MLA layout",
-                     "Simulate and reconstruct", "Optimise"}  # fmt: skip
+                     "Simulate and reconstruct", "Optimise", "Train"}  # fmt: skip
     assert [window.plot_tabs.tabText(i) for i in range(2)] == ["PSF profiles", "RL convergence"]
     tab_bars = [t for t in window.findChildren(QTabBar) if t.isVisible() and t.parent() is window]
     assert len(tab_bars) == 1  # the bottom dock group's, no stray copy (a Qt 6.12 glitch)

@@ -96,6 +96,7 @@ def train(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     clock: Callable[[], float] = time.monotonic,
+    on_step: Callable[[int, float, float], None] | None = None,
 ) -> TrainingResult:
     """Train ``model`` for ``setup`` (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
 
@@ -111,6 +112,8 @@ def train(
         ``overwrite`` or ``resume``); with ``resume`` its weights and step count are the start.
     threads : torch threads during training.
     progress, cancel : ``progress(step, total, message)`` and a cancel token.
+    on_step : called after every step with ``(step, training loss, validation loss or NaN)``
+        (a live loss curve; runs on the training thread).
     """
     if not (budget_minutes > 0 and math.isfinite(budget_minutes)):
         raise ValueError(f"budget_minutes must be a positive number of minutes; got {budget_minutes!r}.")
@@ -140,7 +143,7 @@ def train(
         history, reason = loop.run(
             start=start, best=best, budget_s=60.0 * budget_minutes, max_steps=max_steps,
             learning_rate=learning_rate, validate_every=validate_every, patience=patience,
-            progress=progress, cancel=cancel, clock=clock,
+            progress=progress, cancel=cancel, clock=clock, on_step=on_step,
         )  # fmt: skip
         if reason == "cancelled":
             raise CancelledError(
@@ -164,7 +167,7 @@ class _Loop:
         self.seconds = 0.0
 
     def run(self, *, start, best, budget_s, max_steps, learning_rate, validate_every, patience, progress,
-            cancel, clock) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
+            cancel, clock, on_step=None) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
         """Steps until ``max_steps``, the budget, early stopping or cancel; returns (history, stop reason)."""
         network = self.network
         optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
@@ -195,6 +198,8 @@ class _Loop:
                 checked = self._validate(step, clock() - began)
                 since_best = 0 if checked <= self.best else since_best + 1
             history.append((step, value, checked))
+            if on_step is not None:
+                on_step(step, value, checked)
             if progress is not None:
                 shown = "" if math.isnan(checked) else f", validation {checked:.4f}"
                 progress(step - start, total, f"step {step}: loss {value:.4f}{shown}")

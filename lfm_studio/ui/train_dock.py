@@ -1,0 +1,308 @@
+"""The studio's "Train" dock: train a learned reconstructor from the current design, watch it, compare.
+
+Top: model, time budget (minutes), max steps, photon budgets, phantoms, seed; "Train" runs
+:func:`lfm_studio.ui.training.train_model` as job "train" on the studio's job runner on the
+current full PSF stack (the status bar shows its progress and a Cancel button; the dock has its
+own Cancel). A live pyqtgraph curve shows the training loss per step (thin line), its running mean
+(thick line) and the validation loss (points), log scale. A cancelled or failed run leaves the previous model and its curve.
+
+After a run: "Save checkpoint…" writes the model (safetensors, atomic; an existing file only
+after a yes to the overwrite question) and "Compare with RL" reconstructs the studio's current
+simulated image with the registry's default method and with the model (job "compare"); the
+table shows both score sets beside the all-zero volume's, and both volumes go to the viewer
+("RL" and "learned").
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import pyqtgraph as pg
+from qtpy.QtWidgets import (
+    QComboBox,
+    QDoubleSpinBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QHeaderView,
+    QLabel,
+    QLineEdit,
+    QMessageBox,
+    QPushButton,
+    QSpinBox,
+    QTableWidget,
+    QTableWidgetItem,
+    QVBoxLayout,
+    QWidget,
+)
+
+from lfm_studio.engine.learned.models import DEFAULT_MODEL, MODELS
+from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.training import (
+    PHANTOM_KINDS,
+    Comparison,
+    TrainedModel,
+    TrainSettings,
+    compare_with_rl,
+    comparison_rows,
+    parse_photons,
+    running_mean,
+    save_trained,
+    train_model,
+)
+from lfm_studio.widgets.jobs import JobOutcome, JobRunner
+
+TRAIN_JOB, COMPARE_JOB = "train", "compare"
+TABLE_HEADER = ("score", "RL", "learned", "all-zero")
+MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
+
+
+class TrainDock(QWidget):
+    """Training controls, the live loss curve and the RL comparison for ``state``.
+
+    Parameters
+    ----------
+    state : the studio state (its full PSF stack, current image, workflow settings).
+    runner : the studio's job runner (jobs "train" and "compare").
+    viewer : the studio viewer (``show_volume``) or None.
+    """
+
+    def __init__(
+        self, state: StudioState, runner: JobRunner, viewer: Any = None, parent: QWidget | None = None
+    ):
+        super().__init__(parent)
+        self.state, self.runner, self.viewer = state, runner, viewer
+        self.trained: TrainedModel | None = None
+        self.comparison: Comparison | None = None
+        self.live: list[tuple[int, float, float]] = []
+        self._scratch = tempfile.TemporaryDirectory(prefix="lfm_train_")
+        self._compared_path: Path | None = None
+
+        self.model = QComboBox()
+        self.model.addItems(sorted(MODELS))
+        self.model.setCurrentText(DEFAULT_MODEL)
+        self.minutes = QDoubleSpinBox(decimals=1, minimum=0.1, maximum=600.0, value=10.0, suffix=" min")
+        self.max_steps = QSpinBox(minimum=0, maximum=1_000_000, value=0)
+        self.max_steps.setSpecialValueText("no limit")
+        self.photons = QLineEdit("1e4, 1e5, 1e6")
+        self.photons.setToolTip("expected photons per training image, one drawn per sample")
+        self.phantoms = QComboBox()
+        self.phantoms.addItems(PHANTOM_KINDS)
+        self.seed = QSpinBox(minimum=0, maximum=2**31 - 1, value=0)
+        form = QFormLayout()
+        for label, field in (("Model", self.model), ("Time budget", self.minutes), ("Max steps", self.max_steps),
+                             ("Photon budgets", self.photons), ("Phantoms", self.phantoms), ("Seed", self.seed)):  # fmt: skip
+            form.addRow(label, field)
+
+        self.train_button, self.cancel_button = QPushButton("Train"), QPushButton("Cancel")
+        self.save_button, self.compare_button = (
+            QPushButton("Save checkpoint…"),
+            QPushButton("Compare with RL"),
+        )
+        buttons = QHBoxLayout()
+        for button in (self.train_button, self.cancel_button, self.save_button, self.compare_button):
+            buttons.addWidget(button)
+        self.train_button.clicked.connect(self.start_training)
+        self.cancel_button.clicked.connect(self.cancel)
+        self.save_button.clicked.connect(self.save)
+        self.compare_button.clicked.connect(self.compare)
+
+        self.message = QLabel("Train a model on the current design's PSF stack.")
+        self.message.setWordWrap(True)
+
+        self.plot = pg.PlotWidget()
+        self.plot.setBackground("w")
+        self.plot.setLabel("bottom", "step")
+        self.plot.setLabel("left", "loss (energy-normalised MSE + high-pass)")
+        self.plot.setLogMode(y=True)
+        self.plot.addLegend(offset=(-10, 10))
+        self.loss_curve = self.plot.plot([], [], pen=pg.mkPen("#9ecae1", width=1), name="training (per step)")
+        self.mean_curve = self.plot.plot(
+            [], [], pen=pg.mkPen("#1f77b4", width=2.5), name=f"training (mean of {MEAN_STEPS} steps)"
+        )
+        self.validation_points = self.plot.plot(
+            [], [], pen=None, symbol="o", symbolSize=7, symbolBrush="#d62728", name="validation"
+        )
+        self.plot.setMinimumHeight(160)
+
+        self.table = QTableWidget(0, len(TABLE_HEADER))
+        self.table.setHorizontalHeaderLabels(TABLE_HEADER)
+        self.table.verticalHeader().setVisible(False)
+        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        self.table.setEditTriggers(QTableWidget.EditTrigger.NoEditTriggers)
+
+        left = QVBoxLayout()
+        left.addLayout(form)
+        left.addLayout(buttons)
+        left.addWidget(self.message)
+        left.addWidget(self.table, 1)
+        row = QHBoxLayout(self)
+        row.addLayout(left, 2)
+        row.addWidget(self.plot, 3)
+        self.runner.status_changed.connect(self._update_buttons)
+        self.runner.ended.connect(self._on_ended)
+        self._update_buttons()
+
+    # ----- actions -----
+
+    def settings(self) -> TrainSettings:
+        """The settings the fields show (a ValueError naming the bad field)."""
+        steps = self.max_steps.value()
+        return TrainSettings(
+            model=self.model.currentText(), minutes=float(self.minutes.value()), max_steps=steps or None,
+            photons=parse_photons(self.photons.text()), phantoms=self.phantoms.currentText(),
+            seed=int(self.seed.value()),
+        )  # fmt: skip
+
+    def start_training(self) -> bool:
+        """Start job "train" on the current full PSF stack; False (with a message) when it cannot start."""
+        psf = self.state.psf
+        if psf is None or psf.preview:
+            self._say("No full PSF stack yet: wait for it (status bar) before training.", error=True)
+            return False
+        try:
+            settings = self.settings()
+        except ValueError as error:
+            self._say(str(error), error=True)
+            return False
+        self.live = []
+        self._draw(self.live)
+        self._say(f"training {settings.model} on '{psf.design.name}' ({len(psf.stack.depths)} depths)…")
+        self.runner.submit(TRAIN_JOB, train_model, psf.design, psf.stack, settings, on_partial=self._on_step,
+                           on_result=self._on_trained)  # fmt: skip
+        self._update_buttons()
+        return True
+
+    def cancel(self) -> None:
+        """Stop the running training or comparison (the previous model and curve stay)."""
+        self.runner.cancel(TRAIN_JOB)
+        self.runner.cancel(COMPARE_JOB)
+
+    def save(self) -> Path | None:
+        """Ask for a file and write the trained model there; None when nothing was written."""
+        if self.trained is None:
+            return None
+        path = self._ask_path()
+        if not path:
+            return None
+        target = Path(path)
+        if target.suffix != ".safetensors":
+            target = target.with_name(target.name + ".safetensors")
+        overwrite = target.exists()
+        if overwrite and not self._confirm_overwrite(target):
+            self._say(f"not saved: {target} exists and was kept.")
+            return None
+        try:
+            written = save_trained(self.trained, target, overwrite=overwrite)
+        except OSError as error:
+            self._say(f"could not save {target}: {error}. Fix: choose a folder you can write to.", error=True)
+            return None
+        self._say(f"saved {written}")
+        return written
+
+    def compare(self) -> bool:
+        """Start job "compare" (RL and the model on the current image); False (with a message) when it cannot."""
+        image = self.state.image
+        if self.trained is None:
+            return False
+        if image is None or image.ground_truth is None:
+            self._say(
+                "No simulated image: press 'Simulate image' in 'Simulate and reconstruct' first.", error=True
+            )
+            return False
+        path = save_trained(self.trained, Path(self._scratch.name) / "compare.safetensors", overwrite=True)
+        self._compared_path = path
+        self._say("reconstructing the current image with RL and the learned model…")
+        self.runner.submit(COMPARE_JOB, compare_with_rl, self.state.design, image, self.state.workflow, str(path),
+                           on_result=self._on_compared)  # fmt: skip
+        self._update_buttons()
+        return True
+
+    # ----- dialogs (tests replace these) -----
+
+    def _ask_path(self) -> str:
+        name = (
+            f"{self.trained.settings.model}.safetensors" if self.trained is not None else "model.safetensors"
+        )
+        path, _ = QFileDialog.getSaveFileName(
+            self, "Save checkpoint", name, "Checkpoints (*.safetensors)",
+            options=QFileDialog.Option.DontConfirmOverwrite,
+        )  # fmt: skip
+        return path
+
+    def _confirm_overwrite(self, target: Path) -> bool:
+        answer = QMessageBox.question(self, "Overwrite checkpoint?", f"{target} exists. Replace it?")
+        return answer == QMessageBox.StandardButton.Yes
+
+    # ----- job deliveries (GUI thread) -----
+
+    def _on_step(self, point: tuple[int, float, float]) -> None:
+        self.live.append(point)
+        self._draw(self.live)
+
+    def _on_trained(self, trained: TrainedModel) -> None:
+        self.trained = trained
+        self.live = list(trained.result.history)
+        self._draw(self.live)
+        self._say(trained.summary)
+        self.table.setRowCount(0)
+        self.comparison = None
+
+    def _on_ended(self, outcome: JobOutcome) -> None:
+        """A failed or cancelled job of this dock (a superseded one never gets here)."""
+        if outcome.state == "done" or outcome.name not in (TRAIN_JOB, COMPARE_JOB):
+            return
+        if outcome.name == COMPARE_JOB:
+            what = "failed: " + str(outcome.error) if outcome.state == "failed" else "cancelled"
+            self._say(f"comparison {what}", error=outcome.state == "failed")
+            return
+        self.live = list(self.trained.result.history) if self.trained is not None else []
+        self._draw(self.live)
+        if outcome.state == "failed":
+            self._say(f"training failed: {outcome.error}", error=True)
+        else:
+            self._say("training cancelled; the previous model (if any) is kept.")
+
+    def _on_compared(self, comparison: Comparison) -> None:
+        self.comparison = comparison
+        rows = comparison_rows(comparison)
+        self.table.setRowCount(len(rows))
+        for r, row in enumerate(rows):
+            for c, text in enumerate(row):
+                self.table.setItem(r, c, QTableWidgetItem(text))
+        if self.viewer is not None and hasattr(self.viewer, "show_volume"):
+            for name, result in (("RL", comparison.rl), ("learned", comparison.learned)):
+                self.viewer.show_volume(result.volume, result.voxel_size, name=name)
+        self._say(f"RL ({comparison.rl.method}, {comparison.rl.iterations} iterations) and the learned model "
+                  "on the current image; higher is better, the all-zero column is the trivial floor.")  # fmt: skip
+
+    # ----- display -----
+
+    def _draw(self, history: list[tuple[int, float, float]]) -> None:
+        steps = [s for s, loss, _ in history if loss > 0]
+        losses = [loss for _, loss, _ in history if loss > 0]
+        checked = [(s, v) for s, _, v in history if not math.isnan(v) and v > 0]
+        self.loss_curve.setData(steps, losses)
+        self.mean_curve.setData(steps, running_mean(losses, MEAN_STEPS))
+        self.validation_points.setData([s for s, _ in checked], [v for _, v in checked])
+
+    def _say(self, text: str, *, error: bool = False) -> None:
+        self.message.setText(text)
+        self.message.setStyleSheet("color: #b00020;" if error else "")
+
+    def _update_buttons(self, *_: Any) -> None:
+        training = self.runner.is_running(TRAIN_JOB)
+        busy = training or self.runner.is_running(COMPARE_JOB)
+        self.train_button.setEnabled(not training)
+        self.cancel_button.setEnabled(busy)
+        self.save_button.setEnabled(self.trained is not None and not training)
+        self.compare_button.setEnabled(self.trained is not None and not busy)
+
+    def disconnect_state(self) -> None:
+        """Stop listening to the runner and drop the scratch checkpoint (window closing)."""
+        self.runner.status_changed.disconnect(self._update_buttons)
+        self.runner.ended.disconnect(self._on_ended)
+        self._scratch.cleanup()

@@ -1,0 +1,126 @@
+"""The studio's Train dock in the window ``lfm-studio gui`` builds: a tiny training with a live loss
+curve, cancel keeping the previous model, save without silent overwrite, and RL vs the learned model
+on the studio's own simulated image, scored beside the all-zero floor."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import pytest
+import torch
+from qtpy.QtCore import QSettings
+from qtpy.QtWidgets import QDockWidget
+
+from lfm_studio.ui.app import build_studio
+from lfm_studio.ui.training import TrainSettings, parse_photons, running_mean
+from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+
+TIMEOUT_MS = 600_000  # generous: the machine is shared; never a statement about speed
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    threads = torch.get_num_threads()
+    window = build_studio(
+        small_fourier_design(), settings=settings, preview=False, debounce_ms=10,
+        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets), viewer_factory=FakePSFViewer,
+    )  # fmt: skip
+    window.show()
+    qtbot.waitExposed(window)
+    window.controller.start()
+    qtbot.waitUntil(lambda: window.state.psf is not None and not window.state.psf.preview, timeout=TIMEOUT_MS)
+    yield window
+    window.controller.shutdown()
+    window.close()
+    torch.set_num_threads(threads)
+
+
+def _points(dock):
+    steps, _ = dock.loss_curve.getData()
+    checked, _ = dock.validation_points.getData()
+    return (0 if steps is None else len(steps)), (0 if checked is None else len(checked))
+
+
+def test_settings_refuse_bad_input_naming_the_field():
+    assert parse_photons("1e4, 1e5  2e6") == (1e4, 1e5, 2e6)
+    with pytest.raises(ValueError, match="photon budgets must be numbers"):
+        parse_photons("1e4, many")
+    with pytest.raises(ValueError, match="photon budgets must be positive"):
+        parse_photons("0, 1e5")
+    with pytest.raises(ValueError, match="model must be one of"):
+        TrainSettings(model="resnet")
+    with pytest.raises(ValueError, match="minutes must be a positive"):
+        TrainSettings(minutes=0.0)
+    assert running_mean([1.0, 3.0, 5.0, 7.0], 2) == pytest.approx([1.0, 2.0, 4.0, 6.0])
+
+
+def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_path, monkeypatch):
+    dock = window.train_dock
+    assert "Train" in {d.windowTitle() for d in window.findChildren(QDockWidget)}
+    assert not dock.save_button.isEnabled() and not dock.compare_button.isEnabled()
+
+    # A tiny training: 4 steps, validation every 10 steps and at the last one.
+    dock.max_steps.setValue(4)
+    dock.photons.setText("1e5, 1e6")
+    live: list[tuple[int, float, float]] = []
+    on_step = dock._on_step
+    monkeypatch.setattr(dock, "_on_step", lambda point: (live.append(point), on_step(point)))
+    assert dock.start_training()
+    qtbot.waitUntil(lambda: dock.trained is not None, timeout=TIMEOUT_MS)
+    first = dock.trained
+    # every step reached the GUI while training ran (engine on_step -> ctx.partial), as the history says
+    assert [(s, loss) for s, loss, _ in live] == [(s, loss) for s, loss, _ in first.result.history]
+    assert [math.isnan(v) for *_, v in live] == [True, True, True, False]
+    assert [step for step, _, _ in first.result.history] == [1, 2, 3, 4]
+    assert _points(dock) == (4, 1)  # a loss point per step, the final validation point
+    assert all(math.isfinite(loss) and loss > 0 for _, loss, _ in first.result.history)
+    assert first.result.header.training["best_validation"] < first.result.header.training["zero_floor"]
+    assert "4 steps" in dock.message.text() and "unrolled-rl" in dock.message.text()
+
+    # Cancel: a long run is stopped after its first steps; the previous model and its curve stay.
+    dock.max_steps.setValue(100_000)
+    assert dock.start_training()
+    qtbot.waitUntil(lambda: len(dock.live) >= 1, timeout=TIMEOUT_MS)
+    dock.cancel()
+    qtbot.waitUntil(lambda: not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
+    assert dock.trained is first and _points(dock) == (4, 1)
+    assert "cancelled" in dock.message.text()
+
+    # Save: atomic, and an existing file is replaced only after a yes.
+    target = tmp_path / "model.safetensors"
+    monkeypatch.setattr(dock, "_ask_path", lambda: str(tmp_path / "model"))
+    assert dock.save() == target and target.stat().st_size > 0
+    before = target.read_bytes()
+    target.write_bytes(b"keep me")
+    monkeypatch.setattr(dock, "_confirm_overwrite", lambda path: False)
+    assert dock.save() is None and target.read_bytes() == b"keep me"
+    monkeypatch.setattr(dock, "_confirm_overwrite", lambda path: True)
+    assert dock.save() == target and target.read_bytes() == before
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".") or "tmp" in p.name] == []
+
+    # Compare: no image yet is a message; then RL and the model on the studio's own image.
+    assert window.state.image is None and not dock.compare()
+    assert "Simulate image" in dock.message.text()
+    window.state.set_workflow(replace(window.state.workflow, bead_count=5))  # fits the tiny volume
+    window.controller.request_image()
+    qtbot.waitUntil(lambda: window.state.image is not None, timeout=TIMEOUT_MS)
+    assert dock.compare()
+    qtbot.waitUntil(lambda: dock.comparison is not None, timeout=TIMEOUT_MS)
+    comparison = dock.comparison
+    assert comparison.rl.method == "rl-accelerated" and comparison.learned.method == "learned"
+    truth = window.state.image.ground_truth
+    assert comparison.rl.volume.shape == comparison.learned.volume.shape == truth.shape
+    assert not torch.equal(comparison.rl.volume, comparison.learned.volume)
+    rows = {dock.table.item(r, 0).text(): [dock.table.item(r, c).text() for c in (1, 2, 3)]
+            for r in range(dock.table.rowCount())}  # fmt: skip
+    assert set(rows) == {"NCC", "bead F1", "PSNR (dB)", "SSIM"}
+    for label in ("PSNR (dB)", "SSIM"):  # both sides scored, beside the all-zero volume's score
+        rl, learned, zero = (float(v) for v in rows[label])
+        assert math.isfinite(rl) and math.isfinite(learned) and math.isfinite(zero)
+    rl_ncc = comparison.rl.scores.score("ncc").value
+    assert float(rows["NCC"][0]) == pytest.approx(rl_ncc, abs=5e-4) and rl_ncc > 0.3
+    assert comparison.learned.scores.score("ncc").value > 0.0  # a real volume, not the trivial answer
+    shown = [(name, shape) for call, name, shape in window.viewer.calls if call == "show_volume"]
+    assert ("RL", tuple(truth.shape)) in shown and ("learned", tuple(truth.shape)) in shown
