@@ -17,7 +17,7 @@ Reconstruct widget can take the calibration from the overlay.
 
 from __future__ import annotations
 
-import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -34,21 +34,22 @@ USED_COLOUR, FLAGGED_COLOUR, MEASURED_COLOUR = "lime", "red", "cyan"
 NOTHING: list[Any] = [(None,)]  # napari's "read, but no layer" sentinel
 
 
+_FORMAT_TAG = re.compile(r'"format"\s*:\s*"' + re.escape(FORMAT) + '"')
+
+
 def is_calibration_file(path: Path) -> bool:
-    """Whether ``path`` is a JSON calibration file of ours (by its ``format`` tag, not its name)."""
+    """Whether ``path`` is a JSON calibration file of ours, by the ``"format"`` tag near its top (not its
+    name). Only the first 4 KiB are read: the reader parses and checks the whole file once, when it loads it."""
     if path.suffix.lower() != ".json":
         return False
     try:
         if path.stat().st_size > MAX_CALIBRATION_BYTES:
             return False
-        with path.open("rb") as handle:  # the tag is near the top: skip parsing other JSON files
+        with path.open("rb") as handle:
             head = handle.read(4096).decode("utf-8", errors="replace")
-        if FORMAT not in head:
-            return False
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except OSError:
         return False
-    return isinstance(data, dict) and data.get("format") == FORMAT
+    return _FORMAT_TAG.search(head) is not None
 
 
 def overlay_layer_data(calibration: Any, *, name: str, source: str | None = None) -> list[LayerData]:
