@@ -37,7 +37,6 @@ from qtpy.QtWidgets import (
     QListWidget,
     QListWidgetItem,
     QPushButton,
-    QSpinBox,
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
@@ -62,6 +61,8 @@ from lfm_studio.ui.optimise_model import (
 )
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
+from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_text import NumberRule
 
 JOB_NAME = "optimise"
 PREVIEW_JOB = "optimise_psf"  # the Compare tab's PSF previews of A and B
@@ -161,10 +162,9 @@ class OptimiseDock(QWidget):
         form.addRow("Objectives", self.objectives)
         self.sampler = QComboBox()
         self.sampler.addItems(SAMPLERS)
-        self.budget = QSpinBox()
-        self.budget.setRange(1, 100_000)
-        self.budget.setValue(9)
-        self.budget.setSuffix(" candidates")
+        self.budget = NumericField(
+            NumberRule("Budget", 1, 100_000, unit="candidates", integer=True), 9, step=1
+        )
         line = QHBoxLayout()
         line.addWidget(self.sampler)
         line.addWidget(self.budget, 1)
@@ -195,6 +195,9 @@ class OptimiseDock(QWidget):
         self.message = QLabel("")
         self.message.setWordWrap(True)
         column.addWidget(self.message)
+        self._refusal: str | None = None  # the budget field's refusal on show (cleared by its next commit)
+        self.budget.refused.connect(self._on_budget_refused)
+        self.budget.committed.connect(self._on_budget_committed)
         return box
 
     def _build_run_view(self) -> QWidget:
@@ -430,6 +433,15 @@ class OptimiseDock(QWidget):
         """The best feasible candidate shown, by the ranking objective."""
         name = self.ranking
         return None if name is None else best_row(self.rows, name, self._directions[name])
+
+    def _on_budget_refused(self, reason: str) -> None:
+        self._refusal = reason
+        self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{reason}</span>")
+
+    def _on_budget_committed(self, *_: Any) -> None:
+        if self._refusal is not None and self._refusal in self.message.text():
+            self.message.setText("")
+        self._refusal = None
 
     def _show_rows(self) -> None:
         request = self.request

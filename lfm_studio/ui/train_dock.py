@@ -23,7 +23,6 @@ from typing import Any
 import pyqtgraph as pg
 from qtpy.QtWidgets import (
     QComboBox,
-    QDoubleSpinBox,
     QFileDialog,
     QFormLayout,
     QHBoxLayout,
@@ -32,7 +31,6 @@ from qtpy.QtWidgets import (
     QLineEdit,
     QMessageBox,
     QPushButton,
-    QSpinBox,
     QTableWidget,
     QTableWidgetItem,
     QVBoxLayout,
@@ -54,6 +52,8 @@ from lfm_studio.ui.training import (
     train_model,
 )
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
+from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_text import NumberRule
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
 TABLE_HEADER = ("score", "RL", "learned", "all-zero")
@@ -84,14 +84,16 @@ class TrainDock(QWidget):
         self.model = QComboBox()
         self.model.addItems(sorted(MODELS))
         self.model.setCurrentText(DEFAULT_MODEL)
-        self.minutes = QDoubleSpinBox(decimals=1, minimum=0.1, maximum=600.0, value=10.0, suffix=" min")
-        self.max_steps = QSpinBox(minimum=0, maximum=1_000_000, value=0)
-        self.max_steps.setSpecialValueText("no limit")
+        self.minutes = NumericField(NumberRule("Time budget", 0.1, 600.0, unit="min"), 10.0, step=1.0)
+        self.max_steps = NumericField(
+            NumberRule("Max steps", 0, 1_000_000, integer=True, special_text="no limit"), 0, step=1
+        )
         self.photons = QLineEdit("1e4, 1e5, 1e6")
         self.photons.setToolTip("expected photons per training image, one drawn per sample")
         self.phantoms = QComboBox()
         self.phantoms.addItems(PHANTOM_KINDS)
-        self.seed = QSpinBox(minimum=0, maximum=2**31 - 1, value=0)
+        self.seed = NumericField(NumberRule("Seed", 0, 2**31 - 1, integer=True), 0, step=1)
+        self._refusal: str | None = None  # a number field's refusal on show (cleared by its next commit)
         form = QFormLayout()
         for label, field in (("Model", self.model), ("Time budget", self.minutes), ("Max steps", self.max_steps),
                              ("Photon budgets", self.photons), ("Phantoms", self.phantoms), ("Seed", self.seed)):  # fmt: skip
@@ -138,6 +140,9 @@ class TrainDock(QWidget):
         left.addLayout(form)
         left.addLayout(buttons)
         left.addWidget(self.message)
+        for field in (self.minutes, self.max_steps, self.seed):
+            field.refused.connect(self._on_refused)
+            field.committed.connect(self._on_committed)
         left.addWidget(self.table, 1)
         row = QHBoxLayout(self)
         row.addLayout(left, 2)
@@ -288,6 +293,15 @@ class TrainDock(QWidget):
         self.loss_curve.setData(steps, losses)
         self.mean_curve.setData(steps, running_mean(losses, MEAN_STEPS))
         self.validation_points.setData([s for s, _ in checked], [v for _, v in checked])
+
+    def _on_refused(self, reason: str) -> None:
+        self._refusal = reason
+        self._say(reason, error=True)
+
+    def _on_committed(self, *_: Any) -> None:
+        if self._refusal is not None and self.message.text() == self._refusal:
+            self._say("")
+        self._refusal = None
 
     def _say(self, text: str, *, error: bool = False) -> None:
         self.message.setText(text)

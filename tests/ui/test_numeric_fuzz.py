@@ -31,7 +31,8 @@ MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": N
 LOCALES = ("C", "de_DE")
 # Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
 # (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 4 + 9  # parameter panel (incl. the two volume-grid settings), workflow, MLA editor
+EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 3 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
+# MLA editor, Train dock (minutes, max steps, seed), Optimise dock (budget)
 # Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
 # are shown disabled and cannot be typed into.
 DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
@@ -197,6 +198,16 @@ def _hosts(window):
             return field.rule.minimum if value is None else value  # None: "off"
 
         hosts[field] = (name, option_in_force, lambda: _shown(flow.input_error))
+    train = window.train_dock
+    for name in (
+        "minutes",
+        "max_steps",
+        "seed",
+    ):  # read when Train is pressed: the field holds the value in force
+        field = getattr(train, name)
+        hosts[field] = (name, field.value, lambda: _shown(train.message))
+    optimise = window.optimise
+    hosts[optimise.budget] = ("budget", optimise.budget.value, lambda: _shown(optimise.message))
     bar = editor.symmetry_bar
     for field in editor.numeric_fields():
         in_force = (lambda: editor.symmetry().rotation) if field is bar.rotation else field.value
