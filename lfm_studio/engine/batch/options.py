@@ -8,6 +8,7 @@ from typing import Any
 
 import torch
 
+from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.reconstruct import registry
 from lfm_studio.engine.types import OptionValue
 
@@ -34,7 +35,9 @@ class ReconstructionOptions:
         """JSON-ready record (stored in the output's metadata)."""
         return {"method": self.method, **dict(self.options)}
 
-    def run(self, projector: Any, frame: torch.Tensor, *, extra_background: float = 0.0) -> torch.Tensor:
+    def run(
+        self, projector: Projector, frame: torch.Tensor, *, extra_background: float = 0.0
+    ) -> torch.Tensor:
         """The volume ``(Z, Y, X)`` of one frame ``(Py, Px)``; ``extra_background``: the camera's floor."""
         options = dict(self.options)
         background = options.get("background", 0.0)

@@ -23,6 +23,7 @@ from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import ProjectorSpec, cached_projector
 from lfm_studio.engine.batch.store import VideoStore
 from lfm_studio.engine.io import CameraCalibration, counts_to_photons
+from lfm_studio.engine.operators.protocol import Projector
 
 ATTEMPTS = 2  # a failing frame is tried twice, then recorded as failed
 
@@ -53,7 +54,7 @@ def in_dask_worker() -> bool:
     return True
 
 
-def _reconstruct(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> np.ndarray:
+def _reconstruct(task: ChunkTask, projector: Projector, frame: np.ndarray, t: int) -> np.ndarray:
     data = torch.from_numpy(np.ascontiguousarray(frame)).to(getattr(torch, task.projector.dtype))
     floor = 0.0
     if task.camera is not None:  # counts -> photons; refuses NaN/Inf pixels with a named error
@@ -67,7 +68,9 @@ def _reconstruct(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> 
     return volume.to(torch.float32).numpy()
 
 
-def _attempt(task: ChunkTask, projector: Any, frame: np.ndarray, t: int) -> tuple[np.ndarray | None, dict]:
+def _attempt(
+    task: ChunkTask, projector: Projector, frame: np.ndarray, t: int
+) -> tuple[np.ndarray | None, dict]:
     error = None
     for attempt in range(1, ATTEMPTS + 1):
         try:

@@ -27,6 +27,7 @@ from safetensors.torch import save as save_tensors
 from lfm_studio import __version__
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.learned.models import build_model
+from lfm_studio.engine.operators.protocol import Projector
 
 FORMAT = "lfm_studio.learned/1"
 HEADER_KEY = "lfm_studio"
@@ -128,7 +129,7 @@ def _metadata(data: bytes) -> dict[str, str]:
 
 def check_matches(
     header: CheckpointHeader,
-    projector: Any,
+    projector: Projector,
     source: str,
     *,
     voxel_size: tuple[float, float, float] | None = None,
@@ -184,7 +185,7 @@ def load_model(
 
 def load_model_for(
     path: str | os.PathLike,
-    projector: Any,
+    projector: Projector,
     *,
     voxel_size: tuple[float, float, float] | None = None,
     design_hash: str | None = None,

@@ -127,7 +127,7 @@ def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) ->
         ).data  # fmt: skip
     volume = volume.to(dtype=torch.float32)
     with torch.no_grad():
-        expected = projector.forward(volume.to(_projector_dtype(projector))).clamp_min(0.0).float()
+        expected = projector.forward(volume.to(projector.dtype)).clamp_min(0.0).float()
     photons = float(spec.photons[int(torch.randint(len(spec.photons), (), generator=generator))])
     total = float(expected.double().sum())
     scale = photons / total if total > 0 else 0.0
@@ -135,11 +135,6 @@ def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) ->
     if spec.read_noise > 0:
         image = image + spec.read_noise * torch.randn(image.shape, generator=generator)
     return Sample(image, volume * scale, photons, kind, seed)
-
-
-def _projector_dtype(projector: Any) -> torch.dtype:
-    dtype = getattr(projector, "dtype", None)
-    return dtype if isinstance(dtype, torch.dtype) else torch.float32
 
 
 def make_samples(

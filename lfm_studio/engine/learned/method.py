@@ -14,13 +14,14 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from lfm_studio.engine.learned.checkpoint import load_model_for
+from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.reconstruct.registry import Method, Option, register
+from lfm_studio.engine.types import OptionValue
 
 MODEL = Option(
     "model", str, None, "checkpoint written by `lfm-studio train` (.safetensors)", optional=True,
@@ -30,7 +31,7 @@ _LOADED: dict[tuple[str, int, int], torch.nn.Module] = {}
 _KEEP = 2  # models kept loaded (a video reuses one; switching back and forth reuses two)
 
 
-def _model(path: str, projector: Any) -> torch.nn.Module:
+def _model(path: str, projector: Projector) -> torch.nn.Module:
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(
@@ -45,9 +46,9 @@ def _model(path: str, projector: Any) -> torch.nn.Module:
 
 
 def run_learned(
-    projector: Any,
+    projector: Projector,
     frame: torch.Tensor,
-    options: Mapping[str, Any],
+    options: Mapping[str, OptionValue],
     progress: ProgressCallback | None,
     cancel: CancelToken,
 ) -> torch.Tensor:
@@ -58,10 +59,13 @@ def run_learned(
             "method 'learned' needs a checkpoint: --model model.safetensors. Fix: train one with "
             "`lfm-studio train DESIGN --out model.safetensors`."
         )
+    background = options.get("background", 0.0)
+    if isinstance(background, bool) or not isinstance(background, (int, float)):
+        raise ValueError(f"background must be a number; got {background!r}.")
     model = _model(path, projector)
     checkpoint(cancel, progress, 0, 1, "learned model")
     with torch.set_grad_enabled(frame.requires_grad):  # differentiable when asked, no graph otherwise
-        volume = model(frame - float(options.get("background", 0.0)))
+        volume = model(frame - float(background))
     checkpoint(cancel, progress, 1, 1, "learned model")
     return volume
 

@@ -18,7 +18,8 @@ import torch
 
 
 class _Projector(Protocol):
-    volume_shape: tuple[int, int, int]
+    @property
+    def volume_shape(self) -> tuple[int, int, int]: ...
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor: ...
 

@@ -15,6 +15,7 @@ import torch
 from lfm_studio.engine.learned.models.multiwiener import MultiWienerNet
 from lfm_studio.engine.learned.models.unet import BlindUNet
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
+from lfm_studio.engine.operators.protocol import Projector
 
 MODELS: dict[str, type[torch.nn.Module]] = {
     "unrolled-rl": UnrolledRL,
@@ -25,7 +26,7 @@ MODELS: dict[str, type[torch.nn.Module]] = {
 DEFAULT_MODEL = "unrolled-rl"
 
 
-def build_model(name: str, projector: Any, **config: Any) -> torch.nn.Module:
+def build_model(name: str, projector: Projector, **config: Any) -> torch.nn.Module:
     """``MODELS[name](projector, **config)``, or a ValueError naming the choices."""
     if name not in MODELS:
         raise ValueError(f"model must be one of {sorted(MODELS)}; got {name!r}. Fix: e.g. {DEFAULT_MODEL!r}.")

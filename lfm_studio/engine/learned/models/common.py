@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 import torch.nn.functional as nnf
 from torch import nn
 
+from lfm_studio.engine.operators.protocol import Projector
 
-def projector_dtype(projector: Any) -> torch.dtype:
-    """The real dtype the projector computes in (float32 when it does not say)."""
-    dtype = getattr(projector, "dtype", None)
-    return dtype if isinstance(dtype, torch.dtype) else torch.float32
+
+def projector_dtype(projector: Projector) -> torch.dtype:
+    """The real dtype the projector computes in (:attr:`Projector.dtype`)."""
+    return projector.dtype
 
 
 def image_scale(image: torch.Tensor) -> torch.Tensor:
@@ -21,7 +20,7 @@ def image_scale(image: torch.Tensor) -> torch.Tensor:
     return image.mean().clamp_min(torch.finfo(image.dtype).tiny)
 
 
-def adjoint_normaliser(projector: Any) -> torch.Tensor:
+def adjoint_normaliser(projector: Projector) -> torch.Tensor:
     """``A^T 1`` clamped away from 0: the sensitivity of each voxel (Richardson-Lucy's denominator)."""
     ones = torch.ones(tuple(projector.image_shape), dtype=projector_dtype(projector))
     with torch.no_grad():

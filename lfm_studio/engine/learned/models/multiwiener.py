@@ -16,7 +16,6 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import torch
 import torch.nn.functional as nnf
@@ -28,23 +27,25 @@ from lfm_studio.engine.learned.models.common import (
     image_scale,
     projector_dtype,
 )
+from lfm_studio.engine.operators.protocol import FourierProjector, Projector
 from lfm_studio.engine.reconstruct.fourier_geometry import (
     filter_to_volume,
     image_spectrum,
     otf_peaks,
     radial_frequency,
+    require_fourier_projector,
 )
 
 
 class MultiWienerNet(nn.Module):
     """Learnable per-depth Wiener filters (or normalised adjoint) + a U-Net of ``width`` features."""
 
-    def __init__(self, projector: Any, *, snr: float = 100.0, bins: int = 8, width: int = 16) -> None:
+    def __init__(self, projector: Projector, *, snr: float = 100.0, bins: int = 8, width: int = 16) -> None:
         super().__init__()
         self.projector = projector
         depths = int(projector.volume_shape[0])
         self.config = {"snr": snr, "bins": bins, "width": width}
-        self.fourier = hasattr(projector, "otf")
+        self.fourier = isinstance(projector, FourierProjector)
         if self.fourier:
             self.log_snr = nn.Parameter(torch.full((depths,), math.log(snr)))
             self.radial_gain = nn.Parameter(torch.ones(depths, bins))
@@ -56,7 +57,7 @@ class MultiWienerNet(nn.Module):
         self.to(projector_dtype(projector))
 
     def _wiener(self, y: torch.Tensor) -> torch.Tensor:
-        projector = self.projector
+        projector = require_fourier_projector(self.projector, "MultiWienerNet's Wiener stage")
         otf = projector.otf
         peaks2 = otf_peaks(projector).to(y.dtype) ** 2
         frequency = radial_frequency(projector).to(y.dtype)

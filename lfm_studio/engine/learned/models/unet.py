@@ -9,19 +9,18 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 import torch.nn.functional as nnf
 from torch import nn
 
 from lfm_studio.engine.learned.models.common import SmallUNet, image_scale, projector_dtype
+from lfm_studio.engine.operators.protocol import Projector
 
 
 class BlindUNet(nn.Module):
     """Image ``(Py, Px)`` -> volume ``(Z, Vy, Vx)`` with a U-Net of ``width`` features; no projector calls."""
 
-    def __init__(self, projector: Any, *, width: int = 16) -> None:
+    def __init__(self, projector: Projector, *, width: int = 16) -> None:
         super().__init__()
         self.volume_shape = tuple(projector.volume_shape)
         self.config = {"width": width}

@@ -13,12 +13,11 @@ there. Multiplicative steps keep the volume non-negative.
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 from torch import nn
 
 from lfm_studio.engine.learned.models.common import adjoint_normaliser, image_scale, projector_dtype
+from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.reconstruct.unrolled import rl_ratio
 
 EXPONENT_RATE = 10.0
@@ -57,7 +56,7 @@ class UnrolledRL(nn.Module):
 
     def __init__(
         self,
-        projector: Any,
+        projector: Projector,
         *,
         iterations: int = 6,
         hidden: int = 6,
