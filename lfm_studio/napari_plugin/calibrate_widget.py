@@ -3,7 +3,8 @@
 Pick a radiometry image layer (a uniform fluorescent slide seen through the MLA), an
 optional dark image layer (same exposure, light blocked) and the nominal design (a
 bundled preset or a design file), then Calibrate: :func:`~lfm_studio.engine.calibration.calibrate`
-runs on a napari ``thread_worker`` with progress and Cancel (cancel adds nothing). When it
+runs as a :class:`~lfm_studio.napari_plugin.background.BackgroundTask` (a job of
+:class:`lfm_studio.widgets.jobs.JobRunner`) with progress and Cancel (cancel adds nothing). When it
 is done the fitted-grid overlay is added, the same two Points layers the calibration reader
 makes (:func:`~lfm_studio.napari_plugin.calibration_reader.overlay_layer_data`; residuals and
 flags in the features), placed over the radiometry layer (its scale and translate), and a

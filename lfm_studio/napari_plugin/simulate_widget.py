@@ -1,9 +1,10 @@
 """Dock widget "Simulate PSF": a preset or design file -> a PSF stack layer, in the background.
 
 Choose a bundled preset or a design file, optionally other depths (start, stop, step
-in um) and an accuracy preset, then Simulate: the PSF stack is computed on a napari
-``thread_worker`` with progress and Cancel (cancel stops between depths / lenslets and
-adds nothing). The layer is at the sensor pixel pitch with the design in its metadata.
+in um) and an accuracy preset, then Simulate: the PSF stack is computed as a
+:class:`~lfm_studio.napari_plugin.background.BackgroundTask` (a job of
+:class:`lfm_studio.widgets.jobs.JobRunner`) with progress and Cancel (cancel stops between
+depths / lenslets and adds nothing). The layer is at the sensor pixel pitch with the design in its metadata.
 An invalid design, file or depth range is an error notification with the engine's
 message; design warnings become warning notifications.
 """

@@ -1,4 +1,4 @@
-"""Stand-in widgets with the MLAEditor and PSFViewer contracts (brief5.md), for window tests.
+"""Stand-in widgets with the MLAEditor and PSFViewer contracts, for window tests.
 
 They record what the studio asks of them, so controller and window tests do not need
 napari or the real editor (and run even before those widgets exist).
