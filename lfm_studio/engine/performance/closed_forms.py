@@ -1,7 +1,8 @@
 """Closed-form design metrics of a light-field microscope (thesis section 2.3.1), SI units.
 
-:func:`closed_form_metrics` picks the formulas of the design's system kind
-(:func:`~lfm_studio.engine.systems.kinds.kind_of`, :data:`CLOSED_FORMS`):
+:func:`closed_form_metrics` asks the design's system kind
+(:func:`~lfm_studio.engine.systems.kinds.kind_of`) for its closed forms
+(:meth:`~lfm_studio.engine.systems.kinds_base.SystemKind.closed_forms`), which are
 :mod:`.fourier_closed_forms` (MLA on the Fourier plane: FLFM, XLFM) or
 :mod:`.conventional_closed_forms` (MLA on the native image plane). Both fill the same
 :class:`ClosedFormMetrics`, so reports and requirement checks treat them alike; each
@@ -23,7 +24,9 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from lfm_studio.engine.design import Design
-from lfm_studio.engine.performance.closed_form_record import (
+from lfm_studio.engine.performance.conventional_closed_forms import conventional_closed_forms
+from lfm_studio.engine.performance.fourier_closed_forms import fourier_closed_forms
+from lfm_studio.engine.systems.closed_form_record import (
     CRITERION_LABELS,
     LATERAL_CRITERIA,
     UM,
@@ -31,8 +34,6 @@ from lfm_studio.engine.performance.closed_form_record import (
     criterion_factor,
     tightest_limit,
 )
-from lfm_studio.engine.performance.conventional_closed_forms import conventional_closed_forms
-from lfm_studio.engine.performance.fourier_closed_forms import fourier_closed_forms
 from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, SystemKind, kind_of
 
 __all__ = [
@@ -51,14 +52,12 @@ CLOSED_FORMS: dict[SystemKind, Callable[..., ClosedFormMetrics]] = {
     FOURIER: fourier_closed_forms,
     CONVENTIONAL: conventional_closed_forms,
 }
-"""The closed forms of each system kind, ``f(design, *, criterion) -> ClosedFormMetrics``.
-
-(Kept here rather than on the kind objects: this package builds on the systems package
-for its measured metrics, so the systems package must not import it back.)"""
+"""The closed forms of each system kind, ``f(design, *, criterion) -> ClosedFormMetrics``: the
+functions the kinds name in ``closed_forms_provider`` (a test checks they agree)."""
 
 
 def closed_form_metrics(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
     """The closed-form metrics of ``design`` (Fourier or conventional LFM); lateral resolution
     by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
     criterion_factor(criterion)
-    return CLOSED_FORMS[kind_of(design)](design, criterion=criterion)
+    return kind_of(design).closed_forms(design, criterion=criterion)

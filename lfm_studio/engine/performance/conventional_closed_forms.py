@@ -38,7 +38,7 @@ import math
 
 from lfm_studio.engine import units
 from lfm_studio.engine.design import Design, RegularMLASpec
-from lfm_studio.engine.performance.closed_form_record import (
+from lfm_studio.engine.systems.closed_form_record import (
     LATERAL_CRITERIA,
     ClosedFormMetrics,
     criterion_factor,

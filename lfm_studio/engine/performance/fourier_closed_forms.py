@@ -49,7 +49,7 @@ import math
 from typing import NoReturn
 
 from lfm_studio.engine.design import Design, LensletSpec, RelayLensSpec
-from lfm_studio.engine.performance.closed_form_record import (
+from lfm_studio.engine.systems.closed_form_record import (
     ClosedFormMetrics,
     criterion_factor,
     tightest_limit,

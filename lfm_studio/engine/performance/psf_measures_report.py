@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from lfm_studio.engine.performance.closed_form_record import UM
 from lfm_studio.engine.performance.psf_measures import (
     DOF_CRITERION,
     axial_fwhm,
@@ -14,6 +13,7 @@ from lfm_studio.engine.performance.psf_measures import (
 )
 from lfm_studio.engine.performance.two_point import RAYLEIGH_DIP, two_point_axial, two_point_lateral
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.closed_form_record import UM
 
 
 @dataclass(frozen=True)

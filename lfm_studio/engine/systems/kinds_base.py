@@ -2,21 +2,27 @@
 
 A system kind (Fourier LFM, conventional LFM, ...) owns the steps that differ between
 kinds: its PSF computation from a design, the memory that needs, the projector built
-from its PSF stack, and its cache policy; capability flags tell the apps what the kind
-supports, so no caller tests the design-file word. The concrete kinds are
-:mod:`.kinds_fourier` and :mod:`.kinds_conventional`; :mod:`.kinds` maps a design to
-its kind. The closed-form metrics of a kind are in
-:mod:`lfm_studio.engine.performance.closed_forms` (keyed by these objects; the
-performance package sits above the systems package, which keeps the import graph acyclic).
+from its PSF stack, its closed-form metrics (:meth:`SystemKind.closed_forms`) and its
+cache policy; capability flags tell the apps what the kind supports, so no caller tests
+the design-file word. The concrete kinds are :mod:`.kinds_fourier` and
+:mod:`.kinds_conventional`; :mod:`.kinds` maps a design to its kind.
+
+The closed-form formulas live in the performance package, which builds on this one (its
+measured metrics compute PSFs); so a kind *names* its formula function
+(:attr:`SystemKind.closed_forms_provider`, ``"module:function"``) and imports it when
+asked, as the reconstruction registry names its provider modules: the import graph stays
+acyclic.
 
 Adding a kind: subclass :class:`SystemKind` in a ``kinds_<name>.py`` module, list the
 object in :data:`lfm_studio.engine.systems.kinds.KINDS`, accept its word in the design
-parser (``engine/design``) and give its closed forms in ``performance/closed_forms.py``.
+parser (``engine/design``) and name its closed forms in ``closed_forms_provider``.
 """
 
 from __future__ import annotations
 
+import importlib
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -26,6 +32,7 @@ from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.systems.closed_form_record import ClosedFormMetrics, criterion_factor
 from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
@@ -64,6 +71,8 @@ class SystemKind(ABC):
         without overlap (the optimiser's default constraints).
     pattern_axes : names of the leading PSF axes the viewer steps through (empty: plain
         ``(Z, Y, X)`` PSF slices).
+    closed_forms_provider : ``"module:function"`` of its closed-form formulas,
+        ``f(design, *, criterion) -> ClosedFormMetrics`` (see :meth:`closed_forms`).
     """
 
     name: ClassVar[str]
@@ -74,6 +83,7 @@ class SystemKind(ABC):
     binnable_sensor: ClassVar[bool]
     mla_at_pupil: ClassVar[bool]
     pattern_axes: ClassVar[tuple[str, ...]] = ()
+    closed_forms_provider: ClassVar[str]
 
     @abstractmethod
     def psf_stack(
@@ -104,6 +114,19 @@ class SystemKind(ABC):
     @abstractmethod
     def imaging_setup(self, stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
         """The projector of ``stack`` (on its device and dtype) and the volume grid it expects."""
+
+    def closed_forms(self, design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
+        """The closed-form metrics of ``design`` (a design of this kind), lateral resolution by
+        ``criterion`` ("rayleigh", "abbe" or "sparrow"); ValueError for another kind's design."""
+        criterion_factor(criterion)
+        metrics: ClosedFormMetrics = self.closed_forms_formula()(design, criterion=criterion)
+        return metrics
+
+    def closed_forms_formula(self) -> Callable[..., ClosedFormMetrics]:
+        """The function :attr:`closed_forms_provider` names, ``f(design, *, criterion)`` (imported now)."""
+        module, function = self.closed_forms_provider.split(":")
+        formula: Callable[..., ClosedFormMetrics] = getattr(importlib.import_module(module), function)
+        return formula
 
     def __repr__(self) -> str:
         return f"<system kind {self.name!r}>"

@@ -40,6 +40,9 @@ class ConventionalKind(SystemKind):
     mla_at_pupil = False
     binnable_sensor = False  # binning would change the rectified pixels per lenslet
     pattern_axes = ("sub-position row", "sub-position column")
+    closed_forms_provider = (
+        "lfm_studio.engine.performance.conventional_closed_forms:conventional_closed_forms"
+    )
 
     def psf_stack(
         self,

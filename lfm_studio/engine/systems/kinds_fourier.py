@@ -41,6 +41,7 @@ class FourierKind(SystemKind):
     lenslet_cache = True
     mla_at_pupil = True
     binnable_sensor = True
+    closed_forms_provider = "lfm_studio.engine.performance.fourier_closed_forms:fourier_closed_forms"
 
     def psf_stack(
         self,

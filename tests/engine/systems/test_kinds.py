@@ -17,7 +17,7 @@ import torch
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
 from lfm_studio.engine.io import read_psf_stack, write_psf_stack
 from lfm_studio.engine.io.metadata import HeaderError, layout_metadata, split_layout_metadata
-from lfm_studio.engine.performance.closed_forms import closed_form_metrics
+from lfm_studio.engine.performance.closed_forms import CLOSED_FORMS, closed_form_metrics
 from lfm_studio.engine.performance.conventional_closed_forms import conventional_closed_forms
 from lfm_studio.engine.performance.fourier_closed_forms import fourier_closed_forms
 from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
@@ -104,6 +104,20 @@ def test_closed_forms_follow_the_kind_object():
         conventional_closed_forms(fourier)
     with pytest.raises(ValueError, match="Fourier-LFM design; got a Conventional LFM"):
         fourier_closed_forms(conventional)
+
+
+def test_each_kind_owns_its_closed_forms():
+    """``SystemKind.closed_forms`` is the kind's formula (CLOSED_FORMS agrees), with the criterion passed on."""
+    fourier, conventional = load_preset(FOURIER_PRESET), load_preset(CONVENTIONAL_PRESET)
+    for kind, design in ((FOURIER, fourier), (CONVENTIONAL, conventional)):
+        assert kind_of(design) is kind and CLOSED_FORMS[kind] is kind.closed_forms_formula()
+        assert kind.closed_forms(design) == closed_form_metrics(design) == CLOSED_FORMS[kind](design)
+        abbe = kind.closed_forms(design, criterion="abbe")
+        assert abbe == CLOSED_FORMS[kind](design, criterion="abbe") and abbe.lateral_criterion == "abbe"
+    with pytest.raises(ValueError, match="Fourier-LFM design; got a Conventional LFM"):
+        FOURIER.closed_forms(conventional)
+    with pytest.raises(ValueError, match="criterion must be one of"):
+        CONVENTIONAL.closed_forms(conventional, criterion="nyquist")
 
 
 def _separated_lenslets_design():

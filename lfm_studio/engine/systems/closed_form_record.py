@@ -1,7 +1,9 @@
 """The closed-form metrics record and its criteria, shared by both kinds' formulas (SI units).
 
-:class:`ClosedFormMetrics` is what :mod:`.fourier_closed_forms` and
-:mod:`.conventional_closed_forms` fill; :mod:`.closed_forms` picks one by the design's kind.
+:class:`ClosedFormMetrics` is what :mod:`lfm_studio.engine.performance.fourier_closed_forms` and
+:mod:`lfm_studio.engine.performance.conventional_closed_forms` fill, and what a system kind's
+:meth:`~lfm_studio.engine.systems.kinds_base.SystemKind.closed_forms` returns (so the record
+sits here, beside the kinds, below the performance package that holds the formulas).
 Lateral resolution criterion (:data:`LATERAL_CRITERIA`): the diffraction limit is
 ``c lambda / NA`` with ``c`` = 0.61 (Rayleigh, the default: the thesis, section
 3.3.1, reads the zebrafish requirements of section 2.3.1 against it), 0.5 (Abbe,
