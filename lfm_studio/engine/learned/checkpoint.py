@@ -15,9 +15,9 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import torch
 from safetensors import SafetensorError
@@ -28,6 +28,8 @@ from lfm_studio import __version__
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.learned.models import build_model
 from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.simulation import ImagingSetup
+from lfm_studio.engine.types import JSONValue
 
 FORMAT = "lfm_studio.learned/1"
 HEADER_KEY = "lfm_studio"
@@ -50,15 +52,15 @@ class CheckpointHeader:
     """
 
     model: str
-    config: dict[str, Any]
+    config: dict[str, JSONValue]
     design_hash: str | None
     depths: tuple[float, ...]
     volume_shape: tuple[int, int, int]
     image_shape: tuple[int, int]
     voxel_size: tuple[float, float, float]
-    data: dict[str, Any] = field(default_factory=dict)
-    training: dict[str, Any] = field(default_factory=dict)
-    metrics: dict[str, Any] = field(default_factory=dict)
+    data: dict[str, JSONValue] = field(default_factory=dict)
+    training: dict[str, JSONValue] = field(default_factory=dict)
+    metrics: dict[str, JSONValue] = field(default_factory=dict)
     format: str = FORMAT
     version: str = __version__
 
@@ -80,15 +82,17 @@ class CheckpointHeader:
             ) from error
 
 
-def header_for(model_name: str, config: dict[str, Any], setup: Any, design_hash: str | None,
-               depths: tuple[float, ...], **records: Any) -> CheckpointHeader:  # fmt: skip
+def header_for(model_name: str, config: Mapping[str, JSONValue], setup: ImagingSetup, design_hash: str | None,
+               depths: tuple[float, ...], *, data: dict[str, JSONValue] | None = None,
+               training: dict[str, JSONValue] | None = None,
+               metrics: dict[str, JSONValue] | None = None) -> CheckpointHeader:  # fmt: skip
     """The header of a model trained on ``setup`` (an ImagingSetup) for a design/PSF."""
     return CheckpointHeader(
         model=model_name, config=dict(config), design_hash=design_hash, depths=tuple(float(z) for z in depths),
         volume_shape=tuple(int(n) for n in setup.volume_shape),  # type: ignore[arg-type]
         image_shape=tuple(int(n) for n in setup.projector.image_shape),  # type: ignore[arg-type]
         voxel_size=tuple(float(v) for v in setup.voxel_size),  # type: ignore[arg-type]
-        **records,
+        data=data or {}, training=training or {}, metrics=metrics or {},
     )  # fmt: skip
 
 
@@ -173,13 +177,13 @@ def check_matches(
 
 def load_model(
     path: str | os.PathLike,
-    setup: Any,
+    setup: ImagingSetup,
     *,
     design_hash: str | None = None,
     depths: tuple[float, ...] | None = None,
 ) -> tuple[torch.nn.Module, CheckpointHeader]:
     """The model of checkpoint ``path`` rebuilt on ``setup``'s projector (an ImagingSetup), in eval mode."""
-    return load_model_for(path, setup.projector, voxel_size=tuple(setup.voxel_size), design_hash=design_hash,
+    return load_model_for(path, setup.projector, voxel_size=setup.voxel_size, design_hash=design_hash,
                           depths=depths)  # fmt: skip
 
 

@@ -15,12 +15,15 @@ train, validation and test sets never share a phantom while ``i < 1_000_001``.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
-from typing import Any, Literal
+from typing import Literal
 
 import torch
 
 from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
+from lfm_studio.engine.simulation import ImagingSetup
+from lfm_studio.engine.types import JSONValue
 
 Split = Literal["train", "validation", "test"]
 SPLIT_OFFSET: dict[str, int] = {"train": 0, "validation": 1_000_001, "test": 2_000_002}
@@ -63,7 +66,7 @@ class TrainingDataSpec:
         if not self.read_noise >= 0:
             raise ValueError(f"read_noise must be >= 0 photo-electrons; got {self.read_noise!r}.")
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JSONValue]:
         """JSON-ready form (stored in checkpoints)."""
         return {
             **asdict(self),
@@ -73,10 +76,12 @@ class TrainingDataSpec:
         }
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> TrainingDataSpec:
-        """Inverse of :meth:`to_dict`."""
-        return cls(**{**data, "objects": tuple(data["objects"]), "brightness": tuple(data["brightness"]),
-                      "photons": tuple(data["photons"])})  # fmt: skip
+    def from_dict(cls, data: Mapping[str, JSONValue]) -> TrainingDataSpec:
+        """Inverse of :meth:`to_dict` (the values are checked by the constructor)."""
+        # JSON values: mypy cannot see they fit the fields; __post_init__ checks them.
+        fields = {**data, "objects": tuple(data["objects"]), "brightness": tuple(data["brightness"]),  # type: ignore[arg-type]
+                  "photons": tuple(data["photons"])}  # type: ignore[arg-type]  # fmt: skip
+        return cls(**fields)  # type: ignore[arg-type]
 
 
 @dataclass(frozen=True)
@@ -99,7 +104,7 @@ def sample_seed(spec: TrainingDataSpec, split: Split, index: int) -> int:
     return spec.seed * 3 * SPLIT_SIZE + SPLIT_OFFSET[split] + index
 
 
-def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) -> Sample:
+def make_sample(spec: TrainingDataSpec, setup: ImagingSetup, split: Split, index: int) -> Sample:
     """Sample ``index`` of ``split`` imaged through ``setup`` (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
 
     Deterministic: the same spec, setup, split and index give the same sample. ``setup`` may
@@ -114,12 +119,13 @@ def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) ->
     count = int(torch.randint(spec.objects[0], spec.objects[1] + 1, (), generator=generator))
     low, high = spec.brightness
     projector = setup.projector
-    shape, voxel = tuple(setup.volume_shape), tuple(setup.voxel_size)
+    (nz, ny, nx), (dz, dy, dx) = setup.volume_shape, setup.voxel_size
+    shape, voxel = (int(nz), int(ny), int(nx)), (float(dz), float(dy), float(dx))
     if kind == "beads":
         level = low + (high - low) * float(torch.rand((), generator=generator))
         volume = beads(shape, count=count, voxel_size=voxel, seed=seed, allow_fewer=True).data * level
     else:
-        semi = tuple(0.45 * n * d for n, d in zip(shape, voxel, strict=True))
+        semi = (0.45 * nz * dz, 0.45 * ny * dy, 0.45 * nx * dx)
         cell = min(3e-6, 0.25 * min(semi))
         volume = cells_in_ellipsoid(
             shape, voxel_size=voxel, seed=seed, semi_axes=semi, count=count,
@@ -138,7 +144,7 @@ def make_sample(spec: TrainingDataSpec, setup: Any, split: Split, index: int) ->
 
 
 def make_samples(
-    spec: TrainingDataSpec, setup: Any, split: Split, count: int, start: int = 0
+    spec: TrainingDataSpec, setup: ImagingSetup, split: Split, count: int, start: int = 0
 ) -> list[Sample]:
     """Samples ``start .. start + count - 1`` of ``split``."""
     return [make_sample(spec, setup, split, start + i) for i in range(count)]

@@ -22,7 +22,6 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import torch
 
@@ -35,9 +34,11 @@ from lfm_studio.engine.learned.checkpoint import (
 )
 from lfm_studio.engine.learned.data import Sample, TrainingDataSpec, make_sample, make_samples
 from lfm_studio.engine.learned.losses import require_not_trivial, training_loss, trivial_reason
-from lfm_studio.engine.learned.models import DEFAULT_MODEL, build_model, parameter_count
+from lfm_studio.engine.learned.models import DEFAULT_MODEL, build_model, model_config, parameter_count
 from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
+from lfm_studio.engine.simulation import ImagingSetup
 from lfm_studio.engine.threads import torch_threads
+from lfm_studio.engine.types import JSONValue
 
 
 @dataclass
@@ -74,10 +75,10 @@ def validation_ncc(model: torch.nn.Module, samples: list[Sample]) -> float:
 
 
 def train(
-    setup: Any,
+    setup: ImagingSetup,
     *,
     model: str = DEFAULT_MODEL,
-    config: dict[str, Any] | None = None,
+    config: dict[str, JSONValue] | None = None,
     data: TrainingDataSpec | None = None,
     budget_minutes: float = 10.0,
     max_steps: int | None = None,
@@ -134,8 +135,15 @@ def train(
             if previous.model != model:
                 raise ValueError(f"--resume: {target} holds a {previous.model!r} model, not {model!r}.")
             network.load_state_dict(tensors)
-            start = int(previous.training.get("steps", 0))
-            best = float(previous.training.get("best_validation", math.inf))
+            steps, best_validation = (
+                previous.training.get("steps", 0),
+                previous.training.get("best_validation", math.inf),
+            )
+            if not (isinstance(steps, (int, float, str)) and isinstance(best_validation, (int, float, str))):
+                raise ValueError(
+                    f"--resume: {target} has no readable step count and validation loss in its header."
+                )
+            start, best = int(steps), float(best_validation)
         loop = _Loop(
             network, setup, data, model_name=model, design_hash=design_hash, depths=depths, seed=seed,
             high_pass_weight=high_pass_weight, validation_size=validation_size, target=target,
@@ -156,8 +164,9 @@ def train(
 class _Loop:
     """One training run's state: the network, its validation set and the checkpoint it writes."""
 
-    def __init__(self, network, setup, data, *, model_name, design_hash, depths, seed, high_pass_weight,
-                 validation_size, target) -> None:  # fmt: skip
+    def __init__(self, network: torch.nn.Module, setup: ImagingSetup, data: TrainingDataSpec, *, model_name: str,
+                 design_hash: str | None, depths: tuple[float, ...], seed: int, high_pass_weight: float,
+                 validation_size: int, target: Path | None) -> None:  # fmt: skip
         self.network, self.setup, self.data = network, setup, data
         self.model_name, self.design_hash, self.depths, self.seed = model_name, design_hash, depths, seed
         self.high_pass_weight, self.target = high_pass_weight, target
@@ -166,8 +175,10 @@ class _Loop:
         self.best_state = copy.deepcopy(network.state_dict())
         self.seconds = 0.0
 
-    def run(self, *, start, best, budget_s, max_steps, learning_rate, validate_every, patience, progress,
-            cancel, clock, on_step=None) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
+    def run(self, *, start: int, best: float, budget_s: float, max_steps: int | None, learning_rate: float,
+            validate_every: int, patience: int, progress: ProgressCallback | None, cancel: CancelToken,
+            clock: Callable[[], float], on_step: Callable[[int, float, float], None] | None = None,
+            ) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
         """Steps until ``max_steps``, the budget, early stopping or cancel; returns (history, stop reason)."""
         network = self.network
         optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
@@ -225,11 +236,13 @@ class _Loop:
                 )
         return checked
 
-    def _header(self, steps: int, seconds: float, reason: str, metrics: dict[str, Any] | None = None):
-        training = {"steps": steps, "seconds": seconds, "seed": self.seed, "best_validation": self.best,
+    def _header(
+        self, steps: int, seconds: float, reason: str, metrics: dict[str, JSONValue] | None = None
+    ) -> CheckpointHeader:
+        training: dict[str, JSONValue] = {"steps": steps, "seconds": seconds, "seed": self.seed, "best_validation": self.best,
                     "stop_reason": reason, "parameters": parameter_count(self.network),
                     "zero_floor": 1.0 + self.high_pass_weight}  # fmt: skip
-        return header_for(self.model_name, self.network.config, self.setup, self.design_hash, self.depths,
+        return header_for(self.model_name, model_config(self.network), self.setup, self.design_hash, self.depths,
                           data=self.data.to_dict(), training=training, metrics=metrics or {})  # fmt: skip
 
     def finish(self, steps: int, reason: str) -> CheckpointHeader:

@@ -8,14 +8,13 @@ config, and is rebuilt on the same design (:mod:`lfm_studio.engine.learned.check
 
 from __future__ import annotations
 
-from typing import Any
-
 import torch
 
 from lfm_studio.engine.learned.models.multiwiener import MultiWienerNet
 from lfm_studio.engine.learned.models.unet import BlindUNet
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
 from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.types import JSONValue
 
 MODELS: dict[str, type[torch.nn.Module]] = {
     "unrolled-rl": UnrolledRL,
@@ -26,11 +25,21 @@ MODELS: dict[str, type[torch.nn.Module]] = {
 DEFAULT_MODEL = "unrolled-rl"
 
 
-def build_model(name: str, projector: Projector, **config: Any) -> torch.nn.Module:
+def build_model(name: str, projector: Projector, **config: JSONValue) -> torch.nn.Module:
     """``MODELS[name](projector, **config)``, or a ValueError naming the choices."""
     if name not in MODELS:
         raise ValueError(f"model must be one of {sorted(MODELS)}; got {name!r}. Fix: e.g. {DEFAULT_MODEL!r}.")
     return MODELS[name](projector, **config)
+
+
+def model_config(model: torch.nn.Module) -> dict[str, JSONValue]:
+    """The keyword config a learned model keeps as ``model.config`` (what a checkpoint stores)."""
+    config = model.__dict__.get("config")
+    if not isinstance(config, dict):
+        raise TypeError(
+            f"{type(model).__name__} has no config dict; a learned model keeps its keyword config."
+        )
+    return config
 
 
 def parameter_count(model: torch.nn.Module) -> int:
@@ -45,5 +54,6 @@ __all__ = [
     "MultiWienerNet",
     "UnrolledRL",
     "build_model",
+    "model_config",
     "parameter_count",
 ]

@@ -35,6 +35,7 @@ from lfm_studio.engine.reconstruct.fourier_geometry import (
     radial_frequency,
     require_fourier_projector,
 )
+from lfm_studio.engine.types import DepthSlice
 
 
 class MultiWienerNet(nn.Module):
@@ -65,7 +66,7 @@ class MultiWienerNet(nn.Module):
         low = position.floor().long().clamp(max=self.radial_gain.shape[1] - 2)
         weight = position - low
 
-        def filters(part: slice) -> torch.Tensor:
+        def filters(part: DepthSlice) -> torch.Tensor:
             h = otf[part]
             gain = self.radial_gain[part]
             radial = gain[:, low] * (1 - weight) + gain[:, low + 1] * weight
