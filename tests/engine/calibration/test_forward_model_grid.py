@@ -83,3 +83,4 @@ def test_pitch_rotation_and_centres_within_bounds(case):
     assert lattice_rms <= 0.1
     assert measured_rms <= 0.1
     assert int((grid.used & lit).sum()) >= 0.9 * LENSLETS**2  # the lit lenslets carry the fit
+    assert not bool((grid.used & ~lit).any())  # the dark rim's noise centroids are left out (dim)
