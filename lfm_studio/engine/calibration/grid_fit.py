@@ -9,7 +9,9 @@ re-measuring from the updated prediction and leaving flagged lenslets out:
 
 - ``EDGE``: the lenslet's disk (plus 1 px) leaves the frame;
 - ``DIM``: the lenslet's light is below ``DIM_FRACTION`` of the median of its neighbours
-  (dust, a dead region);
+  (dust, a dead region), or below ``DARK_FRACTION`` of the bright lenslets' light (the
+  95th percentile over the frame): outside the field of view, where a lenslet amid dark
+  neighbours is not dim next to them but its centroid is noise;
 - ``RESIDUAL``: its centroid is more than ``max(RESIDUAL_MADS robust sigmas, RESIDUAL_FLOOR)``
   from the fit (dust on one side, hot or dead pixels inside the disk).
 """
@@ -26,6 +28,7 @@ from lfm_studio.engine.calibration.lattice import LensletLattice
 EDGE, DIM, RESIDUAL = 1, 2, 4
 FLAG_NAMES = {EDGE: "edge", DIM: "dim", RESIDUAL: "residual"}
 DIM_FRACTION = 0.7
+DARK_FRACTION = 0.1  # of the 95th percentile of lenslet light: a dark lenslet, outside the field
 RESIDUAL_MADS = 6.0
 RESIDUAL_FLOOR = 0.25  # px: below this a centroid is never called an outlier
 CENTRAL_LENSLETS = 12  # first pass: lenslets within this many of the origin
@@ -75,7 +78,8 @@ def fit_lattice(indices: torch.Tensor, centres: torch.Tensor) -> LensletLattice:
 
 
 def _dim(indices: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
-    """Lenslets darker than ``DIM_FRACTION`` of the median of their 5 x 5 neighbourhood."""
+    """Lenslets darker than ``DIM_FRACTION`` of the median of their 5 x 5 neighbourhood, or than
+    ``DARK_FRACTION`` of the 95th percentile of all lenslets' light (outside the field of view)."""
     lo = indices.min(dim=0).values
     shape = (indices.max(dim=0).values - lo + 1).tolist()
     grid = torch.full(shape, float("nan"), dtype=torch.float64)
@@ -84,7 +88,8 @@ def _dim(indices: torch.Tensor, mass: torch.Tensor) -> torch.Tensor:
     padded = torch.nn.functional.pad(grid[None, None], (2, 2, 2, 2), value=float("nan"))[0, 0]
     patches = padded.unfold(0, 5, 1).unfold(1, 5, 1).reshape(shape[0], shape[1], 25)
     reference = patches.nanmedian(dim=-1).values[local[:, 0], local[:, 1]]
-    return mass < DIM_FRACTION * reference
+    dark = mass < DARK_FRACTION * torch.quantile(mass, 0.95)
+    return (mass < DIM_FRACTION * reference) | dark
 
 
 def disk_leaves_frame(centres: torch.Tensor, shape: torch.Size, reach: float) -> torch.Tensor:

@@ -7,6 +7,11 @@ Disks are rendered with an area-coverage edge (a pixel at distance ``r`` from th
 centre is covered ``clip(R - r + 1/2, 0, 1)``), multiplied by a smooth vignetting
 ``1 - v (rho / rho_max)^2``, turned into photo-electrons with Poisson noise, plus
 Gaussian read noise, a dark offset (ADU) and hot pixels. Same seed, same frames.
+
+:func:`forward_model_frames` makes the same kind of frames from the wave-optics forward
+model instead of the disk renderer: a fluorescent plane at focus imaged by a conventional
+design on its own lattice, shown through a raw geometry by
+:func:`~lfm_studio.engine.calibration.rectify.unrectify`.
 """
 
 from __future__ import annotations
@@ -17,8 +22,10 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine.calibration.lattice import LensletLattice
-from lfm_studio.engine.calibration.nominal import nominal_sub_images
+from lfm_studio.engine.calibration.nominal import nominal_grid, nominal_sub_images
+from lfm_studio.engine.calibration.rectify import unrectify
 from lfm_studio.engine.design import Design, load_preset
+from lfm_studio.engine.simulation import imaging_setup, simulate_psf
 
 
 @dataclass(frozen=True)
@@ -117,6 +124,70 @@ def synthetic_frames(
         hot=hot,
         lattice=lattice,
         disk_diameter=float(disk_diameter),
+    )
+
+
+def forward_model_frames(
+    shape: tuple[int, int],
+    lattice: LensletLattice,
+    *,
+    lenslets: int = 23,
+    design: Design | None = None,
+    photons: float = 2000.0,
+    vignetting: float = 0.3,
+    seed: int = 0,
+) -> SyntheticFrames:
+    """Radiometry and dark frames of a fluorescent plane at focus, from the conventional forward model.
+
+    ``design`` (default ``lfm_10x_na03``) on a camera of ``lenslets x lenslets`` lenslets,
+    one depth (0, the focal plane), images a uniform plane on its own lattice of ``n`` (odd)
+    pixels per lenslet, lenslet ``k`` on pixels ``k n .. k n + n - 1`` (its axis on pixel
+    ``k n + (n - 1) / 2``, the rectified-pixel convention of :func:`unrectify`).
+    :func:`unrectify` puts that lattice's lenslet block ``(-(lenslets // 2), lenslets, ...)``
+    on ``lattice`` of a raw frame of ``shape``, so ``lattice`` is the true lenslet lattice;
+    light outside the block is 0 (a dark rim). The frame is scaled to ``photons`` at its
+    brightest pixel, then vignetted and exposed as in :func:`synthetic_frames` (100 ADU dark
+    offset, 1.5 e- read noise, gain 1, 0.1 % hot pixels of 3000 ADU). ``clean`` is the
+    unvignetted photo-electron image; ``disk_diameter`` the design's back-aperture disk as a
+    fraction of its pitch, times the mean raw pitch.
+    """
+    base = load_preset("lfm_10x_na03") if design is None else design
+    ratio = nominal_grid(base).pitch  # camera pixels per lenslet
+    side = math.ceil(lenslets * ratio)  # the sensor covers ``lenslets`` whole lenslets
+    model = base.updated(
+        camera={**base.camera.model_dump(), "pixel_count": (side, side)},
+        depths={"depth_range_um": (0.0, 0.0), "depth_step_um": 1.0},
+    )
+    setup = imaging_setup(simulate_psf(model))
+    plane = torch.ones(setup.volume_shape)
+    image = setup.projector.forward(plane).clamp_min(0.0).double()
+    n = nominal_grid(model).pixels_per_lenslet
+    if tuple(image.shape) != (lenslets * n, lenslets * n):
+        raise ValueError(
+            f"the forward model imaged {tuple(image.shape)} px, not {lenslets} x {lenslets} lenslets of {n} px."
+        )
+    block = (-(lenslets // 2), lenslets, -(lenslets // 2), lenslets)
+    raw = unrectify(image, lattice, block, shape)
+    clean = raw * (photons / float(raw.max()))
+    vig = radial_vignetting(shape, vignetting)
+    radiometry, dark, hot = expose(
+        clean * vig,
+        baseline_adu=100.0,
+        read_noise_e=1.5,
+        gain_adu_per_e=1.0,
+        hot_fraction=1e-3,
+        hot_adu=3000.0,
+        seed=seed,
+    )
+    fraction = nominal_grid(model).disk_diameter / ratio
+    return SyntheticFrames(
+        radiometry=radiometry,
+        dark=dark,
+        clean=clean,
+        vignetting=vig,
+        hot=hot,
+        lattice=lattice,
+        disk_diameter=fraction * sum(lattice.pitch) / 2,
     )
 
 
