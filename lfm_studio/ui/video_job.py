@@ -6,7 +6,7 @@ design, refuses frames of another shape (naming the file, both shapes and the fi
 the camera conversion (:func:`lfm_studio.engine.batch.camera.video_camera`, as the command
 line does: the file's camera metadata, else the design's camera) and calls
 :func:`lfm_studio.engine.batch.reconstruct_video` with the workflow panel's method and options,
-``progress=ctx.progress`` and ``cancel=ctx.cancel``. A cancelled run stops between chunks and
+its frame progress relayed to ``ctx.progress`` and ``cancel=ctx.cancel``. A cancelled run stops between chunks and
 leaves a store that a resumed run completes (only the missing frames are computed). The result
 carries the last reconstructed frame's volume for the viewer and the failed frames (recorded
 by the engine) for the message.
@@ -188,10 +188,10 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
 
     design = request.design
     method, options = video_options(request.settings)  # an unknown method or option: refused first
-    ctx.progress(0, 0, f"video: opening {request.frames.name}")
+    ctx.progress(0, 0, f"opening {request.frames.name}")
     source = open_frames(request.frames)
     ctx.check()
-    ctx.progress(0, source.count, f"video: building the projector of “{design.name}”")
+    ctx.progress(0, source.count, f"building the projector of “{design.name}”")
     built = cached_projector(projector_spec(design))  # reconstruct_video reuses it in this process
     sensor = tuple(built.setup.projector.image_shape)
     check_frame_shape(request.frames, source.shape[1:], source.count, design, sensor)
@@ -203,14 +203,14 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
         )
 
     def progress(done: int, total: int, message: str = "") -> None:
-        ctx.progress(done, total, f"video: {done}/{total} frames, {message}")
+        ctx.progress(done, total, f"{done}/{total} frames ({message})")
 
     result = reconstruct_video(
         source, design, method=method, options=options, output=request.output, resume=request.resume,
         overwrite=request.overwrite, workers=request.workers, chunk_frames=request.chunk_frames,
         camera=camera, progress=progress, cancel=ctx.cancel,
     )  # fmt: skip
-    ctx.progress(source.count, source.count, "video: reading the last frame for the viewer")
+    ctx.progress(source.count, source.count, "reading the last frame for the viewer")
     frame, volume = _last_volume(result)
     voxel_size = tuple(float(v) for v in built.setup.voxel_size)
     display = None if volume is None else volume_display(volume, voxel_size, LAYER)  # type: ignore[arg-type]
