@@ -195,7 +195,10 @@ class VideoDialog(QDialog):
 
 def method_text(settings: WorkflowSettings, design: Any) -> str:
     """What the run will use: the workflow panel's method and the studio's design."""
-    iterations = f", {settings.iterations} iterations" if settings.method.startswith("rl") else ""
+    from lfm_studio.engine.reconstruct import get_method
+
+    takes_iterations = get_method(settings.method).option("iterations") is not None
+    iterations = f", {settings.iterations} iterations" if takes_iterations else ""
     options = "".join(f", {k} {v}" for k, v in settings.method_options)
     ny, nx = design.camera.pixel_count
     return (

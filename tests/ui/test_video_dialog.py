@@ -18,14 +18,18 @@ import numpy as np
 import pytest
 import tifffile
 import torch
-from qtpy.QtCore import QTimer
+from qtpy.QtCore import QSettings, QTimer
 from qtpy.QtGui import QGuiApplication
-from qtpy.QtWidgets import QMessageBox
+from qtpy.QtWidgets import QMainWindow, QMessageBox
 
+from lfm_studio.engine.batch import extras
 from lfm_studio.engine.batch.extras import SCALE_MODULES
 from lfm_studio.engine.design import save_design
 from lfm_studio.engine.simulation import camera_of, imaging_setup, light_field_image
+from lfm_studio.ui.file_menu import FileActions
+from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.video_dialog import JOB
+from lfm_studio.widgets.jobs import JobRunner
 from lfm_studio.widgets.viewer import napari_embed
 from tests.ui import test_app_end_to_end as end_to_end
 from tests.ui.conftest import collect_widgets
@@ -36,7 +40,7 @@ _launch_like_the_command_line = end_to_end._launch_like_the_command_line
 HANG_LIMIT_MS = 60_000
 FRAMES = 4
 
-pytestmark = pytest.mark.skipif(
+needs_scale = pytest.mark.skipif(
     any(importlib.util.find_spec(name) is None for name in SCALE_MODULES),
     reason="the optional scale extra (dask, zarr, ome-zarr) is not installed",
 )
@@ -104,6 +108,7 @@ def _fill(window, frames: str, output: str, *, resume: bool = False) -> list[str
     return said
 
 
+@needs_scale
 def test_reconstruct_a_video_from_the_file_menu(
     qtbot, monkeypatch, studio, frames_tiff, callback_errors, tmp_path
 ):
@@ -154,3 +159,18 @@ def test_reconstruct_a_video_from_the_file_menu(
     assert "0 computed now, 4 done before" in video.last_message.text()
     video.last_message.close()
     assert not callback_errors, callback_errors[0]
+
+
+def test_without_the_scale_extra_the_menu_says_how_to_install_it(qtbot, monkeypatch, tmp_path):
+    window = QMainWindow()
+    qtbot.addWidget(window)
+    state, runner = StudioState(small_fourier_design()), JobRunner(window)
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    actions = FileActions(state, window, runner, settings=settings)
+    monkeypatch.setattr(extras, "SCALE_MODULES", ("lfm_studio_no_such_module",))
+    actions.video_action.trigger()
+    assert actions.video.dialog is None and runner.generation(JOB) == 0  # no dialog, nothing started
+    text = actions.video.last_message.text()
+    assert "lfm_studio_no_such_module" in text and 'pip install "lfm-studio[scale]"' in text
+    actions.video.last_message.close()
+    actions.disconnect_state()

@@ -147,6 +147,19 @@ def test_cancel_after_the_first_chunk_then_resume_computes_only_the_missing_fram
     assert "3 computed now, 1 done before" in run.summary()
 
 
+def test_failed_frames_are_listed_and_the_last_good_frame_is_shown(video, tmp_path):
+    frames = tifffile.imread(video.tiff).astype(np.float32)
+    frames[3, 100, 120] = np.nan  # no camera writes NaN: the engine records the frame as failed
+    bad = tmp_path / "with_nan.tif"
+    tifffile.imwrite(bad, frames, photometric="minisblack")
+    run = reconstruct_video_job(Ctx(), _request(video, tmp_path / "run.ome.zarr", frames=bad, chunk_frames=2))
+    assert list(run.result.failed) == [3] and "NaN" in run.result.failed[3]
+    assert run.shown_frame == 2  # the last frame that was reconstructed
+    _close(run.volume.numpy(), video.reference[2])
+    summary = run.summary()
+    assert "3 of 4 frames" in summary and "1 frame(s) failed" in summary and "frame 3: " in summary
+
+
 def test_an_existing_store_is_not_replaced_without_being_asked(video, tmp_path):
     out = tmp_path / "run.ome.zarr"
     reconstruct_video_job(Ctx(), _request(video, out, chunk_frames=4))
