@@ -18,6 +18,8 @@ plus ``main_window_workflow.png`` (the status bar's stage trail with times).
 to DIR), fills File > Open raw light field… (``raw_dialog.png``), calibrates, accepts the
 calibration's design and reconstructs: ``raw_light_field.png``, ``raw_reconstruction.png``,
 ``main_window_raw.png``.
+``--video-dialog`` also saves File > Reconstruct light-field video… filled in (``video_dialog.png``,
+example paths; nothing runs).
 
 Headless machines need an X server with OpenGL (napari's canvas)::
 
@@ -133,6 +135,20 @@ def _raw_demo(app, window, files: dict[str, str], out: Path, timeout: float) -> 
     _save(window, out / "main_window_raw.png")
 
 
+def _video_dialog(app, window, out: Path) -> None:
+    """File > Reconstruct light-field video… as it opens for the current design, with example paths."""
+    from lfm_studio.ui.video_dialog import VideoDialog, method_text
+
+    state = window.state
+    dialog = VideoDialog(window, method_text=method_text(state.workflow, state.design))
+    dialog.frames_edit.setText("/data/zebrafish/recording_30hz.tif")
+    dialog.output_edit.setText("/data/zebrafish/recording_30hz.ome.zarr")
+    dialog.show()
+    settle(app, 0.5)
+    _save(dialog, out / "video_dialog.png")
+    dialog.close()
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--out", type=Path, default=REPO / "docs" / "screenshots")
@@ -141,6 +157,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workflow", type=Path, default=None, help="also save every display state here")
     parser.add_argument("--timeout", type=float, default=1200.0, help="seconds to wait for each stage")
     parser.add_argument("--raw-demo", type=Path, default=None, help="open a synthetic raw frame; shots here")
+    parser.add_argument(
+        "--video-dialog", action="store_true", help="also save the video dialog (video_dialog.png)"
+    )
     args = parser.parse_args(argv)
     raw_files = None if args.raw_demo is None else _raw_demo_files(args.raw_demo)
     if raw_files is not None:
@@ -180,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
         _workflow_states(app, window, args.workflow, args.timeout)
     if raw_files is not None:
         _raw_demo(app, window, raw_files, args.raw_demo, args.timeout)
+    if args.video_dialog:
+        _video_dialog(app, window, args.out)
 
     window.controller.cancel()
     state.set_dirty(False)

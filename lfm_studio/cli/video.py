@@ -13,13 +13,8 @@ frame as in the TIFF path (metadata or ``--baseline/--gain/--read-noise``). Need
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 from typing import Any
-
-import tifffile
-import torch
 
 from lfm_studio.cli.progress import progress_bar
 
@@ -61,28 +56,13 @@ def add_video_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _tiff_metadata(path: Path) -> dict[str, Any]:
-    """The lfm_studio metadata in a TIFF's header (camera calibration), read without the pixels."""
-    if not (path.is_file() and path.suffix.lower() in (".tif", ".tiff")):
-        return {}
-    with tifffile.TiffFile(path) as tif:
-        info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
-    try:
-        header = json.loads(info) if isinstance(info, str) else {}
-    except json.JSONDecodeError:
-        return {}
-    return header.get("metadata") or {} if isinstance(header, dict) else {}
-
-
 def _camera(args: argparse.Namespace, source) -> Any:
     """The camera calibration of the frames (warnings printed for what was assumed)."""
-    from lfm_studio.engine.io import resolve_calibration
+    from lfm_studio.engine.batch.camera import video_camera
 
-    first = torch.from_numpy(source.read(0, 1)[0].astype("float64"))
-    calibration, notes = resolve_calibration(
-        _tiff_metadata(Path(args.image)), first, baseline=args.baseline, gain=args.gain,
-        read_noise=args.read_noise,
-    )  # fmt: skip
+    calibration, notes = video_camera(
+        source, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+    )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
     return calibration

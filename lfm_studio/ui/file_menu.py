@@ -1,4 +1,4 @@
-"""The File menu: new from preset, open, open raw light field, save, save as, recent files, exports.
+"""The File menu: new from preset, open, open raw light field, reconstruct a video, save, save as, recent files, exports.
 
 Designs are written atomically by :func:`~lfm_studio.engine.design.save_design`; an
 existing file other than the open document is never replaced without a confirmation
@@ -9,7 +9,9 @@ image, reconstruction) are ImageJ TIFFs from :mod:`lfm_studio.engine.io`, writte
 worker so a 1.7 GB stack does not freeze the window; an export that fails gets a dialog
 (not only the status-bar line). Write errors name the user's file, never the temporary
 file of the atomic writer, and say what to do (:func:`~lfm_studio.ui.failure_notices.write_error_text`).
-"Open raw light field…" is :class:`~lfm_studio.ui.raw_frame_dialog.RawFrameActions`.
+"Open raw light field…" is :class:`~lfm_studio.ui.raw_frame_dialog.RawFrameActions`; "Reconstruct
+light-field video…" is :class:`~lfm_studio.ui.video_dialog.VideoActions` (the window's viewer, if
+any, shows its last frame).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.failure_notices import show_failure, write_error_text
 from lfm_studio.ui.raw_frame_dialog import RawFrameActions
 from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.video_dialog import VideoActions
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
 ORGANIZATION = APPLICATION = "lfm_studio"
@@ -75,6 +78,8 @@ class FileActions(QObject):
         self.open_action = self._action("&Open…", QKeySequence.StandardKey.Open, self.open)
         self.raw_frames = RawFrameActions(state, window, runner)
         self.open_raw_action = self.raw_frames.action
+        self.video = VideoActions(state, window, runner, viewer=getattr(window, "viewer", None))
+        self.video_action = self.video.action
         self.save_action = self._action("&Save", QKeySequence.StandardKey.Save, self.save)
         self.save_as_action = self._action("Save &as…", QKeySequence.StandardKey.SaveAs, self.save_as)
         self.recent_menu = QMenu("Open &recent", window)
@@ -98,6 +103,7 @@ class FileActions(QObject):
     def disconnect_state(self) -> None:
         state = self.state
         self.raw_frames.disconnect_state()
+        self.video.disconnect_state()
         state.recent_files_changed.disconnect(self._on_recent_files)
         for signal in (state.psf_changed, state.image_changed, state.reconstruction_changed):
             signal.disconnect(self._update_exports)
@@ -115,6 +121,7 @@ class FileActions(QObject):
         menu.addAction(self.open_action)
         menu.addMenu(self.recent_menu)
         menu.addAction(self.open_raw_action)
+        menu.addAction(self.video_action)
         menu.addSeparator()
         menu.addAction(self.save_action)
         menu.addAction(self.save_as_action)

@@ -20,6 +20,7 @@ JOB_TITLES = {
     "export": "Export",
     "optimise": "Optimise",
     "raw frame": "Raw light field",
+    "video": "Light-field video",
 }
 
 

@@ -1,0 +1,294 @@
+"""File > Reconstruct light-field video…: a multi-frame recording into an OME-Zarr store, in the background.
+
+The dialog asks for the frames (a multi-page TIFF or a folder of single-frame TIFFs), the
+output store (``*.ome.zarr``), whether to resume an interrupted run into it, the frames per
+chunk, the worker processes (1: in the studio's process) and whether the frames are camera
+counts. The reconstruction uses the studio's design and the "Simulate and reconstruct" panel's
+method and options (named in the dialog). An existing store is continued only when "Resume"
+is ticked, and replaced only after the user said so in a question.
+
+:class:`VideoActions` runs :func:`~lfm_studio.ui.video_job.reconstruct_video_job` as the job
+"video" (progress over frames and Cancel in the status bar; a cancelled run leaves a store that
+"Resume" finishes). On success the last reconstructed frame's volume is shown in the viewer
+(layer "video") and a message names the store, the frame counts and any failed frames with
+their errors. Without the optional ``scale`` extra the action says how to install it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from qtpy.QtCore import QObject
+from qtpy.QtGui import QAction
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QDialog,
+    QDialogButtonBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLabel,
+    QLineEdit,
+    QMessageBox,
+    QPushButton,
+    QVBoxLayout,
+    QWidget,
+)
+
+from lfm_studio.ui.failure_notices import show_failure
+from lfm_studio.ui.results import JobStatus, WorkflowSettings
+from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.video_job import DEFAULT_CHUNK_FRAMES, LAYER, VideoRequest, VideoRun, reconstruct_video_job
+from lfm_studio.widgets.jobs import JobOutcome, JobRunner
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
+from lfm_studio.widgets.numeric_text import NumberRule
+
+JOB = "video"
+TIFF_FILTER = "TIFF frames (*.tif *.tiff)"
+ZARR_FILTER = "OME-Zarr store (*.ome.zarr *.zarr)"
+TITLE = "Reconstruct light-field video"
+_Buttons = QMessageBox.StandardButton
+
+
+def _store_path(text: str) -> Path:
+    """``text`` as a store path: ``.ome.zarr`` added when it names no ``.zarr``."""
+    path = Path(text).expanduser()
+    return path if path.name.lower().endswith(".zarr") else path.with_name(path.name + ".ome.zarr")
+
+
+class VideoDialog(QDialog):
+    """The frames, the output store and how to run (resume, chunk size, workers, counts)."""
+
+    def __init__(self, parent: QWidget | None = None, *, folder: str = "", method_text: str = "") -> None:
+        super().__init__(parent)
+        self.setWindowTitle(TITLE)
+        self.folder = folder
+        self.frames_edit = QLineEdit(self)
+        self.frames_edit.setPlaceholderText("a multi-page TIFF, or a folder of one-frame TIFFs")
+        self.output_edit = QLineEdit(self)
+        self.output_edit.setPlaceholderText("run.ome.zarr")
+        self.resume = QCheckBox(
+            "Resume: continue an interrupted run into this store (only missing frames)", self
+        )
+        self.chunk_frames = NumericField(
+            NumberRule("Frames per chunk", 1, 100_000, integer=True), DEFAULT_CHUNK_FRAMES, step=1,
+            tip="frames per task; each finished chunk is recorded, so a resume restarts at a chunk",
+            parent=self,
+        )  # fmt: skip
+        self.workers = NumericField(
+            NumberRule("Worker processes", 1, 256, integer=True), 1, step=1,
+            tip="1: in the studio's process; N > 1: a local Dask cluster of N one-thread processes",
+            parent=self,
+        )  # fmt: skip
+        self.counts = QCheckBox(
+            "Frames are camera counts (ADU): converted with the file's camera metadata, else the design's camera",
+            self,
+        )
+        self.counts.setChecked(True)
+        self.method_label = QLabel(method_text, self)
+        self.method_label.setWordWrap(True)
+        self.error_label = QLabel(self)
+        self.error_label.setStyleSheet("QLabel { color: #ff6b6b; }")
+        self.error_label.setWordWrap(True)
+        form = QFormLayout()
+        form.addRow(
+            "Frames",
+            self._row(self.frames_edit, ("File…", self._browse_file), ("Folder…", self._browse_folder)),
+        )
+        form.addRow("Output store", self._row(self.output_edit, ("Browse…", self._browse_output)))
+        form.addRow(self.resume)
+        form.addRow("Frames per chunk", self.chunk_frames)
+        form.addRow("Worker processes", self.workers)
+        form.addRow(self.counts)
+        buttons = QDialogButtonBox(
+            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
+        )
+        buttons.accepted.connect(self.accept)
+        buttons.rejected.connect(self.reject)
+        self.ok_button = buttons.button(QDialogButtonBox.StandardButton.Ok)
+        self.ok_button.setText("Reconstruct")
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(self.method_label)
+        layout.addWidget(self.error_label)
+        layout.addWidget(buttons)
+
+    def _row(self, edit: QLineEdit, *buttons: tuple[str, Any]) -> QWidget:
+        row = QWidget(self)
+        layout = QHBoxLayout(row)
+        layout.setContentsMargins(0, 0, 0, 0)
+        layout.addWidget(edit, 1)
+        for text, slot in buttons:
+            button = QPushButton(text, row)
+            button.clicked.connect(slot)
+            layout.addWidget(button)
+        return row
+
+    def _chosen(self, edit: QLineEdit, path: str) -> None:
+        if path:
+            edit.setText(path)
+            self.folder = str(Path(path).parent)
+
+    def _browse_file(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Frames (multi-page TIFF)", self.folder, TIFF_FILTER)
+        self._chosen(self.frames_edit, path)
+
+    def _browse_folder(self) -> None:
+        self._chosen(
+            self.frames_edit, QFileDialog.getExistingDirectory(self, "Folder of TIFF frames", self.folder)
+        )
+
+    def _browse_output(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(
+            self, "Output store", self.folder, ZARR_FILTER, options=QFileDialog.Option.DontConfirmOverwrite
+        )  # the studio asks before replacing a store
+        if path:
+            self._chosen(self.output_edit, str(_store_path(path)))
+
+    def frames(self) -> Path | None:
+        text = self.frames_edit.text().strip()
+        return Path(text).expanduser() if text else None
+
+    def output(self) -> Path | None:
+        text = self.output_edit.text().strip()
+        return _store_path(text) if text else None
+
+    def problem(self) -> str | None:
+        """What is missing or wrong (named with its field and the fix), or None."""
+        frames, output = self.frames(), self.output()
+        if frames is None:
+            return "Frames: choose a multi-page TIFF or a folder of TIFF frames."
+        if not frames.exists():
+            return f"Frames: {frames} does not exist. Fix: choose an existing TIFF or folder."
+        if output is None:
+            return "Output store: choose where to write the OME-Zarr store (e.g. run.ome.zarr)."
+        if output.exists() and not output.is_dir():
+            return f"Output store: {output} is a file, not a Zarr store. Fix: choose another name."
+        if self.resume.isChecked() and not output.exists():
+            return f"Resume: {output} does not exist yet, so there is nothing to resume. Fix: untick Resume."
+        if not commit_all((self.chunk_frames, self.workers)):
+            return next(str(f.error()) for f in (self.chunk_frames, self.workers) if f.error() is not None)
+        return None
+
+    def accept(self) -> None:
+        """Close only when the request is complete; otherwise say what is missing."""
+        problem = self.problem()
+        if problem is not None:
+            self.error_label.setText(problem)
+            return
+        super().accept()
+
+    def request(self, design: Any, settings: WorkflowSettings, *, overwrite: bool = False) -> VideoRequest:
+        """The run the dialog describes, with ``design`` and the workflow ``settings``."""
+        frames, output = self.frames(), self.output()
+        if frames is None or output is None:
+            raise ValueError("Frames and Output store: choose both.")
+        workers = int(self.workers.value())
+        return VideoRequest(
+            frames, output, design, settings, resume=self.resume.isChecked(), overwrite=overwrite,
+            chunk_frames=int(self.chunk_frames.value()), workers=None if workers == 1 else workers,
+            counts=self.counts.isChecked(),
+        )  # fmt: skip
+
+
+def method_text(settings: WorkflowSettings, design: Any) -> str:
+    """What the run will use: the workflow panel's method and the studio's design."""
+    from lfm_studio.engine.reconstruct import get_method
+
+    takes_iterations = get_method(settings.method).option("iterations") is not None
+    iterations = f", {settings.iterations} iterations" if takes_iterations else ""
+    options = "".join(f", {k} {v}" for k, v in settings.method_options)
+    ny, nx = design.camera.pixel_count
+    return (
+        f"Method: {settings.method}{iterations}{options} (the “Simulate and reconstruct” panel's). "
+        f"Design: “{design.name}” ({ny} x {nx} px camera); frames must match it."
+    )
+
+
+class VideoActions(QObject):
+    """The "Reconstruct light-field video…" action: dialog, background job, result in the viewer."""
+
+    def __init__(self, state: StudioState, window: QWidget, runner: JobRunner, viewer: Any = None) -> None:
+        super().__init__(window)
+        self.state, self.window, self.runner, self.viewer = state, window, runner, viewer
+        self.action = QAction("Reconstruct light-field &video…", self)
+        self.action.setToolTip(
+            "Reconstruct every frame of a recording into an OME-Zarr store (background job)"
+        )
+        self.action.triggered.connect(self.open)
+        self.dialog: VideoDialog | None = None  # the open dialog (tests fill it in)
+        self.last_run: VideoRun | None = None
+        self.last_message: QMessageBox | None = None  # the result's message, or the last failure's
+        state.job_changed.connect(self._on_job)
+
+    def disconnect_state(self) -> None:
+        self.state.job_changed.disconnect(self._on_job)
+
+    def _on_job(self, status: JobStatus) -> None:
+        if status.name == JOB:  # a second run would supersede (cancel) the running one
+            self.action.setEnabled(not status.active)
+
+    def _folder(self) -> str:
+        return str(self.state.file_path.parent) if self.state.file_path is not None else str(Path.home())
+
+    def open(self, *_: Any) -> bool:
+        """Ask for the frames and the store, confirm replacing an existing store, then start the job."""
+        from lfm_studio.ui.video_job import scale_missing
+
+        missing = scale_missing()
+        if missing is not None:
+            self.last_message = show_failure(self.window, f"Cannot {TITLE.lower()}", missing)
+            return False
+        settings = self.state.workflow
+        self.dialog = VideoDialog(
+            self.window, folder=self._folder(), method_text=method_text(settings, self.state.design)
+        )
+        try:
+            if self.dialog.exec() != QDialog.DialogCode.Accepted:
+                return False
+            request = self.dialog.request(self.state.design, settings)
+        finally:
+            self.dialog.deleteLater()
+            self.dialog = None
+        if request.output.exists() and not request.resume:
+            if not self._confirm_replace(request.output):
+                return False
+            request = replace(request, overwrite=True)
+        self.submit(request)
+        return True
+
+    def _confirm_replace(self, path: Path) -> bool:
+        answer = QMessageBox.question(
+            self.window, "Replace store?",
+            f"{path} already exists. Replace it (every frame is computed again)?\n\nTo continue an "
+            "interrupted run instead, choose No and tick “Resume”.",
+            _Buttons.Yes | _Buttons.No, _Buttons.No,
+        )  # fmt: skip
+        return answer == _Buttons.Yes
+
+    def submit(self, request: VideoRequest) -> int:
+        """Start the job "video"; returns its generation."""
+        return self.runner.submit(
+            JOB, reconstruct_video_job, request, on_result=self._on_done, on_error=self._on_failed
+        )
+
+    def _on_done(self, run: VideoRun) -> None:
+        self.last_run = run
+        if run.display is not None and self.viewer is not None:
+            if hasattr(self.viewer, "show_display"):
+                self.viewer.show_display(run.display)
+            elif hasattr(self.viewer, "show_volume") and run.volume is not None:
+                self.viewer.show_volume(run.volume, run.voxel_size, name=LAYER)
+        failed = bool(run.result.failed or run.result.unfinished)
+        icon = QMessageBox.Icon.Warning if failed else QMessageBox.Icon.Information
+        box = QMessageBox(icon, TITLE, run.summary(), QMessageBox.StandardButton.Ok, self.window)
+        box.setModal(False)
+        box.open()  # never a nested event loop inside a job callback
+        self.last_message = box
+
+    def _on_failed(self, outcome: JobOutcome) -> None:
+        self.last_message = show_failure(
+            self.window, f"Cannot {TITLE.lower()}", str(outcome.error), details=outcome.details or ""
+        )
