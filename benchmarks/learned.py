@@ -2,7 +2,7 @@
 
     python benchmarks/learned.py [--quick] [--preset flfm_guo2019] [--pixels 512] [--depths 32]
         [--minutes 10] [--models unrolled-rl multiwiener unet] [--seeds 0 1 2] [--test 50]
-        [--photons 1e4 1e5 1e6] [--threads 1]
+        [--photons 1e4 1e5 1e6] [--threads 1] [--mismatch 0.05] [--train-jitter 0]
 
 Every run prints its thread settings. For each model and training seed: train on the design's
 own forward model (beads, the photon budgets given, ``--minutes`` each), then score on
@@ -11,9 +11,13 @@ validation) against RL-30 (plain Richardson-Lucy, 30 iterations), RL at its best
 (chosen on the validation split, up to 100), accelerated RL (30 iterations), the
 back-projection ``A^T y / A^T 1`` and the all-zero volume. Scores: NCC, bead F1, localisation
 error (um), PSNR and SSIM after least-squares scale matching; time per frame (median); training
-time. Two harder test sets follow: an unseen phantom class (cells, trained on beads) and a 5 %
-optics mismatch (images through the design with a 5 % longer wavelength, reconstructed with
-the nominal projector). Mean and spread (min..max) over the training seeds.
+time. Two harder test sets follow: an unseen phantom class (cells, trained on beads) and an
+optics mismatch of ``--mismatch`` (default 5 %): images through 4 jittered designs whose MLA and
+Fourier lens focal lengths, NA and wavelength are each scaled by a factor in [0.95, 1.05]
+(:func:`lfm_studio.engine.learned.mismatch.jittered_designs`, the same code as training's
+``optics_jitter``), reconstructed with the nominal projector. ``--train-jitter`` trains the
+models with that optics-mismatch augmentation (``TrainingDataSpec.optics_jitter``). Mean and
+spread (min..max) over the training seeds.
 
 ``--quick``: a 256 px camera, 5 depths, 1 seed, 1 minute per model, 6 test phantoms.
 Goal (on this 2-core CPU, 512^2 x 32 depths): a model trained in <= 10 min with <= 200k
@@ -36,6 +40,7 @@ from lfm_studio.engine.design import load_preset
 from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.image_quality.scorecard import scorecard
 from lfm_studio.engine.learned.data import Sample, TrainingDataSpec, make_samples
+from lfm_studio.engine.learned.mismatch import mismatch_pool
 from lfm_studio.engine.learned.models import parameter_count
 from lfm_studio.engine.learned.models.common import adjoint_normaliser
 from lfm_studio.engine.learned.train import train
@@ -47,13 +52,13 @@ from lfm_studio.engine.threads import describe_threads, torch_threads
 Method = Callable[[torch.Tensor], torch.Tensor]
 
 
-def small_design(preset: str, pixels: int, depths: int, wavelength_scale: float = 1.0):
+def small_design(preset: str, pixels: int, depths: int):
     design = load_preset(preset)
     camera = type(design.camera)(**{**design.camera.model_dump(), "pixel_count": (pixels, pixels)})
     low, high = design.depths.depth_range_um
     step = (high - low) / max(depths - 1, 1)
     spec = type(design.depths)(depth_range_um=(low, low + step * (depths - 1)), depth_step_um=step)
-    return design.updated(camera=camera, depths=spec, wavelength_nm=design.wavelength_nm * wavelength_scale)
+    return design.updated(camera=camera, depths=spec)
 
 
 def scores(samples: list[Sample], method: Method, voxel: tuple[float, float, float]) -> dict[str, float]:
@@ -124,6 +129,12 @@ def main() -> None:
     parser.add_argument("--test", type=int, default=50)
     parser.add_argument("--photons", nargs="+", type=float, default=[1e4, 1e5, 1e6])
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--mismatch", type=float, default=0.05, help="relative optics jitter of the mismatch test set"
+    )
+    parser.add_argument(
+        "--train-jitter", type=float, default=0.0, help="optics_jitter of the training data (0: off)"
+    )
     args = parser.parse_args()
     if args.quick:
         args.pixels, args.depths, args.minutes, args.seeds, args.test = 256, 5, 1.0, [0], 6
@@ -132,7 +143,7 @@ def main() -> None:
         print(describe_threads())
         design = small_design(args.preset, args.pixels, args.depths)
         setup = imaging_setup(simulate_psf(design))
-        mismatched = imaging_setup(simulate_psf(small_design(args.preset, args.pixels, args.depths, 1.05)))
+        mismatched = mismatch_pool(design, args.mismatch, count=4, seed=99)
         voxel = setup.voxel_size
         print(
             f"{args.preset}: camera {args.pixels}^2, volume {setup.volume_shape}, voxel {[f'{v * 1e6:.3g}' for v in voxel]} um"
@@ -142,7 +153,7 @@ def main() -> None:
         tests = {
             "beads (seen class)": [s for p in args.photons for s in make_samples(TrainingDataSpec(phantoms="beads", photons=(p,), seed=99), setup, "test", per_budget)],
             "cells (unseen class)": make_samples(TrainingDataSpec(phantoms="cells", photons=tuple(args.photons), seed=99), setup, "test", per_budget),
-            "beads, 5 % mismatch": make_samples(TrainingDataSpec(phantoms="beads", photons=tuple(args.photons), seed=99), mismatched, "test", per_budget),
+            f"beads, {args.mismatch:.0%} optics mismatch": make_samples(TrainingDataSpec(phantoms="beads", photons=tuple(args.photons), seed=99), setup, "test", per_budget, imaging=mismatched),
         }  # fmt: skip
         validation = make_samples(train_data, setup, "validation", 4)
         best = best_rl_iteration(setup, validation)
@@ -158,8 +169,11 @@ def main() -> None:
         for name in args.models:
             for seed in args.seeds:
                 began = time.perf_counter()
-                result = train(setup, model=name, data=TrainingDataSpec(phantoms="beads", photons=tuple(args.photons), seed=seed),
-                               budget_minutes=args.minutes, seed=seed, threads=args.threads)  # fmt: skip
+                data = TrainingDataSpec(
+                    phantoms="beads", photons=tuple(args.photons), seed=seed, optics_jitter=args.train_jitter
+                )
+                result = train(setup, model=name, data=data, budget_minutes=args.minutes, seed=seed, threads=args.threads,
+                               design=design)  # fmt: skip
                 print(f"trained {name} seed {seed}: {parameter_count(result.model)} parameters, "
                       f"{result.header.training['steps']} steps, {time.perf_counter() - began:.0f} s ({result.stop_reason})")  # fmt: skip
                 models.setdefault(name, []).append(result.model)

@@ -23,6 +23,21 @@ def _photon_list(text: str) -> tuple[float, ...]:
     return values
 
 
+def _optics_jitter(text: str) -> float:
+    from lfm_studio.engine.learned.mismatch import JITTER_LIMIT
+
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 <= value <= JITTER_LIMIT:  # NaN fails too
+        raise argparse.ArgumentTypeError(
+            f"--optics-jitter must be a relative jitter between 0 and {JITTER_LIMIT:g}; got {text!r}. "
+            f"Fix: give a fraction, e.g. --optics-jitter 0.03 for +-3 % (not a percentage)."
+        )
+    return value
+
+
 def run_train(args: argparse.Namespace) -> int:
     from lfm_studio.cli.simulate import _design_file
     from lfm_studio.engine.design import resolve_design
@@ -36,7 +51,9 @@ def run_train(args: argparse.Namespace) -> int:
         args.out, overwrite=args.overwrite or args.resume, inputs=[_design_file(args.design), args.psf]
     )
     design = resolve_design(args.design)
-    data = TrainingDataSpec(phantoms=args.phantoms, photons=args.photons, seed=args.seed)
+    data = TrainingDataSpec(
+        phantoms=args.phantoms, photons=args.photons, seed=args.seed, optics_jitter=args.optics_jitter
+    )
     if args.psf is not None:
         stack = read_psf_stack(args.psf)
     else:
@@ -48,7 +65,7 @@ def run_train(args: argparse.Namespace) -> int:
     with progress_bar(f"training {args.model} ({args.minutes:g} min budget, {threads} thread)") as progress:
         result = train(
             setup, model=args.model, data=data, budget_minutes=args.minutes, max_steps=args.steps, seed=args.seed,
-            design_hash=design_hash, depths=depths, checkpoint=out, resume=args.resume, overwrite=args.overwrite,
+            design_hash=design_hash, depths=depths, design=stack.design, checkpoint=out, resume=args.resume, overwrite=args.overwrite,
             threads=threads, progress=progress,
         )  # fmt: skip
     training = result.header.training
@@ -84,6 +101,12 @@ def add_train_parser(sub: argparse._SubParsersAction) -> None:
     train.add_argument(
         "--photons", type=_photon_list, default=(1e4, 1e5, 1e6),
         help="photon budgets per image, comma-separated (default 1e4,1e5,1e6)",
+    )  # fmt: skip
+    train.add_argument(
+        "--optics-jitter", type=_optics_jitter, default=0.0, metavar="FRACTION",
+        help="optics-mismatch augmentation: image the training phantoms through designs with the MLA and "
+        "Fourier lens focal lengths, NA and wavelength jittered by up to this fraction (e.g. 0.03 = 3 %%; "
+        "0 = off, at most 0.2); the model keeps the nominal design. Needs the design, not a bare --psf",
     )  # fmt: skip
     train.add_argument("--seed", type=int, default=0, help="seed of the training data and weights")
     train.add_argument("--resume", action="store_true", help="continue training the model in --out")

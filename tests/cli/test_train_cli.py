@@ -70,3 +70,20 @@ def test_reconstruct_applies_a_trained_checkpoint_and_refuses_one_for_another_de
         capsys.readouterr()
         assert main([*base, "--model", str(foreign), "--out", str(tmp_path / "v2.tif")]) == 2
     assert "trained for another design" in capsys.readouterr().err
+
+
+def test_optics_jitter_is_validated_and_recorded(design_file, tmp_path, capsys):
+    out = tmp_path / "model.safetensors"
+    with pytest.raises(SystemExit) as caught:
+        main(["train", str(design_file), "--steps", "1", "--optics-jitter", "0.5", "--out", str(out)])
+    assert caught.value.code == 2
+    err = capsys.readouterr().err
+    assert "--optics-jitter must be a relative jitter between 0 and 0.2; got '0.5'" in err
+    assert "Fix: give a fraction, e.g. --optics-jitter 0.03" in err and not out.exists()
+    threads = torch.get_num_threads()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        code = main(["--threads", "1", "train", str(design_file), "--steps", "1", "--optics-jitter", "0.03",
+                     "--out", str(out)])  # fmt: skip
+    torch.set_num_threads(threads)
+    assert code == 0 and read_checkpoint(out)[0].data["optics_jitter"] == 0.03

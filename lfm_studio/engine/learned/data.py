@@ -10,6 +10,11 @@ voxel (the unit Richardson-Lucy reconstructs in).
 Seeds: sample ``i`` of split ``s`` of a spec with seed ``S`` uses the seed
 ``S * 3_000_003 + SPLIT_OFFSET[s] + i`` with offsets 0, 1_000_001 and 2_000_002, so the
 train, validation and test sets never share a phantom while ``i < 1_000_001``.
+
+Optics mismatch (``optics_jitter`` > 0): the image of a sample may be formed through another
+set-up than the one the model reconstructs with, a jittered design's
+(:mod:`lfm_studio.engine.learned.mismatch`); the phantom, its seed, the photon budget and the
+noise draws are those of the nominal sample with the same seed, only the optics differ.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from typing import Literal
 
 import torch
 
+from lfm_studio.engine.learned.mismatch import MismatchPool, check_jitter, resample_to_grid
 from lfm_studio.engine.phantoms import beads, cells_in_ellipsoid
 from lfm_studio.engine.simulation import ImagingSetup
 from lfm_studio.engine.types import JSONValue
@@ -44,6 +50,16 @@ class TrainingDataSpec:
     photons : expected photons in each image (one drawn per sample), e.g. ``(1e4, 1e5, 1e6)``.
     read_noise : camera read noise in photo-electrons (standard deviation per pixel).
     seed : base seed of the whole data set (see the module docstring for the split seeds).
+    optics_jitter : optics-mismatch augmentation, relative (0.03 = +-3 %; 0 = off, at most 0.2):
+        training images are formed through a pool of designs whose MLA focal length, Fourier
+        lens focal length (where the kind has one), numerical aperture and wavelength are each
+        scaled by a factor in ``[1 - j, 1 + j]`` (:func:`lfm_studio.engine.learned.mismatch.jittered_designs`,
+        drawn once per training run from ``seed``); the model keeps the nominal projector.
+        Needs the design (refused for a PSF stack without one).
+    jitter_designs : number of jittered designs in that pool (each one PSF simulation).
+    jitter_validation : also image the validation set through the jittered pool (default:
+        validation stays on the nominal design, so early stopping and the checkpoint's
+        validation scores measure the nominal instrument).
     """
 
     phantoms: Literal["beads", "cells", "mix"] = "mix"
@@ -52,6 +68,9 @@ class TrainingDataSpec:
     photons: tuple[float, ...] = (1e4, 1e5, 1e6)
     read_noise: float = 1.0
     seed: int = 0
+    optics_jitter: float = 0.0
+    jitter_designs: int = 4
+    jitter_validation: bool = False
 
     def __post_init__(self) -> None:
         if self.phantoms not in ("beads", "cells", "mix"):
@@ -65,6 +84,9 @@ class TrainingDataSpec:
             raise ValueError(f"photons must be positive photon counts per image; got {self.photons!r}.")
         if not self.read_noise >= 0:
             raise ValueError(f"read_noise must be >= 0 photo-electrons; got {self.read_noise!r}.")
+        check_jitter(self.optics_jitter)
+        if not (isinstance(self.jitter_designs, int) and self.jitter_designs >= 1):
+            raise ValueError(f"jitter_designs must be an integer >= 1; got {self.jitter_designs!r}.")
 
     def to_dict(self) -> dict[str, JSONValue]:
         """JSON-ready form (stored in checkpoints)."""
@@ -104,12 +126,22 @@ def sample_seed(spec: TrainingDataSpec, split: Split, index: int) -> int:
     return spec.seed * 3 * SPLIT_SIZE + SPLIT_OFFSET[split] + index
 
 
-def make_sample(spec: TrainingDataSpec, setup: ImagingSetup, split: Split, index: int) -> Sample:
-    """Sample ``index`` of ``split`` imaged through ``setup`` (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
+def make_sample(
+    spec: TrainingDataSpec,
+    setup: ImagingSetup,
+    split: Split,
+    index: int,
+    *,
+    imaging: ImagingSetup | MismatchPool | None = None,
+) -> Sample:
+    """Sample ``index`` of ``split`` on ``setup``'s volume grid (an :class:`~lfm_studio.engine.simulation.ImagingSetup`).
 
-    Deterministic: the same spec, setup, split and index give the same sample. ``setup`` may
-    differ from the one a model reconstructs with (optics-mismatch augmentation: image through
-    a jittered design's setup, see :func:`lfm_studio.engine.learned.mismatch.jittered_designs`).
+    The image is formed through ``setup``, or through ``imaging`` when given: another setup, or
+    a :class:`~lfm_studio.engine.learned.mismatch.MismatchPool` that picks one of its jittered
+    designs' setups by the sample's seed (optics-mismatch augmentation,
+    :func:`lfm_studio.engine.learned.mismatch.jittered_designs`). The phantom is resampled
+    onto the imaging grid when its voxels differ (another magnification); the truth stays on
+    ``setup``'s grid. Deterministic: the same spec, setups, split and index give the same sample.
     """
     seed = sample_seed(spec, split, index)
     generator = torch.Generator().manual_seed(seed)
@@ -118,7 +150,6 @@ def make_sample(spec: TrainingDataSpec, setup: ImagingSetup, split: Split, index
         kind = "beads" if torch.rand((), generator=generator) < 0.5 else "cells"
     count = int(torch.randint(spec.objects[0], spec.objects[1] + 1, (), generator=generator))
     low, high = spec.brightness
-    projector = setup.projector
     (nz, ny, nx), (dz, dy, dx) = setup.volume_shape, setup.voxel_size
     shape, voxel = (int(nz), int(ny), int(nx)), (float(dz), float(dy), float(dx))
     if kind == "beads":
@@ -132,8 +163,13 @@ def make_sample(spec: TrainingDataSpec, setup: ImagingSetup, split: Split, index
             cell_semi_axes=(cell, cell, cell), brightness=(low, high),
         ).data  # fmt: skip
     volume = volume.to(dtype=torch.float32)
+    through = (
+        setup if imaging is None else imaging.pick(seed) if isinstance(imaging, MismatchPool) else imaging
+    )
+    projector = through.projector
+    imaged = resample_to_grid(volume, voxel, tuple(through.volume_shape), tuple(through.voxel_size))
     with torch.no_grad():
-        expected = projector.forward(volume.to(projector.dtype)).clamp_min(0.0).float()
+        expected = projector.forward(imaged.to(projector.dtype)).clamp_min(0.0).float()
     photons = float(spec.photons[int(torch.randint(len(spec.photons), (), generator=generator))])
     total = float(expected.double().sum())
     scale = photons / total if total > 0 else 0.0
@@ -144,7 +180,13 @@ def make_sample(spec: TrainingDataSpec, setup: ImagingSetup, split: Split, index
 
 
 def make_samples(
-    spec: TrainingDataSpec, setup: ImagingSetup, split: Split, count: int, start: int = 0
+    spec: TrainingDataSpec,
+    setup: ImagingSetup,
+    split: Split,
+    count: int,
+    start: int = 0,
+    *,
+    imaging: ImagingSetup | MismatchPool | None = None,
 ) -> list[Sample]:
-    """Samples ``start .. start + count - 1`` of ``split``."""
-    return [make_sample(spec, setup, split, start + i) for i in range(count)]
+    """Samples ``start .. start + count - 1`` of ``split`` (``imaging``: see :func:`make_sample`)."""
+    return [make_sample(spec, setup, split, start + i, imaging=imaging) for i in range(count)]

@@ -9,6 +9,11 @@ Torch runs on ``threads`` threads during training (default 1: small convolutions
 slower on 2 threads on the 2-core development machine, docs/platform.md) and the caller's
 setting is restored afterwards.
 
+With ``data.optics_jitter`` > 0 (optics-mismatch augmentation, :mod:`.mismatch`) the run
+first simulates a pool of ``data.jitter_designs`` jittered designs from ``design`` (drawn from
+``data.seed``) and images every training sample through one of them; the model keeps the
+nominal projector, and validation stays on the nominal design unless ``data.jitter_validation``.
+
 A run that ends with a trivial model (all-zero, constant or non-finite output on the
 validation set) is refused with a ValueError and writes no checkpoint.
 """
@@ -34,6 +39,12 @@ from lfm_studio.engine.learned.checkpoint import (
 )
 from lfm_studio.engine.learned.data import Sample, TrainingDataSpec, make_sample, make_samples
 from lfm_studio.engine.learned.losses import require_not_trivial, training_loss, trivial_reason
+from lfm_studio.engine.learned.mismatch import (
+    POOL_SEED_OFFSET,
+    MismatchPool,
+    mismatch_pool,
+    require_design_for_jitter,
+)
 from lfm_studio.engine.learned.models import DEFAULT_MODEL, build_model, model_config, parameter_count
 from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
 from lfm_studio.engine.simulation import ImagingSetup
@@ -90,6 +101,7 @@ def train(
     seed: int = 0,
     design_hash: str | None = None,
     depths: tuple[float, ...] = (),
+    design: object = None,
     checkpoint: str | os.PathLike | None = None,
     resume: bool = False,
     overwrite: bool = False,
@@ -109,6 +121,8 @@ def train(
     max_steps : stop after this many steps (deterministic runs: tests, benchmarks).
     validate_every, validation_size, patience : validation schedule and early stopping.
     design_hash, depths : what the checkpoint header records (the design's optics hash, PSF depths in m).
+    design : the design ``setup`` was simulated from; needed only for ``data.optics_jitter`` > 0
+        (a ValueError naming the option otherwise, e.g. when training from a bare PSF stack).
     checkpoint : file to write the best model to (atomic; refused if it exists, unless
         ``overwrite`` or ``resume``); with ``resume`` its weights and step count are the start.
     threads : torch threads during training.
@@ -121,6 +135,7 @@ def train(
     if max_steps is not None and not (isinstance(max_steps, int) and max_steps >= 1):
         raise ValueError(f"max_steps must be an integer >= 1 or None; got {max_steps!r}.")
     data = data if data is not None else TrainingDataSpec(seed=seed)
+    jitter_design = require_design_for_jitter(design, data.optics_jitter)
     target = Path(checkpoint).expanduser() if checkpoint is not None else None
     if target is not None and target.exists() and not (overwrite or resume):
         raise FileExistsError(
@@ -129,6 +144,14 @@ def train(
     with torch_threads(threads):
         torch.manual_seed(seed)
         network = build_model(model, setup.projector, **(config or {}))
+        pool = None
+        if jitter_design is not None:
+            if progress is not None:
+                progress(
+                    0, 0, f"simulating {data.jitter_designs} jittered designs (jitter {data.optics_jitter:g})"
+                )
+            pool = mismatch_pool(jitter_design, data.optics_jitter, count=data.jitter_designs,
+                                 seed=data.seed + POOL_SEED_OFFSET)  # fmt: skip
         start, best = 0, math.inf
         if resume and target is not None and target.exists():
             previous, tensors = read_checkpoint(target)
@@ -146,7 +169,7 @@ def train(
             start, best = int(steps), float(best_validation)
         loop = _Loop(
             network, setup, data, model_name=model, design_hash=design_hash, depths=depths, seed=seed,
-            high_pass_weight=high_pass_weight, validation_size=validation_size, target=target,
+            high_pass_weight=high_pass_weight, validation_size=validation_size, target=target, pool=pool,
         )  # fmt: skip
         history, reason = loop.run(
             start=start, best=best, budget_s=60.0 * budget_minutes, max_steps=max_steps,
@@ -166,11 +189,12 @@ class _Loop:
 
     def __init__(self, network: torch.nn.Module, setup: ImagingSetup, data: TrainingDataSpec, *, model_name: str,
                  design_hash: str | None, depths: tuple[float, ...], seed: int, high_pass_weight: float,
-                 validation_size: int, target: Path | None) -> None:  # fmt: skip
-        self.network, self.setup, self.data = network, setup, data
+                 validation_size: int, target: Path | None, pool: MismatchPool | None = None) -> None:  # fmt: skip
+        self.network, self.setup, self.data, self.pool = network, setup, data, pool
         self.model_name, self.design_hash, self.depths, self.seed = model_name, design_hash, depths, seed
         self.high_pass_weight, self.target = high_pass_weight, target
-        self.validation = make_samples(data, setup, "validation", validation_size)
+        validation_imaging = pool if data.jitter_validation else None
+        self.validation = make_samples(data, setup, "validation", validation_size, imaging=validation_imaging)
         self.best = math.inf
         self.best_state = copy.deepcopy(network.state_dict())
         self.seconds = 0.0
@@ -196,7 +220,7 @@ class _Loop:
             if is_cancelled(cancel):
                 reason = "cancelled"
                 break
-            sample = make_sample(self.data, self.setup, "train", step)
+            sample = make_sample(self.data, self.setup, "train", step, imaging=self.pool)
             network.train()
             optimiser.zero_grad()
             loss = training_loss(network(sample.image), sample.truth, self.high_pass_weight)
