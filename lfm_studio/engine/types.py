@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from typing import TypeAlias
 
+import numpy as np
 import numpy.typing as npt
 import torch
 
@@ -25,6 +26,8 @@ Scalar: TypeAlias = float | torch.Tensor
 #: Image or volume data a user may hand in: a tensor or anything numpy can turn into an array
 #: (checked, real and finite, and converted with :func:`torch.as_tensor` at the seam).
 TensorLike: TypeAlias = torch.Tensor | npt.ArrayLike
+#: A numpy array of any dtype (camera frames as read: uint8, uint16, float32, ...).
+NumpyArray: TypeAlias = "npt.NDArray[np.generic[object]]"
 #: A JSON value (what provenance metadata and file headers hold).
 JSONValue: TypeAlias = "str | int | float | bool | list[JSONValue] | dict[str, JSONValue] | None"
 #: A contiguous run of depth indices ``start:stop`` (a chunk of a volume's ``Z`` axis).

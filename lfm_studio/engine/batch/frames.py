@@ -10,13 +10,14 @@ from __future__ import annotations
 
 import os
 from collections import OrderedDict
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from lfm_studio.engine.batch.extras import require_scale
+from lfm_studio.engine.types import NumpyArray
 
 require_scale()
 
@@ -24,6 +25,7 @@ import dask  # noqa: E402
 import dask.array as da  # noqa: E402
 import tifffile  # noqa: E402
 import zarr  # noqa: E402
+from tifffile.zarr import ZarrStore  # noqa: E402
 
 TIFF_SUFFIXES = (".tif", ".tiff")
 KINDS = ("tiff", "tiff-folder", "zarr")
@@ -32,7 +34,7 @@ OPEN_LIMIT = 2  # TIFF videos kept open per process
 # opening once per worker (not once per task) keeps a run linear in its length, and closing what
 # is evicted keeps file handles and page indexes from piling up. Keyed by path, size and mtime:
 # a rewritten file is opened afresh.
-_OPEN: OrderedDict[tuple[str, int, int], tuple[Any, zarr.Array]] = OrderedDict()
+_OPEN: OrderedDict[tuple[str, int, int], tuple[ZarrStore, zarr.Array]] = OrderedDict()
 
 
 def _open_tiff(path: str) -> zarr.Array:
@@ -60,18 +62,36 @@ def _zarr_array(path: Path) -> zarr.Array:
     node = zarr.open(str(path), mode="r")
     if isinstance(node, zarr.Array):
         return node
-    attributes: dict[str, Any] = dict(node.attrs)
+    level0 = node[_level0_path(dict(node.attrs), path)]
+    if not isinstance(level0, zarr.Array):
+        raise ValueError(f"{path}: the first multiscale dataset is a group, not an array.")
+    return level0
+
+
+def _first(value: object) -> object:
+    """``value[0]`` of a non-empty JSON list, else None."""
+    return value[0] if isinstance(value, Sequence) and not isinstance(value, str) and value else None
+
+
+def _field(value: object, key: str) -> object:
+    """``value[key]`` of a JSON object, else None."""
+    return value.get(key) if isinstance(value, Mapping) else None
+
+
+def _level0_path(attributes: Mapping[str, object], path: Path) -> str:
+    """``multiscales[0]["datasets"][0]["path"]`` of an OME-Zarr group's ``attributes`` (NGFF 0.5 nests
+    them under "ome")."""
     ome = attributes.get("ome")
-    multiscales = (ome if isinstance(ome, dict) else attributes).get("multiscales")
+    multiscales = (ome if isinstance(ome, Mapping) else attributes).get("multiscales")
     if not multiscales:
         raise ValueError(
             f"{path} is a Zarr group without OME 'multiscales' metadata, so it names no frame array. "
             "Fix: pass the array inside it (e.g. path/to/group/0)."
         )
-    level0 = node[str(multiscales[0]["datasets"][0]["path"])]
-    if not isinstance(level0, zarr.Array):
-        raise ValueError(f"{path}: the first multiscale dataset is a group, not an array.")
-    return level0
+    level0 = _field(_first(_field(_first(multiscales), "datasets")), "path")
+    if level0 is None:
+        raise ValueError(f"{path}: its OME 'multiscales' metadata names no dataset path.")
+    return str(level0)
 
 
 def _folder_files(path: Path) -> list[Path]:
@@ -98,7 +118,7 @@ class FrameSource:
     def _array(self) -> zarr.Array:
         return _open_tiff(self.path) if self.kind == "tiff" else _zarr_array(Path(self.path))
 
-    def read(self, start: int, stop: int) -> np.ndarray:
+    def read(self, start: int, stop: int) -> NumpyArray:
         """Frames ``start:stop`` as a ``(stop - start, Y, X)`` array (only those pages are read)."""
         if not 0 <= start < stop <= self.count:
             raise ValueError(f"frames {start}:{stop} are outside 0:{self.count} of {self.path}.")
@@ -127,7 +147,8 @@ def _checked_shape(shape: tuple[int, ...], path: Path) -> tuple[int, int, int]:
             f"{path} holds an array of shape {shape}; frames must be (T, Y, X) or one (Y, X) frame. "
             "Fix: save the video as (T, Y, X)."
         )
-    return tuple(int(n) for n in shape)  # type: ignore[return-value]
+    t, y, x = (int(n) for n in shape)
+    return t, y, x
 
 
 def open_frames(path: str | os.PathLike) -> FrameSource:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
 
 import torch
 
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.reconstruct import registry
-from lfm_studio.engine.types import OptionValue
+from lfm_studio.engine.types import JSONValue, OptionValue
 
 
 @dataclass(frozen=True)
@@ -31,7 +30,7 @@ class ReconstructionOptions:
         resolved = registry.get(method).resolve(dict(options or {}))
         return cls(method, tuple(sorted(resolved.items())))
 
-    def to_dict(self) -> dict[str, Any]:
+    def to_dict(self) -> dict[str, JSONValue]:
         """JSON-ready record (stored in the output's metadata)."""
         return {"method": self.method, **dict(self.options)}
 

@@ -14,12 +14,12 @@ import os
 from collections import Counter, OrderedDict
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
 
 import torch
 
 from lfm_studio.engine.design import Design, design_from_json, design_to_json, resolve_design
 from lfm_studio.engine.simulation import ImagingSetup, imaging_setup, simulate_psf
+from lfm_studio.engine.types import JSONValue
 
 KINDS = ("design", "psf")
 
@@ -59,7 +59,7 @@ class ProjectorSpec:
         text = json.dumps(asdict(self), sort_keys=True)
         return hashlib.sha256(text.encode()).hexdigest()
 
-    def describe(self) -> dict[str, Any]:
+    def describe(self) -> dict[str, JSONValue]:
         """JSON-ready record for the output's metadata (the design JSON is stored separately)."""
         return {k: v for k, v in asdict(self).items() if k != "design_json"}
 

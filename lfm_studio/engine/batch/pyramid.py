@@ -8,7 +8,13 @@ along y and x: the NGFF translation of that level.
 
 from __future__ import annotations
 
+from typing import TypeVar
+
 import numpy as np
+import numpy.typing as npt
+
+# The element type a level keeps (a string bound: numpy's scalar types are not subscriptable at run time).
+_Item = TypeVar("_Item", bound="np.generic[object]")
 
 MIN_LATERAL = 16  # no level narrower than this (voxels): napari gains nothing from smaller ones
 MAX_LEVELS = 4
@@ -28,7 +34,7 @@ def level_shape(shape: tuple[int, ...], level: int) -> tuple[int, ...]:
     return (*lead, ny >> level, nx >> level)
 
 
-def downsample(volume: np.ndarray) -> np.ndarray:
+def downsample(volume: npt.NDArray[_Item]) -> npt.NDArray[_Item]:
     """Mean over 2 x 2 lateral blocks of ``(..., Y, X)`` (odd last row/column dropped), same dtype."""
     ny, nx = (volume.shape[-2] // 2) * 2, (volume.shape[-1] // 2) * 2
     v = volume[..., :ny, :nx]
@@ -36,7 +42,7 @@ def downsample(volume: np.ndarray) -> np.ndarray:
     return blocks.mean(axis=(-3, -1), dtype=np.float64).astype(volume.dtype)
 
 
-def pyramid(volume: np.ndarray, levels: int) -> list[np.ndarray]:
+def pyramid(volume: npt.NDArray[_Item], levels: int) -> list[npt.NDArray[_Item]]:
     """``[volume, downsample(volume), ...]``, ``levels`` arrays."""
     out = [volume]
     for _ in range(levels - 1):

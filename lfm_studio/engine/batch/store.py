@@ -18,15 +18,18 @@ import json
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Literal, TypeAlias, TypedDict, TypeGuard
 
 import numpy as np
+import numpy.typing as npt
 
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.batch.extras import require_scale
 from lfm_studio.engine.batch.pyramid import level_shape, level_transforms, pyramid
+from lfm_studio.engine.types import JSONValue
 
 require_scale()
 
@@ -42,6 +45,94 @@ AXES = (
     {"name": "y", "type": "space", "unit": "micrometer"},
     {"name": "x", "type": "space", "unit": "micrometer"},
 )
+
+
+class FrameDone(TypedDict):
+    """A chunk record's entry for a reconstructed frame."""
+
+    status: Literal["done"]
+    attempts: int
+
+
+class FrameFailed(TypedDict):
+    """A chunk record's entry for a frame that failed every attempt (its volume stays 0)."""
+
+    status: Literal["failed"]
+    attempts: int
+    error: str  # "ExceptionType: message" of the last attempt
+
+
+FrameStatus: TypeAlias = FrameDone | FrameFailed
+
+
+class ChunkSeconds(TypedDict):
+    """Wall-clock seconds a chunk spent on each step."""
+
+    projector: float
+    read: float
+    compute: float
+    write: float
+
+
+class ChunkRecord(TypedDict):
+    """The JSON record of a finished work chunk (``frames``: frame index as a string -> its status)."""
+
+    chunk: int
+    start: int
+    stop: int
+    frames: dict[str, FrameStatus]
+    run_id: str
+    worker: str
+    seconds: ChunkSeconds
+
+
+def _is_int(value: object) -> TypeGuard[int]:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_frame_status(value: object) -> TypeGuard[FrameStatus]:
+    if not isinstance(value, dict) or not _is_int(value.get("attempts")):
+        return False
+    status = value.get("status")
+    return status == "done" or (status == "failed" and isinstance(value.get("error"), str))
+
+
+def _is_chunk_record(value: object) -> TypeGuard[ChunkRecord]:
+    """True when ``value`` (e.g. read back from a record's JSON) has every field of a :class:`ChunkRecord`."""
+    if not isinstance(value, dict):
+        return False
+    frames, seconds = value.get("frames"), value.get("seconds")
+    return (
+        all(_is_int(value.get(key)) for key in ("chunk", "start", "stop"))
+        and all(isinstance(value.get(key), str) for key in ("run_id", "worker"))
+        and isinstance(frames, dict)
+        and all(isinstance(t, str) and _is_frame_status(info) for t, info in frames.items())
+        and isinstance(seconds, dict)
+        and all(isinstance(seconds.get(key), (int, float)) for key in ChunkSeconds.__required_keys__)
+    )
+
+
+def _read_record(path: Path) -> ChunkRecord:
+    record = json.loads(path.read_text())
+    if not _is_chunk_record(record):
+        raise ValueError(
+            f"{path} is not a chunk record of lfm_studio. Fix: delete it (that chunk is then computed again)."
+        )
+    return record
+
+
+def _json_value(value: object) -> JSONValue:
+    """``value`` (a JSON document as zarr or :mod:`json` returns it) as a :data:`JSONValue`
+    (mappings become dicts, sequences lists); ValueError for anything JSON cannot hold."""
+    if value is None or isinstance(value, (str, int, float, bool)):
+        return value
+    if isinstance(value, Mapping):
+        if not all(isinstance(key, str) for key in value):
+            raise ValueError(f"a JSON object has a key that is not a string: {value!r}")
+        return {key: _json_value(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_value(item) for item in value]
+    raise ValueError(f"{value!r} is not a JSON value")
 
 
 @dataclass(frozen=True)
@@ -62,7 +153,7 @@ class VideoStore:
         """The JSON record of work chunk ``index``."""
         return Path(self.path) / STATUS_GROUP / f"chunk_{index:06d}.json"
 
-    def write_frames(self, start: int, volumes: np.ndarray, keep: np.ndarray) -> None:
+    def write_frames(self, start: int, volumes: npt.NDArray[np.float32], keep: npt.NDArray[np.bool_]) -> None:
         """Frames ``start + i`` for each ``keep[i]``, at every pyramid level (``volumes``: ``(n, Z, Y, X)``)."""
         group = zarr.open_group(self.path, mode="r+")
         for level, data in enumerate(pyramid(volumes, self.levels)):
@@ -70,34 +161,34 @@ class VideoStore:
             for i in np.flatnonzero(keep):
                 array[start + int(i)] = data[i]
 
-    def write_record(self, index: int, record: dict[str, Any]) -> None:
+    def write_record(self, index: int, record: ChunkRecord) -> None:
         """Record chunk ``index`` as finished (atomic; an existing record is never replaced)."""
         text = json.dumps(record, indent=1, allow_nan=False).encode()
         atomic_write(self.record_path(index), lambda fh: fh.write(text))
 
-    def record(self, index: int) -> dict[str, Any] | None:
-        """The record of chunk ``index``, or None while it is not finished."""
+    def record(self, index: int) -> ChunkRecord | None:
+        """The record of chunk ``index``, or None while it is not finished (ValueError for a malformed one)."""
         try:
-            return json.loads(self.record_path(index).read_text())
+            return _read_record(self.record_path(index))
         except FileNotFoundError:
             return None
 
-    def records(self) -> dict[int, dict[str, Any]]:
+    def records(self) -> dict[int, ChunkRecord]:
         """Finished chunks: index -> record."""
         folder = Path(self.path) / STATUS_GROUP
         found = {}
         for file in sorted(folder.glob("chunk_*.json")):
-            found[int(file.stem.split("_")[1])] = json.loads(file.read_text())
+            found[int(file.stem.split("_")[1])] = _read_record(file)
         return found
 
-    def attributes(self) -> dict[str, Any]:
+    def attributes(self) -> dict[str, JSONValue]:
         """The run record stored under ``"lfm_studio"`` in the root group."""
         return run_attributes(zarr.open_group(self.path, mode="r"))
 
 
-def run_attributes(group: zarr.Group) -> dict[str, Any]:
+def run_attributes(group: zarr.Group) -> dict[str, JSONValue]:
     """The run record stored under :data:`RUN_KEY` in a store's root group (KeyError when absent)."""
-    record = dict(group.attrs)[RUN_KEY]
+    record = _json_value(dict(group.attrs)[RUN_KEY])
     if not isinstance(record, dict):
         raise ValueError(f"the {RUN_KEY!r} attribute is not a record: {record!r}")
     return record
@@ -117,7 +208,7 @@ def _shape4(shape: tuple[int, ...]) -> tuple[int, int, int, int]:
 
 def _write_layout(
     folder: Path, shape: tuple[int, int, int, int], scale: tuple[float, float, float, float],
-    origin: tuple[float, float, float, float], levels: int, name: str, attributes: dict[str, Any],
+    origin: tuple[float, float, float, float], levels: int, name: str, attributes: dict[str, JSONValue],
 ) -> None:  # fmt: skip
     group = zarr.open_group(str(folder), mode="w-", zarr_format=3)
     datasets = []
@@ -143,7 +234,7 @@ def create_store(
     origin: tuple[float, float, float, float],
     levels: int,
     chunk_frames: int,
-    attributes: dict[str, Any],
+    attributes: dict[str, JSONValue],
     overwrite: bool = False,
 ) -> VideoStore:
     """A new empty store at ``path``, created atomically; level-0 ``scale`` ``(t s, z um, y um, x um)``
@@ -173,24 +264,37 @@ def create_store(
     return VideoStore(str(target), shape, levels, chunk_frames)
 
 
-def open_store(path: str | os.PathLike, *, run: dict[str, Any]) -> VideoStore:
+def _stored_int(stored: dict[str, JSONValue], key: str) -> int:
+    value = stored[key]
+    if not isinstance(value, (int, float, str)):  # what int() took before the record was typed
+        raise ValueError(f"the {RUN_KEY!r} attribute {key!r} is not a number: {value!r}")
+    return int(value)
+
+
+def open_store(path: str | os.PathLike, *, run: dict[str, JSONValue]) -> VideoStore:
     """The existing store at ``path``, refused when its run record differs from ``run`` (another
     video, design, method or chunking: resuming would mix two reconstructions)."""
     target = Path(path).expanduser().absolute()
     try:
         group = zarr.open_group(str(target), mode="r")
         stored = run_attributes(group)
+        stored_run = stored["run"]
+        if not isinstance(stored_run, dict):
+            raise ValueError(f"the {RUN_KEY!r} attribute 'run' is not a record: {stored_run!r}")
     except (FileNotFoundError, KeyError, ValueError) as error:
         raise ValueError(
             f"{target} is not an lfm_studio video store ({error}). Fix: choose another output, or pass "
             "overwrite=True (--overwrite) to replace it."
         ) from error
-    different = sorted(key for key in run if stored["run"].get(key) != json.loads(json.dumps(run[key])))
+    different = sorted(key for key in run if stored_run.get(key) != json.loads(json.dumps(run[key])))
     if different:
         raise ValueError(
             f"{target} was written by a different run ({', '.join(different)} differ); resuming would mix "
             "two reconstructions. Fix: use the same inputs and options, another output, or overwrite=True."
         )
     return VideoStore(
-        str(target), _shape4(_array(group, "0").shape), int(stored["levels"]), int(stored["chunk_frames"])
+        str(target),
+        _shape4(_array(group, "0").shape),
+        _stored_int(stored, "levels"),
+        _stored_int(stored, "chunk_frames"),
     )

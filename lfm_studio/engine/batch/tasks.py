@@ -12,18 +12,19 @@ import os
 import socket
 import time
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.batch.frames import FrameSource
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import ProjectorSpec, cached_projector
-from lfm_studio.engine.batch.store import VideoStore
+from lfm_studio.engine.batch.store import ChunkRecord, FrameStatus, VideoStore
 from lfm_studio.engine.io import CameraCalibration, counts_to_photons
 from lfm_studio.engine.operators.protocol import Projector
+from lfm_studio.engine.types import NumpyArray
 
 ATTEMPTS = 2  # a failing frame is tried twice, then recorded as failed
 
@@ -54,7 +55,7 @@ def in_dask_worker() -> bool:
     return True
 
 
-def _reconstruct(task: ChunkTask, projector: Projector, frame: np.ndarray, t: int) -> np.ndarray:
+def _reconstruct(task: ChunkTask, projector: Projector, frame: NumpyArray, t: int) -> npt.NDArray[np.float32]:
     data = torch.from_numpy(np.ascontiguousarray(frame)).to(getattr(torch, task.projector.dtype))
     floor = 0.0
     if task.camera is not None:  # counts -> photons; refuses NaN/Inf pixels with a named error
@@ -69,9 +70,9 @@ def _reconstruct(task: ChunkTask, projector: Projector, frame: np.ndarray, t: in
 
 
 def _attempt(
-    task: ChunkTask, projector: Projector, frame: np.ndarray, t: int
-) -> tuple[np.ndarray | None, dict]:
-    error = None
+    task: ChunkTask, projector: Projector, frame: NumpyArray, t: int
+) -> tuple[npt.NDArray[np.float32] | None, FrameStatus]:
+    error = ""  # always replaced: ATTEMPTS >= 1
     for attempt in range(1, ATTEMPTS + 1):
         try:
             return _reconstruct(task, projector, frame, t), {"status": "done", "attempts": attempt}
@@ -80,7 +81,7 @@ def _attempt(
     return None, {"status": "failed", "attempts": ATTEMPTS, "error": error}
 
 
-def process_chunk(task: ChunkTask) -> dict[str, Any]:
+def process_chunk(task: ChunkTask) -> ChunkRecord:
     """Reconstruct, write and record the chunk; returns its record (an existing record untouched)."""
     existing = task.store.record(task.index)
     if existing is not None:  # finished earlier (e.g. a task re-run after its worker died)
@@ -96,7 +97,7 @@ def process_chunk(task: ChunkTask) -> dict[str, Any]:
     raw = task.frames.read(task.start, task.stop)
     volumes = np.zeros((len(raw), *built.setup.volume_shape), dtype=np.float32)
     keep = np.zeros(len(raw), dtype=bool)
-    frames: dict[str, dict] = {}
+    frames: dict[str, FrameStatus] = {}
     read = time.perf_counter()
     for i, frame in enumerate(raw):
         t = task.start + i
@@ -105,7 +106,7 @@ def process_chunk(task: ChunkTask) -> dict[str, Any]:
             volumes[i], keep[i] = volume, True
     computed = time.perf_counter()
     task.store.write_frames(task.start, volumes, keep)
-    record = {
+    record: ChunkRecord = {
         "chunk": task.index,
         "start": task.start,
         "stop": task.stop,

@@ -14,23 +14,22 @@ from __future__ import annotations
 import json
 import os
 import uuid
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from lfm_studio import __version__
-from lfm_studio.engine.batch.client import check_placement, client_for, dashboard_link
+from lfm_studio.engine.batch.client import Client, check_placement, client_for, dashboard_link
 from lfm_studio.engine.batch.frames import FrameSource, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
 from lfm_studio.engine.batch.pyramid import level_count
-from lfm_studio.engine.batch.store import VideoStore, create_store, open_store
+from lfm_studio.engine.batch.store import ChunkRecord, VideoStore, create_store, open_store
 from lfm_studio.engine.batch.tasks import ChunkTask, process_chunk
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.io import CameraCalibration
 from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
-from lfm_studio.engine.types import OptionValue
+from lfm_studio.engine.types import JSONValue, OptionValue
 
 DEFAULT_CHUNK_FRAMES = 4
 UM = 1e-6
@@ -51,7 +50,7 @@ class VideoResult:
 
 
 def _run_record(source: FrameSource, spec_key: str, options: ReconstructionOptions, chunk_frames: int,
-                camera: CameraCalibration | None) -> dict[str, Any]:  # fmt: skip
+                camera: CameraCalibration | None) -> dict[str, JSONValue]:  # fmt: skip
     """What must match for a resume to continue the same reconstruction."""
     return {
         "frames": {"path": source.path, "shape": list(source.shape)},
@@ -75,7 +74,12 @@ def _frame_interval(frame_interval_s: float | None) -> float:
     return float(frame_interval_s)
 
 
-def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelToken) -> list[int]:
+def _run_chunks(
+    tasks: list[ChunkTask],
+    client: Client | None,
+    on_record: Callable[[ChunkRecord], None],
+    cancel: CancelToken,
+) -> list[int]:
     """Run ``tasks``; ``on_record(record)`` per finished chunk; returns the indices that were lost."""
     if client is None:
         import dask
@@ -105,9 +109,10 @@ def _run_chunks(tasks: list[ChunkTask], client: Any, on_record, cancel: CancelTo
     return sorted(lost)
 
 
-def _prepare_store(output, *, resume: bool, overwrite: bool, run: dict, attributes: dict,
-                   shape: tuple[int, int, int, int], scale, origin, levels: int,
-                   chunk_frames: int) -> VideoStore:  # fmt: skip
+def _prepare_store(output: str | os.PathLike, *, resume: bool, overwrite: bool, run: dict[str, JSONValue],
+                   attributes: dict[str, JSONValue], shape: tuple[int, int, int, int],
+                   scale: tuple[float, float, float, float], origin: tuple[float, float, float, float],
+                   levels: int, chunk_frames: int) -> VideoStore:  # fmt: skip
     target = Path(output).expanduser()
     if target.exists() and resume and not overwrite:
         return open_store(target, run=run)
@@ -126,7 +131,7 @@ def reconstruct_video(
     output: str | os.PathLike = "run.ome.zarr",
     resume: bool = True,
     overwrite: bool = False,
-    client: Any = None,
+    client: Client | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     chunk_frames: int = DEFAULT_CHUNK_FRAMES,
@@ -183,7 +188,7 @@ def reconstruct_video(
     # first depth on z; y and x centred on the optical axis (the napari plugin's volume convention)
     origin = (0.0, built.depths[0] / UM, -(shape[2] // 2) * dy / UM, -(shape[3] // 2) * dx / UM)
     run = _run_record(source, spec.key, reconstruction, chunk_frames, camera)
-    attributes = {
+    attributes: dict[str, JSONValue] = {
         "version": __version__,
         "run": run,
         "method": reconstruction.method,
@@ -212,7 +217,7 @@ def reconstruct_video(
     ]
     state = {"frames": sum(r["stop"] - r["start"] for r in done_before.values())}
 
-    def on_record(record: dict) -> None:
+    def on_record(record: ChunkRecord) -> None:
         state["frames"] += record["stop"] - record["start"]
         if progress is not None:
             progress(state["frames"], source.count, f"chunk {record['chunk'] + 1}/{len(chunks)} done")

@@ -64,3 +64,7 @@ def test_unreadable_sources_are_refused_by_name(tmp_path):
     zarr.open_group(str(tmp_path / "plain.zarr"), mode="w", zarr_format=3)
     with pytest.raises(ValueError, match="without OME 'multiscales'"):
         open_frames(tmp_path / "plain.zarr")
+    group = zarr.open_group(str(tmp_path / "nopath.zarr"), mode="w", zarr_format=3)
+    group.attrs["ome"] = {"version": "0.5", "multiscales": [{"datasets": []}]}
+    with pytest.raises(ValueError, match="names no dataset path"):
+        open_frames(tmp_path / "nopath.zarr")
