@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any
 
 import tifffile
 import torch
@@ -21,7 +20,7 @@ from lfm_studio.engine.io import CameraCalibration, resolve_calibration
 from lfm_studio.engine.io.camera_counts import calibration_from_metadata
 
 
-def tiff_metadata(path: str | Path) -> dict[str, Any]:
+def tiff_metadata(path: str | Path) -> dict[str, object]:
     """The lfm_studio metadata in a TIFF's ImageJ header (camera calibration), read without the pixels;
     ``{}`` for anything else (a folder, a Zarr array, a TIFF without it)."""
     path = Path(path)
