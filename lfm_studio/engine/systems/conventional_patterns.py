@@ -94,6 +94,7 @@ def nip_fields(
     model: str = "debye",
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Image-side Debye fields ``(Z, N, N)`` of an on-axis point at each depth on the NIP grid.
 
@@ -101,7 +102,7 @@ def nip_fields(
     """
     quadrants = nip_quadrants(
         system, depths, reach=reach, dtype=dtype, device=device, radial_sampling=radial_sampling,
-        model=model, n_quadrature=n_quadrature, oversampling=oversampling,
+        model=model, n_quadrature=n_quadrature, oversampling=oversampling, wavelength=wavelength,
     )  # fmt: skip
     return mirrored(quadrants, nip_field_size(system, reach, oversampling))
 
@@ -117,6 +118,7 @@ def nip_quadrants(
     model: str = "debye",
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """One quadrant ``(Z, h + 1, h + 1)`` of the on-axis NIP fields, ``h = N // 2`` (:func:`mirrored`
     expands it): a quarter of the memory of the fields, kept for all depths during a build.
@@ -125,7 +127,9 @@ def nip_quadrants(
     shared by the depths of a call). ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
     (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
     ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
-    grid factor of :func:`samples_per_pitch`.
+    grid factor of :func:`samples_per_pitch`. ``wavelength`` (a float or 0-d tensor, metres)
+    overrides the system's in the Debye integrand (gradients flow to it); the grid stays
+    planned from ``system.wavelength``.
     """
     n = nip_field_size(system, reach, oversampling)
     dx = system.pitch / samples_per_pitch(system, oversampling)
@@ -137,6 +141,7 @@ def nip_quadrants(
     h = n // 2
     quadrant = Grid(h + 1, dx)
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
+    lam = system.wavelength if wavelength is None else wavelength
     out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
     # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
     # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
@@ -144,7 +149,7 @@ def nip_quadrants(
     for start in range(0, len(depths), DEBYE_DEPTHS):
         part = slice(start, min(len(depths), start + DEBYE_DEPTHS))
         field = debye_psf(
-            system.objective, quadrant, system.wavelength, z[part], position=(offset, offset),
+            system.objective, quadrant, lam, z[part], position=(offset, offset),
             image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
             dtype=cdtype, device=device,
         )  # fmt: skip
@@ -185,6 +190,7 @@ def lenslet_transform(
     device: torch.device | str = "cpu",
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Separable Fresnel transform of one lenslet, as an ``(out_n, ns)`` complex128 matrix ``T``.
 
@@ -197,15 +203,16 @@ def lenslet_transform(
 
     The output chirp is kept: adjacent lenslets' fields add coherently on the sensor.
     The constant ``exp(j k d) / j`` is common to all lenslets and dropped.
-    ``lenslet_focal_length`` and ``mla_to_camera`` (floats or 0-d tensors, metres) override
-    the system's values in the physics (gradients flow to them); the sampling stays planned
-    from the system.
+    ``lenslet_focal_length``, ``mla_to_camera`` and ``wavelength`` (floats or 0-d tensors,
+    metres) override the system's values in the physics (gradients flow to them); the
+    sampling stays planned from the system.
     """
     dx = system.pitch / ns
     out_step = system.pitch * 3 / out_n  # out_n spans three pitches
     x = (torch.arange(ns, device=device, dtype=torch.float64) - ns // 2) * dx
     u = (torch.arange(out_n, device=device, dtype=torch.float64) - out_n // 2) * out_step
-    k = wavenumber(system.wavelength)
+    lam = system.wavelength if wavelength is None else wavelength
+    k = wavenumber(lam)
     d = system.mla_to_camera if mla_to_camera is None else mla_to_camera
     f = system.lenslet_focal_length if lenslet_focal_length is None else lenslet_focal_length
     xs, us = x[None, :], u[:, None]
@@ -215,7 +222,7 @@ def lenslet_transform(
         + fresnel_chirp(xs, 0.0, d, k)
         + lens_phase(xs, 0.0, f, k)
     )
-    amplitude = dx / (system.wavelength * d) ** 0.5
+    amplitude = dx / (lam * d) ** 0.5
     if not isinstance(amplitude, torch.Tensor):
         amplitude = torch.tensor(amplitude, dtype=torch.float64, device=device)
     return torch.polar(amplitude.to(torch.float64).expand_as(phase), phase)
@@ -236,6 +243,7 @@ def conventional_patterns(
     light_margin: float = 12.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -254,7 +262,11 @@ def conventional_patterns(
         (:func:`sub_samples`) and the diffraction margin of :func:`light_radius`.
     lenslet_focal_length, mla_to_camera : optional 0-d tensors (metres) overriding the
         system's values in the lenslet transform, for gradients; the sampling is planned
-        from the system's floats, so pass a system holding the same values. The NA reaches
+        from the system's floats, so pass a system holding the same values.
+    wavelength : optional 0-d tensor (metres) overriding ``system.wavelength`` in the
+        physics: the Debye integrand of the NIP field (when computed here; a given
+        ``nip_field`` must carry its own) and the lenslet transform. Sample counts, grids,
+        the lenslet reach and the lit lenslets stay planned from ``system.wavelength``. The NA reaches
         the patterns through the NIP field (a tensor NA in ``system.objective``, or a
         ``nip_field`` that carries a graph: :func:`debye_psf` is differentiable in it).
 
@@ -268,8 +280,9 @@ def conventional_patterns(
     field_n = nip_field_size(system, reach, nip_oversampling)
     if nip_field is None:
         nip_field = nip_fields(
-            system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling
-        )
+            system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling,
+            wavelength=wavelength,
+        )  # fmt: skip
     cut = (nip_field.shape[-1] - field_n) // 2
     if cut < 0:
         raise ValueError(f"nip_field is {nip_field.shape[-1]} samples wide; reach {reach} needs {field_n}.")
@@ -285,7 +298,7 @@ def conventional_patterns(
         found = offset_row_patterns(
             system, base, a, bs, reach=reach, dtype=dtype, light_radius=radii,
             oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
-            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
+            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
         )  # fmt: skip
         unique.update({(a, b): pattern for b, pattern in zip(bs, found, strict=True)})
     checkpoint(cancel, progress, len(rows), len(rows), "patterns done")
@@ -305,6 +318,7 @@ def offset_pattern(
     nip_oversampling: float = 1.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -316,12 +330,12 @@ def offset_pattern(
     ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
     light and are skipped; ``None`` computes them all. ``nip_oversampling``: the NIP grid
     factor ``base`` was computed with (:func:`nip_fields`). ``lenslet_focal_length``,
-    ``mla_to_camera``: tensor overrides for gradients (:func:`lenslet_transform`).
+    ``mla_to_camera``, ``wavelength``: tensor overrides for gradients (:func:`lenslet_transform`).
     """
     return offset_row_patterns(
         system, base, a, (b,), reach=reach, dtype=dtype, oversampling=oversampling,
         light_radius=light_radius, nip_oversampling=nip_oversampling,
-        lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
+        lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
     )[0]  # fmt: skip
 
 
@@ -354,6 +368,7 @@ def offset_row_patterns(
     nip_oversampling: float = 1.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
 ) -> list[torch.Tensor]:
     """Patterns ``(Z, H, H)`` of the sources ``(a, b)`` for each ``b`` in ``bs`` (see :func:`offset_pattern`).
 
@@ -374,7 +389,7 @@ def offset_row_patterns(
     cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
     transform = lenslet_transform(
         system, ns, out_n, device=base.device, lenslet_focal_length=lenslet_focal_length,
-        mla_to_camera=mla_to_camera,
+        mla_to_camera=mla_to_camera, wavelength=wavelength,
     ).to(cdtype)  # fmt: skip
     tiles = 2 * reach + 1
     span = tiles * ns

@@ -3,8 +3,9 @@
 Tiny float64 system: 10x/0.3 air objective, 50 um square lenslets of 1 mm focal length with
 the camera 1 mm behind them, 5 pixels and 3 voxels per lenslet, 3 x 3 lenslets, two depths.
 The lenslet focal length and the MLA-camera distance enter the lenslet Fresnel transform,
-the NA the native-image-plane Debye field; they are given in mm and plain numbers so that
-gradcheck's finite-difference step (1e-6) is well scaled.
+the NA the native-image-plane Debye field, the wavelength both; they are given in mm, um and
+plain numbers so that gradcheck's finite-difference step (1e-6) is well scaled. The
+sampling is planned from the system's float wavelength; the tensor one enters the physics.
 """
 
 from __future__ import annotations
@@ -14,7 +15,12 @@ import torch
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.optics.objective import ObjectiveLens
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
-from lfm_studio.engine.systems.conventional_patterns import conventional_patterns
+from lfm_studio.engine.systems.conventional_patterns import (
+    conventional_patterns,
+    nip_field_size,
+    samples_per_pitch,
+    sub_samples,
+)
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.units import mm, nm, um
 
@@ -23,25 +29,58 @@ DEPTHS = (0.0, 6 * um)
 LENSLETS = (3, 3)
 Q = 5
 PATTERN_SCALE = 1e-2  # patterns carry ~3e-3 of the emitted power per depth
+WAVELENGTH = 525 * nm
+NOMINAL = (1.0, 1.0, 0.3, WAVELENGTH / um)  # f (mm), d (mm), NA, wavelength (um)
 
 
-def _system(na) -> ConventionalLFMSystem:
+def _system(na, wavelength: float = WAVELENGTH) -> ConventionalLFMSystem:
     return ConventionalLFMSystem(
-        ObjectiveLens(10.0, na, 1.0, 200 * mm), 50 * um, 1 * mm, "square", 1 * mm, LENSLETS, Q, 3, 525 * nm
+        ObjectiveLens(10.0, na, 1.0, 200 * mm), 50 * um, 1 * mm, "square", 1 * mm, LENSLETS, Q, 3, wavelength
     )
 
 
-def _projector(f_mm: torch.Tensor, d_mm: torch.Tensor, na: torch.Tensor) -> LensletLatticeProjector:
-    system = _system(na)
-    reach = max(system.support(abs(z)) for z in DEPTHS)
-    patterns = conventional_patterns(
-        system, DEPTHS, reach=reach, dtype=F64, lenslet_focal_length=f_mm * mm, mla_to_camera=d_mm * mm
-    )
+def _reach(system: ConventionalLFMSystem) -> int:
+    return max(system.support(abs(z)) for z in DEPTHS)
+
+
+def _plan(system: ConventionalLFMSystem) -> tuple[int, ...]:
+    """The discrete choices of a pattern build: reach, NIP samples per pitch, sensor samples per
+    pixel and NIP field size."""
+    reach = _reach(system)
+    return reach, samples_per_pitch(system), sub_samples(system), nip_field_size(system, reach)
+
+
+def _lattice(patterns: torch.Tensor) -> LensletLatticeProjector:
     return LensletLatticeProjector([([0, 1], patterns / PATTERN_SCALE)], len(DEPTHS), LENSLETS, Q)
 
 
+def _projector(
+    f_mm: torch.Tensor, d_mm: torch.Tensor, na: torch.Tensor, lam_um: torch.Tensor
+) -> LensletLatticeProjector:
+    system = _system(na)
+    patterns = conventional_patterns(
+        system, DEPTHS, reach=_reach(system), dtype=F64, lenslet_focal_length=f_mm * mm,
+        mla_to_camera=d_mm * mm, wavelength=lam_um * um,
+    )  # fmt: skip
+    return _lattice(patterns)
+
+
 def _nominal() -> tuple[torch.Tensor, ...]:
-    return tuple(torch.tensor(v, dtype=F64, requires_grad=True) for v in (1.0, 1.0, 0.3))
+    return tuple(torch.tensor(v, dtype=F64, requires_grad=True) for v in NOMINAL)
+
+
+def _loss_data() -> tuple[torch.Tensor, torch.Tensor]:
+    """A measured image (of a random volume, at the nominal values) and the loss weights."""
+    gen = torch.Generator().manual_seed(0)
+    with torch.no_grad():
+        nominal = _projector(*_nominal())
+    truth = torch.rand(nominal.volume_shape, generator=gen, dtype=F64) + 0.5
+    image = nominal.forward(truth).detach()
+    return image, torch.rand(nominal.volume_shape, generator=gen, dtype=F64)
+
+
+def _rl_loss(projector: LensletLatticeProjector, image: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    return (weights * richardson_lucy_unrolled(projector, image, 3)).sum()
 
 
 def test_tensor_overrides_at_the_system_values_reproduce_the_float_patterns():
@@ -49,27 +88,44 @@ def test_tensor_overrides_at_the_system_values_reproduce_the_float_patterns():
     reach = system.support(max(abs(z) for z in DEPTHS))
     plain = conventional_patterns(system, DEPTHS, reach=reach, dtype=F64)
     with torch.no_grad():
-        f, d, _ = _nominal()
+        f, d, _, lam = _nominal()
         overridden = conventional_patterns(
-            system, DEPTHS, reach=reach, dtype=F64, lenslet_focal_length=f * mm, mla_to_camera=d * mm
-        )
+            system, DEPTHS, reach=reach, dtype=F64, lenslet_focal_length=f * mm, mla_to_camera=d * mm,
+            wavelength=lam * um,
+        )  # fmt: skip
     assert float((overridden - plain).abs().max() / plain.abs().max()) < 1e-12
 
 
 def test_gradcheck_patterns_projector_unrolled_rl_loss():
-    gen = torch.Generator().manual_seed(0)
-    with torch.no_grad():
-        nominal = _projector(*_nominal())
-    truth = torch.rand(nominal.volume_shape, generator=gen, dtype=F64) + 0.5
-    image = nominal.forward(truth).detach()
-    weights = torch.rand(nominal.volume_shape, generator=gen, dtype=F64)
+    image, weights = _loss_data()
 
-    def loss(f_mm, d_mm, na):
-        projector = _projector(f_mm, d_mm, na)
-        return (weights * richardson_lucy_unrolled(projector, image, 3)).sum()
+    def loss(f_mm, d_mm, na, lam_um):
+        return _rl_loss(_projector(f_mm, d_mm, na, lam_um), image, weights)
 
     inputs = _nominal()
     loss(*inputs).backward()
     for value in inputs:
         assert value.grad is not None and float(value.grad) != 0.0
     assert torch.autograd.gradcheck(loss, _nominal(), eps=1e-6, atol=1e-6, rtol=1e-4)
+
+
+def test_wavelength_gradient_matches_a_central_difference_of_the_float_path():
+    """dLoss/dlambda of the tensor path against (L(lambda + h) - L(lambda - h)) / 2h, where L is
+    the plain float path (no overrides) planned at lambda +- h: the plans must not change."""
+    image, weights = _loss_data()
+    inputs = _nominal()
+    _rl_loss(_projector(*inputs), image, weights).backward()
+    gradient = float(inputs[3].grad) / um  # per metre
+
+    h = 1e-5 * WAVELENGTH  # central-difference error ~3e-9 relative here (it scales as h^2)
+    plans, losses = [], []
+    for wavelength in (WAVELENGTH - h, WAVELENGTH + h):
+        system = _system(0.3, wavelength)
+        plans.append(_plan(system))
+        with torch.no_grad():
+            patterns = conventional_patterns(system, DEPTHS, reach=_reach(system), dtype=F64)
+            losses.append(float(_rl_loss(_lattice(patterns), image, weights)))
+    assert plans == [_plan(_system(0.3))] * 2
+    difference = (losses[1] - losses[0]) / (2 * h)
+    assert gradient != 0.0
+    assert abs(difference - gradient) <= 1e-7 * abs(gradient), (difference, gradient)
