@@ -14,6 +14,15 @@ lenslet shares one matrix and all windows land on one sensor grid, where they ad
 and adding intensities instead is off by 5-10 % at defocus (measured against a
 full-field simulation; tests). ``|U|^2`` is then integrated on the rectified pixels.
 
+A lenslet's clear aperture (``system.lenslet_aperture``, default the pitch) is applied to its
+patch as an antialiased coverage; the grid is planned from the pitch whatever the aperture.
+
+Gradients: ``lenslet_focal_length``, ``mla_to_camera``, ``wavelength`` and ``lenslet_aperture``
+may be given as 0-d tensors that override the system's floats in the physics (the lens and
+Fresnel phases, the Debye integrand, the aperture coverage) while every discrete choice
+(sample counts, grids, reach, lit lenslets) stays planned from the system's floats; a tensor
+NA travels in ``system.objective``. At the system's values the result equals the float path's.
+
 The square lattice is symmetric under x and y mirrors and the transpose, so of the
 ``S x S`` sub-positions only those with ``0 <= a <= b`` are simulated and the rest are
 mirrored copies (6 of 25 for ``S = 5``).
@@ -244,6 +253,7 @@ def conventional_patterns(
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -266,7 +276,11 @@ def conventional_patterns(
     wavelength : optional 0-d tensor (metres) overriding ``system.wavelength`` in the
         physics: the Debye integrand of the NIP field (when computed here; a given
         ``nip_field`` must carry its own) and the lenslet transform. Sample counts, grids,
-        the lenslet reach and the lit lenslets stay planned from ``system.wavelength``. The NA reaches
+        the lenslet reach and the lit lenslets stay planned from ``system.wavelength``.
+    lenslet_aperture : optional 0-d tensor (metres, ``<= pitch``) overriding
+        ``system.lenslet_aperture`` (the clear aperture's side or diameter); it enters through
+        the antialiased aperture coverage of the NIP samples (:func:`lenslet_aperture_weights`),
+        the grid stays planned from the pitch. The NA reaches
         the patterns through the NIP field (a tensor NA in ``system.objective``, or a
         ``nip_field`` that carries a graph: :func:`debye_psf` is differentiable in it).
 
@@ -299,6 +313,7 @@ def conventional_patterns(
             system, base, a, bs, reach=reach, dtype=dtype, light_radius=radii,
             oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
             lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+            lenslet_aperture=lenslet_aperture,
         )  # fmt: skip
         unique.update({(a, b): pattern for b, pattern in zip(bs, found, strict=True)})
     checkpoint(cancel, progress, len(rows), len(rows), "patterns done")
@@ -319,6 +334,7 @@ def offset_pattern(
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -330,12 +346,14 @@ def offset_pattern(
     ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
     light and are skipped; ``None`` computes them all. ``nip_oversampling``: the NIP grid
     factor ``base`` was computed with (:func:`nip_fields`). ``lenslet_focal_length``,
-    ``mla_to_camera``, ``wavelength``: tensor overrides for gradients (:func:`lenslet_transform`).
+    ``mla_to_camera``, ``wavelength``: tensor overrides for gradients (:func:`lenslet_transform`);
+    ``lenslet_aperture``: one for the clear aperture (:func:`conventional_patterns`).
     """
     return offset_row_patterns(
         system, base, a, (b,), reach=reach, dtype=dtype, oversampling=oversampling,
         light_radius=light_radius, nip_oversampling=nip_oversampling,
         lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+        lenslet_aperture=lenslet_aperture,
     )[0]  # fmt: skip
 
 
@@ -369,13 +387,16 @@ def offset_row_patterns(
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> list[torch.Tensor]:
     """Patterns ``(Z, H, H)`` of the sources ``(a, b)`` for each ``b`` in ``bs`` (see :func:`offset_pattern`).
 
     Square lenslets: the sources of one row ``a`` see the same NIP rows, so the row transform
     (the first of the two GEMMs, :func:`_row_transform`) is done once on the band of
     columns all of them need, and each ``b`` crops it and zeroes its unlit lenslets after
-    it (exact: the row transform keeps tiles apart). Round lenslets: the aperture is not
+    it (exact: the row transform keeps tiles apart). A square clear aperture smaller than the
+    pitch is separable and folded into the transform's input columns
+    (:func:`lenslet_aperture_weights`). Round lenslets: the aperture is not
     separable, so each ``b`` is transformed on its own. ``light_radius``: one radius for all
     depths, a list with one per depth of ``base``, or ``None`` (every lenslet lit).
     """
@@ -391,6 +412,7 @@ def offset_row_patterns(
         system, ns, out_n, device=base.device, lenslet_focal_length=lenslet_focal_length,
         mla_to_camera=mla_to_camera, wavelength=wavelength,
     ).to(cdtype)  # fmt: skip
+    aperture = system.lenslet_aperture if lenslet_aperture is None else lenslet_aperture
     tiles = 2 * reach + 1
     span = tiles * ns
     # The source's field is the on-axis field moved by (a, b) sub-positions: lenslet (i, j)
@@ -406,12 +428,13 @@ def offset_row_patterns(
     # Bands of NIP columns to row-transform: (first column, width, pre-transform weights, the b's).
     bands: list[tuple[int, int, torch.Tensor | None, list[int]]]
     if system.lenslet_shape == "circle":
-        dx = system.pitch / ns
-        y, x = Grid(ns, dx).axes(device=base.device)
-        aperture = aperture_coverage("circle", x[None, :], y[:, None], system.pitch, (dx, dx), antialias=True)
-        aperture = aperture.to(cdtype).repeat(tiles, tiles)
-        bands = [(left, span, aperture, [i]) for i, left in enumerate(lefts)]
+        diameter = system.pitch if aperture is None else aperture
+        disk = lenslet_aperture_weights(system, ns, diameter, base.device)
+        disk = disk.to(cdtype).repeat(tiles, tiles)
+        bands = [(left, span, disk, [i]) for i, left in enumerate(lefts)]
     else:
+        if aperture is not None:  # T @ diag(w): the separable square aperture on both axes
+            transform = transform * lenslet_aperture_weights(system, ns, aperture, base.device).to(cdtype)
         bands = [(min(lefts), span + max(lefts) - min(lefts), None, list(range(len(bs))))]
     out_step = system.pitch / per_lenslet
     patterns: list[list[torch.Tensor]] = [[] for _ in bs]
@@ -428,6 +451,20 @@ def offset_row_patterns(
                 power = (field.real**2 + field.imag**2) * (out_step * out_step)
                 patterns[index].append(_bin(power[None], m).to(dtype))
     return [torch.cat(per_b, dim=0) for per_b in patterns]
+
+
+def lenslet_aperture_weights(
+    system: ConventionalLFMSystem, ns: int, aperture: Scalar, device: torch.device | str = "cpu"
+) -> torch.Tensor:
+    """Antialiased clear-aperture coverage of a lenslet's ``ns`` NIP samples per pitch (float64):
+    ``(ns, ns)`` for a circle of diameter ``aperture``, the per-axis ``(ns,)`` factor for a
+    square of side ``aperture`` (the 2-D coverage is its outer product). Differentiable in
+    a tensor ``aperture``."""
+    dx = system.pitch / ns
+    y, x = Grid(ns, dx).axes(device=device)
+    if system.lenslet_shape == "circle":
+        return aperture_coverage("circle", x[None, :], y[:, None], aperture, (dx, dx), antialias=True)
+    return aperture_coverage("square", x, x.new_zeros(()), aperture, (dx, dx), antialias=True)
 
 
 def _row_transform(transform: torch.Tensor, region: torch.Tensor, tiles: int) -> torch.Tensor:

@@ -1,15 +1,18 @@
 """Gradients through the conventional-LFM patterns, the lenslet-lattice projector and unrolled RL.
 
-Tiny float64 system: 10x/0.3 air objective, 50 um square lenslets of 1 mm focal length with
-the camera 1 mm behind them, 5 pixels and 3 voxels per lenslet, 3 x 3 lenslets, two depths.
-The lenslet focal length and the MLA-camera distance enter the lenslet Fresnel transform,
-the NA the native-image-plane Debye field, the wavelength both; they are given in mm, um and
-plain numbers so that gradcheck's finite-difference step (1e-6) is well scaled. The
-sampling is planned from the system's float wavelength; the tensor one enters the physics.
+Tiny float64 system: 10x/0.3 air objective, 50 um pitch lenslets (40 um square or round clear
+aperture) of 1 mm focal length with the camera 1 mm behind them, 5 pixels and 3 voxels per
+lenslet, 3 x 3 lenslets, two depths. The lenslet focal length and the MLA-camera distance
+enter the lenslet Fresnel transform, the NA the native-image-plane Debye field, the
+wavelength both, the clear aperture the antialiased aperture coverage of the NIP samples;
+they are given in mm, um and plain numbers so that gradcheck's finite-difference step (1e-6)
+is well scaled. The sampling is planned from the system's floats (the grid from the pitch);
+the tensors enter the physics.
 """
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
@@ -30,13 +33,16 @@ LENSLETS = (3, 3)
 Q = 5
 PATTERN_SCALE = 1e-2  # patterns carry ~3e-3 of the emitted power per depth
 WAVELENGTH = 525 * nm
-NOMINAL = (1.0, 1.0, 0.3, WAVELENGTH / um)  # f (mm), d (mm), NA, wavelength (um)
+APERTURE = 40 * um
+# f (mm), d (mm), NA, wavelength (um), clear aperture (um)
+NOMINAL = (1.0, 1.0, 0.3, WAVELENGTH / um, APERTURE / um)
 
 
-def _system(na, wavelength: float = WAVELENGTH) -> ConventionalLFMSystem:
+def _system(na, wavelength: float = WAVELENGTH, shape: str = "square") -> ConventionalLFMSystem:
     return ConventionalLFMSystem(
-        ObjectiveLens(10.0, na, 1.0, 200 * mm), 50 * um, 1 * mm, "square", 1 * mm, LENSLETS, Q, 3, wavelength
-    )
+        ObjectiveLens(10.0, na, 1.0, 200 * mm), 50 * um, 1 * mm, shape, 1 * mm, LENSLETS, Q, 3, wavelength,
+        lenslet_aperture=APERTURE,
+    )  # fmt: skip
 
 
 def _reach(system: ConventionalLFMSystem) -> int:
@@ -55,12 +61,17 @@ def _lattice(patterns: torch.Tensor) -> LensletLatticeProjector:
 
 
 def _projector(
-    f_mm: torch.Tensor, d_mm: torch.Tensor, na: torch.Tensor, lam_um: torch.Tensor
+    f_mm: torch.Tensor,
+    d_mm: torch.Tensor,
+    na: torch.Tensor,
+    lam_um: torch.Tensor,
+    a_um: torch.Tensor,
+    shape: str = "square",
 ) -> LensletLatticeProjector:
-    system = _system(na)
+    system = _system(na, shape=shape)
     patterns = conventional_patterns(
         system, DEPTHS, reach=_reach(system), dtype=F64, lenslet_focal_length=f_mm * mm,
-        mla_to_camera=d_mm * mm, wavelength=lam_um * um,
+        mla_to_camera=d_mm * mm, wavelength=lam_um * um, lenslet_aperture=a_um * um,
     )  # fmt: skip
     return _lattice(patterns)
 
@@ -69,11 +80,11 @@ def _nominal() -> tuple[torch.Tensor, ...]:
     return tuple(torch.tensor(v, dtype=F64, requires_grad=True) for v in NOMINAL)
 
 
-def _loss_data() -> tuple[torch.Tensor, torch.Tensor]:
+def _loss_data(shape: str = "square") -> tuple[torch.Tensor, torch.Tensor]:
     """A measured image (of a random volume, at the nominal values) and the loss weights."""
     gen = torch.Generator().manual_seed(0)
     with torch.no_grad():
-        nominal = _projector(*_nominal())
+        nominal = _projector(*_nominal(), shape=shape)
     truth = torch.rand(nominal.volume_shape, generator=gen, dtype=F64) + 0.5
     image = nominal.forward(truth).detach()
     return image, torch.rand(nominal.volume_shape, generator=gen, dtype=F64)
@@ -83,24 +94,26 @@ def _rl_loss(projector: LensletLatticeProjector, image: torch.Tensor, weights: t
     return (weights * richardson_lucy_unrolled(projector, image, 3)).sum()
 
 
-def test_tensor_overrides_at_the_system_values_reproduce_the_float_patterns():
-    system = _system(0.3)
+@pytest.mark.parametrize("shape", ["square", "circle"])
+def test_tensor_overrides_at_the_system_values_reproduce_the_float_patterns(shape):
+    system = _system(0.3, shape=shape)
     reach = system.support(max(abs(z) for z in DEPTHS))
     plain = conventional_patterns(system, DEPTHS, reach=reach, dtype=F64)
     with torch.no_grad():
-        f, d, _, lam = _nominal()
+        f, d, _, lam, a = _nominal()
         overridden = conventional_patterns(
             system, DEPTHS, reach=reach, dtype=F64, lenslet_focal_length=f * mm, mla_to_camera=d * mm,
-            wavelength=lam * um,
+            wavelength=lam * um, lenslet_aperture=a * um,
         )  # fmt: skip
     assert float((overridden - plain).abs().max() / plain.abs().max()) < 1e-12
 
 
-def test_gradcheck_patterns_projector_unrolled_rl_loss():
-    image, weights = _loss_data()
+@pytest.mark.parametrize("shape", ["square", "circle"])
+def test_gradcheck_patterns_projector_unrolled_rl_loss(shape):
+    image, weights = _loss_data(shape)
 
-    def loss(f_mm, d_mm, na, lam_um):
-        return _rl_loss(_projector(f_mm, d_mm, na, lam_um), image, weights)
+    def loss(f_mm, d_mm, na, lam_um, a_um):
+        return _rl_loss(_projector(f_mm, d_mm, na, lam_um, a_um, shape), image, weights)
 
     inputs = _nominal()
     loss(*inputs).backward()
