@@ -38,10 +38,12 @@ APERTURE = 40 * um
 NOMINAL = (1.0, 1.0, 0.3, WAVELENGTH / um, APERTURE / um)
 
 
-def _system(na, wavelength: float = WAVELENGTH, shape: str = "square") -> ConventionalLFMSystem:
+def _system(
+    na, wavelength: float = WAVELENGTH, shape: str = "square", aperture: float = APERTURE
+) -> ConventionalLFMSystem:
     return ConventionalLFMSystem(
         ObjectiveLens(10.0, na, 1.0, 200 * mm), 50 * um, 1 * mm, shape, 1 * mm, LENSLETS, Q, 3, wavelength,
-        lenslet_aperture=APERTURE,
+        lenslet_aperture=aperture,
     )  # fmt: skip
 
 
@@ -122,18 +124,25 @@ def test_gradcheck_patterns_projector_unrolled_rl_loss(shape):
     assert torch.autograd.gradcheck(loss, _nominal(), eps=1e-6, atol=1e-6, rtol=1e-4)
 
 
-def test_wavelength_gradient_matches_a_central_difference_of_the_float_path():
-    """dLoss/dlambda of the tensor path against (L(lambda + h) - L(lambda - h)) / 2h, where L is
-    the plain float path (no overrides) planned at lambda +- h: the plans must not change."""
+@pytest.mark.parametrize(
+    ("name", "index", "value"), [("wavelength", 3, WAVELENGTH), ("aperture", 4, APERTURE)]
+)
+def test_gradient_matches_a_central_difference_of_the_float_path(name, index, value):
+    """dLoss/dx of the tensor path against (L(x + h) - L(x - h)) / 2h, where L is the plain float
+    path (no overrides, the system holding x +- h) planned at x +- h: the plans must not change.
+
+    Wavelength: the difference error is ~3e-9 relative (it scales as h^2). Aperture: the
+    antialiased coverage is piecewise linear in it, exact away from a kink.
+    """
     image, weights = _loss_data()
     inputs = _nominal()
     _rl_loss(_projector(*inputs), image, weights).backward()
-    gradient = float(inputs[3].grad) / um  # per metre
+    gradient = float(inputs[index].grad) / um  # per metre
 
-    h = 1e-5 * WAVELENGTH  # central-difference error ~3e-9 relative here (it scales as h^2)
+    h = 1e-5 * value
     plans, losses = [], []
-    for wavelength in (WAVELENGTH - h, WAVELENGTH + h):
-        system = _system(0.3, wavelength)
+    for x in (value - h, value + h):
+        system = _system(0.3, **{name: x})
         plans.append(_plan(system))
         with torch.no_grad():
             patterns = conventional_patterns(system, DEPTHS, reach=_reach(system), dtype=F64)
