@@ -34,8 +34,12 @@ see ``radial_sampling`` in :func:`debye_psf`), as a matrix product
 ``E(z, theta) @ J0(theta, r)`` with the Bessel table built in chunks to bound memory.
 Everything runs in float64 and is cast to ``dtype`` at the end (peak memory is about
 ``Z * ny * nx`` complex128 values: chunk long depth stacks on the caller's side); the
-result is differentiable with respect to ``z`` and the numerical aperture (through
-:mod:`bessel`), not with respect to the magnification, index or source position.
+result is differentiable with respect to ``z``, the numerical aperture (through
+:mod:`bessel`) and the wavelength, not with respect to the magnification, index or
+source position. A 0-d tensor wavelength enters only the continuous terms (``k n`` in
+the phase and the Bessel argument, the ``n / lambda`` of ``C``); every discrete choice
+(quadrature order, radial-table step and length) is made from its float value, so the
+result equals the float path's at that value.
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
@@ -101,7 +105,7 @@ def _depths(z: Scalar | torch.Tensor, device: Device) -> tuple[torch.Tensor, boo
 @overload
 def debye_integral(
     objective: ObjectiveLens,
-    wavelength: float,
+    wavelength: Scalar,
     radius: torch.Tensor,
     z: Scalar | torch.Tensor,
     *,
@@ -115,7 +119,7 @@ def debye_integral(
 @overload
 def debye_integral(
     objective: ObjectiveLens,
-    wavelength: float,
+    wavelength: Scalar,
     radius: torch.Tensor,
     z: Scalar | torch.Tensor,
     *,
@@ -128,7 +132,7 @@ def debye_integral(
 
 def debye_integral(
     objective: ObjectiveLens,
-    wavelength: float,
+    wavelength: Scalar,
     radius: torch.Tensor,
     z: Scalar | torch.Tensor,
     *,
@@ -142,8 +146,9 @@ def debye_integral(
     Parameters
     ----------
     objective : ObjectiveLens
-    wavelength : float
-        Vacuum wavelength in metres.
+    wavelength : float or 0-d tensor
+        Vacuum wavelength in metres (a tensor carries gradients; the quadrature order is
+        planned from its value).
     radius : float64 tensor, shape ``(R,)``
         Lateral distances from the source in metres (object side, >= 0).
     z : float, 0-d or 1-D tensor ``(Z,)``
@@ -173,7 +178,7 @@ def debye_integral(
     r = radius.to(torch.float64).reshape(-1)
     r_max = float(r.detach().abs().max()) if r.numel() else 0.0
     z_max = float(zt.detach().abs().max()) if zt.numel() else 0.0
-    phi = phase_excursion(objective, wavelength, r_max, z_max)
+    phi = phase_excursion(objective, _value(wavelength), r_max, z_max)
     needed = minimum_quadrature_order(phi)
     if n_quadrature is not None and (isinstance(n_quadrature, bool) or not isinstance(n_quadrature, int)):
         raise ValueError(f"n_quadrature must be an integer number of nodes or None; got {n_quadrature!r}.")
@@ -192,6 +197,8 @@ def debye_integral(
     na = na.to(device=device, dtype=torch.float64) if isinstance(na, torch.Tensor) else float(na)
     alpha = torch.asin(torch.as_tensor(na, dtype=torch.float64, device=device) / n)
     theta, weights = gauss_legendre(n_quadrature, 0.0, alpha, device=device)
+    if isinstance(wavelength, torch.Tensor):
+        wavelength = wavelength.to(device=device, dtype=torch.float64)
     kn = 2.0 * math.pi * n / wavelength
     sin_theta = torch.sin(theta)
     amplitude = weights * apod(theta) * sin_theta  # (Q,)
@@ -202,7 +209,10 @@ def debye_integral(
         phase = -2.0 * kn * zt[:, None] * torch.sin(theta / 2.0)[None, :] ** 2  # (Z, Q)
     e_re = amplitude * torch.cos(phase)
     e_im = amplitude * torch.sin(phase)
-    constant = complex(0.0, -math.sqrt(math.pi) * n / wavelength)
+    if isinstance(wavelength, torch.Tensor):
+        constant: complex | torch.Tensor = -1j * (math.sqrt(math.pi) * n / wavelength)
+    else:
+        constant = complex(0.0, -math.sqrt(math.pi) * n / wavelength)
     field = _radial_sum(e_re, e_im, bessel_j0, kn * sin_theta, r) * constant
     if derivative:
         # dJ0(a r)/dr = -a J1(a r) with a = k n sin(theta).
@@ -226,7 +236,7 @@ def _radial_sum(e_re, e_im, bessel, frequency: torch.Tensor, r: torch.Tensor) ->
 def debye_psf(
     objective: ObjectiveLens,
     grid: Grid,
-    wavelength: float,
+    wavelength: Scalar,
     z: Scalar | torch.Tensor,
     *,
     position: tuple[float, float] = (0.0, 0.0),
@@ -246,8 +256,10 @@ def debye_psf(
     grid : Grid
         Object-side coordinates (metres in the sample) or, with ``image_side=True``,
         coordinates on the native image plane (metres on the camera side).
-    wavelength : float
-        Vacuum wavelength in metres.
+    wavelength : float or 0-d tensor
+        Vacuum wavelength in metres; a tensor carries gradients into the field, and the
+        radial table and quadrature are planned from its value (``Field.wavelength`` holds
+        that float).
     z : float, 0-d tensor or 1-D tensor ``(Z,)``
         Source depth(s) in metres, positive away from the objective; a 1-D tensor
         batches all depths in one call.
@@ -285,7 +297,7 @@ def debye_psf(
     scale = m if image_side else 1.0  # grid metres per object-side metre
     if radial_sampling == "auto":
         na = _value(objective.numerical_aperture)
-        step = min(grid.dy / scale, grid.dx / scale, wavelength / (4.0 * na)) / 32.0
+        step = min(grid.dy / scale, grid.dx / scale, _value(wavelength) / (4.0 * na)) / 32.0
     elif radial_sampling == "exact":
         step = None
     elif isinstance(radial_sampling, int) and not isinstance(radial_sampling, bool) and radial_sampling >= 1:
@@ -314,7 +326,7 @@ def debye_psf(
     if image_side:
         data = data / m
     index = 1.0 if image_side else _value(objective.immersion_index)
-    return Field(data.to(complex_dtype(dtype)), grid, wavelength, index)
+    return Field(data.to(complex_dtype(dtype)), grid, _value(wavelength), index)
 
 
 def _hermite(values: torch.Tensor, slopes: torch.Tensor, position: torch.Tensor) -> torch.Tensor:

@@ -14,6 +14,15 @@ lenslet shares one matrix and all windows land on one sensor grid, where they ad
 and adding intensities instead is off by 5-10 % at defocus (measured against a
 full-field simulation; tests). ``|U|^2`` is then integrated on the rectified pixels.
 
+A lenslet's clear aperture (``system.lenslet_aperture``, default the pitch) is applied to its
+patch as an antialiased coverage; the grid is planned from the pitch whatever the aperture.
+
+Gradients: ``lenslet_focal_length``, ``mla_to_camera``, ``wavelength`` and ``lenslet_aperture``
+may be given as 0-d tensors that override the system's floats in the physics (the lens and
+Fresnel phases, the Debye integrand, the aperture coverage) while every discrete choice
+(sample counts, grids, reach, lit lenslets) stays planned from the system's floats; a tensor
+NA travels in ``system.objective``. At the system's values the result equals the float path's.
+
 The square lattice is symmetric under x and y mirrors and the transpose, so of the
 ``S x S`` sub-positions only those with ``0 <= a <= b`` are simulated and the rest are
 mirrored copies (6 of 25 for ``S = 5``).
@@ -94,6 +103,7 @@ def nip_fields(
     model: str = "debye",
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Image-side Debye fields ``(Z, N, N)`` of an on-axis point at each depth on the NIP grid.
 
@@ -101,7 +111,7 @@ def nip_fields(
     """
     quadrants = nip_quadrants(
         system, depths, reach=reach, dtype=dtype, device=device, radial_sampling=radial_sampling,
-        model=model, n_quadrature=n_quadrature, oversampling=oversampling,
+        model=model, n_quadrature=n_quadrature, oversampling=oversampling, wavelength=wavelength,
     )  # fmt: skip
     return mirrored(quadrants, nip_field_size(system, reach, oversampling))
 
@@ -117,6 +127,7 @@ def nip_quadrants(
     model: str = "debye",
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """One quadrant ``(Z, h + 1, h + 1)`` of the on-axis NIP fields, ``h = N // 2`` (:func:`mirrored`
     expands it): a quarter of the memory of the fields, kept for all depths during a build.
@@ -125,7 +136,9 @@ def nip_quadrants(
     shared by the depths of a call). ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
     (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
     ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
-    grid factor of :func:`samples_per_pitch`.
+    grid factor of :func:`samples_per_pitch`. ``wavelength`` (a float or 0-d tensor, metres)
+    overrides the system's in the Debye integrand (gradients flow to it); the grid stays
+    planned from ``system.wavelength``.
     """
     n = nip_field_size(system, reach, oversampling)
     dx = system.pitch / samples_per_pitch(system, oversampling)
@@ -137,6 +150,7 @@ def nip_quadrants(
     h = n // 2
     quadrant = Grid(h + 1, dx)
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
+    lam = system.wavelength if wavelength is None else wavelength
     out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
     # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
     # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
@@ -144,7 +158,7 @@ def nip_quadrants(
     for start in range(0, len(depths), DEBYE_DEPTHS):
         part = slice(start, min(len(depths), start + DEBYE_DEPTHS))
         field = debye_psf(
-            system.objective, quadrant, system.wavelength, z[part], position=(offset, offset),
+            system.objective, quadrant, lam, z[part], position=(offset, offset),
             image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
             dtype=cdtype, device=device,
         )  # fmt: skip
@@ -185,6 +199,7 @@ def lenslet_transform(
     device: torch.device | str = "cpu",
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
 ) -> torch.Tensor:
     """Separable Fresnel transform of one lenslet, as an ``(out_n, ns)`` complex128 matrix ``T``.
 
@@ -197,15 +212,16 @@ def lenslet_transform(
 
     The output chirp is kept: adjacent lenslets' fields add coherently on the sensor.
     The constant ``exp(j k d) / j`` is common to all lenslets and dropped.
-    ``lenslet_focal_length`` and ``mla_to_camera`` (floats or 0-d tensors, metres) override
-    the system's values in the physics (gradients flow to them); the sampling stays planned
-    from the system.
+    ``lenslet_focal_length``, ``mla_to_camera`` and ``wavelength`` (floats or 0-d tensors,
+    metres) override the system's values in the physics (gradients flow to them); the
+    sampling stays planned from the system.
     """
     dx = system.pitch / ns
     out_step = system.pitch * 3 / out_n  # out_n spans three pitches
     x = (torch.arange(ns, device=device, dtype=torch.float64) - ns // 2) * dx
     u = (torch.arange(out_n, device=device, dtype=torch.float64) - out_n // 2) * out_step
-    k = wavenumber(system.wavelength)
+    lam = system.wavelength if wavelength is None else wavelength
+    k = wavenumber(lam)
     d = system.mla_to_camera if mla_to_camera is None else mla_to_camera
     f = system.lenslet_focal_length if lenslet_focal_length is None else lenslet_focal_length
     xs, us = x[None, :], u[:, None]
@@ -215,7 +231,7 @@ def lenslet_transform(
         + fresnel_chirp(xs, 0.0, d, k)
         + lens_phase(xs, 0.0, f, k)
     )
-    amplitude = dx / (system.wavelength * d) ** 0.5
+    amplitude = dx / (lam * d) ** 0.5
     if not isinstance(amplitude, torch.Tensor):
         amplitude = torch.tensor(amplitude, dtype=torch.float64, device=device)
     return torch.polar(amplitude.to(torch.float64).expand_as(phase), phase)
@@ -236,6 +252,8 @@ def conventional_patterns(
     light_margin: float = 12.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -254,7 +272,15 @@ def conventional_patterns(
         (:func:`sub_samples`) and the diffraction margin of :func:`light_radius`.
     lenslet_focal_length, mla_to_camera : optional 0-d tensors (metres) overriding the
         system's values in the lenslet transform, for gradients; the sampling is planned
-        from the system's floats, so pass a system holding the same values. The NA reaches
+        from the system's floats, so pass a system holding the same values.
+    wavelength : optional 0-d tensor (metres) overriding ``system.wavelength`` in the
+        physics: the Debye integrand of the NIP field (when computed here; a given
+        ``nip_field`` must carry its own) and the lenslet transform. Sample counts, grids,
+        the lenslet reach and the lit lenslets stay planned from ``system.wavelength``.
+    lenslet_aperture : optional 0-d tensor (metres, ``<= pitch``) overriding
+        ``system.lenslet_aperture`` (the clear aperture's side or diameter); it enters through
+        the antialiased aperture coverage of the NIP samples (:func:`lenslet_aperture_weights`),
+        the grid stays planned from the pitch. The NA reaches
         the patterns through the NIP field (a tensor NA in ``system.objective``, or a
         ``nip_field`` that carries a graph: :func:`debye_psf` is differentiable in it).
 
@@ -268,8 +294,9 @@ def conventional_patterns(
     field_n = nip_field_size(system, reach, nip_oversampling)
     if nip_field is None:
         nip_field = nip_fields(
-            system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling
-        )
+            system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling,
+            wavelength=wavelength,
+        )  # fmt: skip
     cut = (nip_field.shape[-1] - field_n) // 2
     if cut < 0:
         raise ValueError(f"nip_field is {nip_field.shape[-1]} samples wide; reach {reach} needs {field_n}.")
@@ -285,7 +312,8 @@ def conventional_patterns(
         found = offset_row_patterns(
             system, base, a, bs, reach=reach, dtype=dtype, light_radius=radii,
             oversampling=pixel_oversampling, nip_oversampling=nip_oversampling,
-            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
+            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+            lenslet_aperture=lenslet_aperture,
         )  # fmt: skip
         unique.update({(a, b): pattern for b, pattern in zip(bs, found, strict=True)})
     checkpoint(cancel, progress, len(rows), len(rows), "patterns done")
@@ -305,6 +333,8 @@ def offset_pattern(
     nip_oversampling: float = 1.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> torch.Tensor:
     """Pattern ``(Z, H, H)`` of a source ``a`` sub-positions below and ``b`` right of the lenslet axis.
 
@@ -316,12 +346,14 @@ def offset_pattern(
     ``light_radius`` (NIP metres, :func:`light_radius`) from the source's image receive no
     light and are skipped; ``None`` computes them all. ``nip_oversampling``: the NIP grid
     factor ``base`` was computed with (:func:`nip_fields`). ``lenslet_focal_length``,
-    ``mla_to_camera``: tensor overrides for gradients (:func:`lenslet_transform`).
+    ``mla_to_camera``, ``wavelength``: tensor overrides for gradients (:func:`lenslet_transform`);
+    ``lenslet_aperture``: one for the clear aperture (:func:`conventional_patterns`).
     """
     return offset_row_patterns(
         system, base, a, (b,), reach=reach, dtype=dtype, oversampling=oversampling,
         light_radius=light_radius, nip_oversampling=nip_oversampling,
-        lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera,
+        lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+        lenslet_aperture=lenslet_aperture,
     )[0]  # fmt: skip
 
 
@@ -354,13 +386,17 @@ def offset_row_patterns(
     nip_oversampling: float = 1.0,
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> list[torch.Tensor]:
     """Patterns ``(Z, H, H)`` of the sources ``(a, b)`` for each ``b`` in ``bs`` (see :func:`offset_pattern`).
 
     Square lenslets: the sources of one row ``a`` see the same NIP rows, so the row transform
     (the first of the two GEMMs, :func:`_row_transform`) is done once on the band of
     columns all of them need, and each ``b`` crops it and zeroes its unlit lenslets after
-    it (exact: the row transform keeps tiles apart). Round lenslets: the aperture is not
+    it (exact: the row transform keeps tiles apart). A square clear aperture smaller than the
+    pitch is separable and folded into the transform's input columns
+    (:func:`lenslet_aperture_weights`). Round lenslets: the aperture is not
     separable, so each ``b`` is transformed on its own. ``light_radius``: one radius for all
     depths, a list with one per depth of ``base``, or ``None`` (every lenslet lit).
     """
@@ -374,8 +410,9 @@ def offset_row_patterns(
     cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
     transform = lenslet_transform(
         system, ns, out_n, device=base.device, lenslet_focal_length=lenslet_focal_length,
-        mla_to_camera=mla_to_camera,
+        mla_to_camera=mla_to_camera, wavelength=wavelength,
     ).to(cdtype)  # fmt: skip
+    aperture = system.lenslet_aperture if lenslet_aperture is None else lenslet_aperture
     tiles = 2 * reach + 1
     span = tiles * ns
     # The source's field is the on-axis field moved by (a, b) sub-positions: lenslet (i, j)
@@ -391,12 +428,13 @@ def offset_row_patterns(
     # Bands of NIP columns to row-transform: (first column, width, pre-transform weights, the b's).
     bands: list[tuple[int, int, torch.Tensor | None, list[int]]]
     if system.lenslet_shape == "circle":
-        dx = system.pitch / ns
-        y, x = Grid(ns, dx).axes(device=base.device)
-        aperture = aperture_coverage("circle", x[None, :], y[:, None], system.pitch, (dx, dx), antialias=True)
-        aperture = aperture.to(cdtype).repeat(tiles, tiles)
-        bands = [(left, span, aperture, [i]) for i, left in enumerate(lefts)]
+        diameter = system.pitch if aperture is None else aperture
+        disk = lenslet_aperture_weights(system, ns, diameter, base.device)
+        disk = disk.to(cdtype).repeat(tiles, tiles)
+        bands = [(left, span, disk, [i]) for i, left in enumerate(lefts)]
     else:
+        if aperture is not None:  # T @ diag(w): the separable square aperture on both axes
+            transform = transform * lenslet_aperture_weights(system, ns, aperture, base.device).to(cdtype)
         bands = [(min(lefts), span + max(lefts) - min(lefts), None, list(range(len(bs))))]
     out_step = system.pitch / per_lenslet
     patterns: list[list[torch.Tensor]] = [[] for _ in bs]
@@ -413,6 +451,20 @@ def offset_row_patterns(
                 power = (field.real**2 + field.imag**2) * (out_step * out_step)
                 patterns[index].append(_bin(power[None], m).to(dtype))
     return [torch.cat(per_b, dim=0) for per_b in patterns]
+
+
+def lenslet_aperture_weights(
+    system: ConventionalLFMSystem, ns: int, aperture: Scalar, device: torch.device | str = "cpu"
+) -> torch.Tensor:
+    """Antialiased clear-aperture coverage of a lenslet's ``ns`` NIP samples per pitch (float64):
+    ``(ns, ns)`` for a circle of diameter ``aperture``, the per-axis ``(ns,)`` factor for a
+    square of side ``aperture`` (the 2-D coverage is its outer product). Differentiable in
+    a tensor ``aperture``."""
+    dx = system.pitch / ns
+    y, x = Grid(ns, dx).axes(device=device)
+    if system.lenslet_shape == "circle":
+        return aperture_coverage("circle", x[None, :], y[:, None], aperture, (dx, dx), antialias=True)
+    return aperture_coverage("square", x, x.new_zeros(()), aperture, (dx, dx), antialias=True)
 
 
 def _row_transform(transform: torch.Tensor, region: torch.Tensor, tiles: int) -> torch.Tensor:

@@ -32,12 +32,16 @@ class ConventionalLFMSystem:
     objective : ObjectiveLens.
     pitch : lenslet pitch on the NIP, m.
     lenslet_focal_length : m.
-    lenslet_shape : ``"square"`` (fill factor 1) or ``"circle"`` (diameter = pitch).
+    lenslet_shape : ``"square"`` or ``"circle"``: the clear aperture of each lenslet.
     mla_to_camera : MLA-to-sensor distance, m.
     lenslets : (ny, nx) lenslets imaged (the sensor region used).
     pixels_per_lenslet : rectified sensor pixels per lenslet per axis (odd).
     voxels_per_lenslet : volume voxels per lenslet pitch per axis (odd; lateral super-sampling).
     wavelength : emission wavelength, m.
+    lenslet_aperture : clear aperture of a lenslet, m: the side (square) or diameter (circle),
+        ``0 < lenslet_aperture <= pitch``, centred on the lenslet; ``None`` (default) means the
+        pitch (a square array then has fill factor 1). The sampling grid is planned from the
+        pitch either way; light outside the aperture is blocked.
     """
 
     objective: ObjectiveLens
@@ -49,12 +53,20 @@ class ConventionalLFMSystem:
     pixels_per_lenslet: int
     voxels_per_lenslet: int
     wavelength: float
+    lenslet_aperture: float | None = None
 
     def __post_init__(self) -> None:
         require_positive("pitch", self.pitch, "m", "e.g. 125 * um.")
         require_positive("lenslet_focal_length", self.lenslet_focal_length, "m", "e.g. 1.875 * mm.")
         require_positive("mla_to_camera", self.mla_to_camera, "m", "usually the lenslet focal length.")
         require_positive("wavelength", self.wavelength, "m", "e.g. 525 * nm.")
+        if self.lenslet_aperture is not None:
+            require_positive("lenslet_aperture", self.lenslet_aperture, "m", "or None for the pitch.")
+            if self.lenslet_aperture > self.pitch:
+                raise ValueError(
+                    f"lenslet_aperture must be at most the pitch ({self.pitch:.6g} m); got "
+                    f"{self.lenslet_aperture:.6g} m. Fix: use an aperture <= pitch, or None for the pitch."
+                )
         if self.lenslet_shape not in ("square", "circle"):
             raise ValueError(f"lenslet_shape must be 'square' or 'circle'; got {self.lenslet_shape!r}.")
         for name in ("pixels_per_lenslet", "voxels_per_lenslet"):
@@ -70,6 +82,11 @@ class ConventionalLFMSystem:
     def magnification(self) -> float:
         """Lateral magnification sample -> NIP (the image is inverted)."""
         return float(_value(self.objective.magnification))
+
+    @property
+    def aperture(self) -> float:
+        """Clear aperture of a lenslet (side or diameter), m: ``lenslet_aperture``, else the pitch."""
+        return self.pitch if self.lenslet_aperture is None else self.lenslet_aperture
 
     @property
     def pixel_size(self) -> float:

@@ -152,6 +152,8 @@ def conventional_system_of(
         rounded to the nearest odd integer.
     voxels_per_lenslet : lateral super-sampling of the volume (odd); default:
         ``design.accuracy.voxels_per_lenslet`` (5 unless the design sets it).
+
+    The lenslets' clear aperture is ``mla.lenslet_aperture_diameter_um`` (``None``: the pitch).
     """
     if design.kind != "conventional":
         raise ValueError(f"design kind must be 'conventional' for a conventional LFM; got {design.kind!r}.")
@@ -182,4 +184,5 @@ def conventional_system_of(
         pixels_per_lenslet=pixels_per_lenslet,
         voxels_per_lenslet=voxels_per_lenslet,
         wavelength=design.wavelength,
+        lenslet_aperture=None if mla.lenslet_aperture_diameter_um is None else mla.lenslet_aperture_um * 1e-6,
     )

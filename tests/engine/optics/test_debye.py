@@ -249,6 +249,26 @@ def test_gradcheck_wrt_z_and_na(radial_sampling):
     )
 
 
+@pytest.mark.parametrize("radial_sampling", ["exact", 4, "auto"])
+def test_tensor_wavelength_equals_the_float_path_and_passes_gradcheck(radial_sampling):
+    """A 0-d tensor wavelength gives the float path's field (the quadrature and radial table are
+    planned from its value) and a gradient that gradcheck confirms."""
+    grid = Grid((3, 4), 120 * nm)
+    obj = ObjectiveLens(40, 1.1, 1.33, 200 * mm)
+    z = torch.tensor([-0.4e-6, 0.7e-6], dtype=torch.float64)
+    options = {"dtype": torch.complex128, "radial_sampling": radial_sampling, "image_side": True}
+    plain = debye_psf(obj, grid, WAVELENGTH, z, **options).data
+    tensor = debye_psf(obj, grid, torch.tensor(WAVELENGTH, dtype=torch.float64), z, **options)
+    assert isinstance(tensor.wavelength, float) and tensor.wavelength == WAVELENGTH
+    assert (tensor.data - plain).abs().max() <= 1e-13 * plain.abs().max()
+
+    def psf(lam_um):
+        return debye_psf(obj, grid, lam_um * um, z, n_quadrature=64, **options).data * 1e-6
+
+    lam = torch.tensor(WAVELENGTH / um, dtype=torch.float64, requires_grad=True)
+    assert torch.autograd.gradcheck(psf, (lam,), eps=1e-6, atol=1e-6)
+
+
 def test_radial_derivative_matches_finite_differences():
     # Central differences with step 1e-11 m: truncation ~(k n h)^2/6 ~ 1e-8, round-off
     # ~1e-16/1e-11 * r-scale; 1e-7 of max |dU/dr|.

@@ -9,7 +9,8 @@ ramp is checked by the centre-gradient and sub-image position tests).
 Conventional LFM: the native-image-plane Debye field of an offset source -> ``apply_mla``
 (one lenslet at a time) -> zero padding -> ``fresnel_ir`` (distance chosen so that its
 output spacing is the sensor sub-sample) -> each lenslet's three-pitch window added as a
-complex field -> intensity -> bins, against :func:`offset_pattern`.
+complex field -> intensity -> bins, against :func:`offset_pattern`; also with a clear aperture
+smaller than the pitch (square and circle, antialiased in both).
 """
 
 from __future__ import annotations
@@ -125,9 +126,15 @@ def _conventional_case() -> tuple[ConventionalLFMSystem, int]:
     return system, padded
 
 
-@pytest.mark.parametrize(("a", "b"), [(0, 0), (0, 1), (1, 1)])
-def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b):
+@pytest.mark.parametrize(
+    ("a", "b", "shape", "fill"),
+    [(0, 0, "square", None), (0, 1, "square", None), (1, 1, "square", None), (1, 1, "square", 0.77),
+     (0, 1, "circle", 0.83)],
+)  # fmt: skip
+def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b, shape, fill):
     system, padded = _conventional_case()
+    aperture = None if fill is None else fill * system.pitch
+    system = dataclasses.replace(system, lenslet_shape=shape, lenslet_aperture=aperture)
     reach, depths = 1, (0.0, 8 * um)
     ns, m, q, s = (
         samples_per_pitch(system),
@@ -145,7 +152,7 @@ def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b):
     per_lenslet, out_n = q * m, 3 * q * m
     canvas_n = (2 * reach + 3) * per_lenslet
     canvas = torch.zeros((len(depths), canvas_n, canvas_n), dtype=C128)
-    lens = MicrolensArray((Lenslet((0.0, 0.0), system.pitch, system.lenslet_focal_length, "square"),))
+    lens = MicrolensArray((Lenslet((0.0, 0.0), system.aperture, system.lenslet_focal_length, shape),))
     for i in range(-reach, reach + 1):
         for j in range(-reach, reach + 1):
             # The NIP field on lenslet (i, j)'s own ns x ns patch, centred on its axis: the source's
@@ -157,7 +164,7 @@ def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b):
             )  # fmt: skip
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SamplingWarning)
-                lensed = pad_field(apply_mla(nip, lens), shape=(padded, padded))
+                lensed = pad_field(apply_mla(nip, lens, antialias=fill is not None), shape=(padded, padded))
                 sensor = propagate(
                     lensed, system.mla_to_camera, method="fresnel_ir", padding=1.0, check_sampling=False
                 )

@@ -12,7 +12,7 @@ import math
 import pytest
 import torch
 
-from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.design import evolve, load_preset
 from lfm_studio.engine.optics.camera import integrate_pixels
 from lfm_studio.engine.optics.debye import debye_psf
 from lfm_studio.engine.optics.grid import Grid
@@ -203,3 +203,16 @@ def test_preset_maps_to_a_system_and_bad_values_are_named():
         )
     with pytest.raises(ValueError, match="design kind must be 'conventional'"):
         conventional_system_of(load_preset("xlfm_cong2017"))
+
+
+def test_the_design_lenslet_aperture_reaches_the_system_and_is_checked():
+    design = load_preset("lfm_10x_na03")
+    assert conventional_system_of(design).lenslet_aperture is None
+    assert conventional_system_of(design).aperture == pytest.approx(125e-6, rel=1e-12)
+    narrowed = evolve(design, "mla.lenslet_aperture_diameter_um", 100.0)
+    assert conventional_system_of(narrowed).lenslet_aperture == pytest.approx(100e-6, rel=1e-12)
+    args = (SYSTEM.objective, 125 * um, 1.875 * mm, "square", 1.875 * mm, (5, 5), 15, 3, 525 * nm)
+    with pytest.raises(ValueError, match="lenslet_aperture must be at most the pitch"):
+        ConventionalLFMSystem(*args, lenslet_aperture=126 * um)
+    with pytest.raises(ValueError, match="lenslet_aperture must be a finite number > 0"):
+        ConventionalLFMSystem(*args, lenslet_aperture=0.0)
