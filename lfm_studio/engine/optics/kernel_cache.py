@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
 from dataclasses import dataclass
 
 import torch
@@ -44,7 +44,8 @@ class KernelKey:
     options: tuple = ()
 
 
-def _nbytes(value: Kernel) -> int:
+def kernel_nbytes(value: Kernel) -> int:
+    """Bytes of the tensors of ``value``."""
     tensors = value if isinstance(value, tuple) else (value,)
     return sum(t.numel() * t.element_size() for t in tensors)
 
@@ -70,7 +71,7 @@ class KernelCache:
         self.budget_bytes = int(budget_bytes)
         self.hits = 0
         self.misses = 0
-        self._entries: OrderedDict[KernelKey, Kernel] = OrderedDict()
+        self._entries: OrderedDict[Hashable, Kernel] = OrderedDict()
         self._nbytes = 0
         self._lock = threading.Lock()
 
@@ -82,10 +83,10 @@ class KernelCache:
     def __len__(self) -> int:
         return len(self._entries)
 
-    def __contains__(self, key: KernelKey) -> bool:
+    def __contains__(self, key: Hashable) -> bool:
         return key in self._entries
 
-    def get(self, key: KernelKey) -> Kernel | None:
+    def get(self, key: Hashable) -> Kernel | None:
         """The cached kernel for ``key`` (counted as a hit) or ``None`` (a miss)."""
         with self._lock:
             value = self._entries.get(key)
@@ -96,20 +97,38 @@ class KernelCache:
             self.hits += 1
             return value
 
-    def put(self, key: KernelKey, value: Kernel) -> None:
-        """Store ``value`` under ``key``, evicting least recently used entries to fit the budget."""
-        size = _nbytes(value)
+    def put(self, key: Hashable, value: Kernel) -> bool:
+        """Store ``value`` under ``key``, evicting least recently used entries to fit the budget.
+
+        Only entries :meth:`_evictable` allows are evicted (all of them here); returns False,
+        storing nothing and evicting nothing, when ``value`` cannot be made to fit.
+        """
+        size = kernel_nbytes(value)
         with self._lock:
             old = self._entries.pop(key, None)
             if old is not None:
-                self._nbytes -= _nbytes(old)
+                self._nbytes -= kernel_nbytes(old)
             if size > self.budget_bytes:
-                return
-            while self._entries and self._nbytes + size > self.budget_bytes:
-                _, evicted = self._entries.popitem(last=False)
-                self._nbytes -= _nbytes(evicted)
+                return False
+            victims: list[Hashable] = []
+            held = self._nbytes
+            for candidate, kept in self._entries.items():  # least recently used first
+                if held + size <= self.budget_bytes:
+                    break
+                if self._evictable(candidate):
+                    victims.append(candidate)
+                    held -= kernel_nbytes(kept)
+            if held + size > self.budget_bytes:
+                return False
+            for victim in victims:
+                del self._entries[victim]
             self._entries[key] = value
-            self._nbytes += size
+            self._nbytes = held + size
+            return True
+
+    def _evictable(self, key: Hashable) -> bool:
+        """Whether ``put`` may evict ``key`` to make room (called under the lock)."""
+        return True
 
     def get_or_build(self, key: KernelKey, build: Callable[[], Kernel]) -> Kernel:
         """Cached kernel for ``key``, calling ``build()`` (outside the lock) on a miss."""

@@ -40,7 +40,7 @@ from lfm_studio.engine.optimize.constraints import (
     default_constraints,
     first_violation,
 )
-from lfm_studio.engine.optimize.evaluate import DEFAULT_CACHE_BYTES, score_design
+from lfm_studio.engine.optimize.evaluate import score_design
 from lfm_studio.engine.optimize.mla_cells import Block, MLAPlane, check_symmetry
 from lfm_studio.engine.optimize.objectives import Objective
 from lfm_studio.engine.optimize.study import (
@@ -77,11 +77,11 @@ class _StepScorer:
         seed: int,
     ) -> None:
         self.objective, self.settings, self.constraints, self.seed = objective, settings, constraints, seed
-        self.cache = LensletCache(DEFAULT_CACHE_BYTES)
+        self.cache = LensletCache(device=settings.device)
         self.pending: dict[str, Any] | None = None  # what the last call found, taken by the recorder
 
     def __call__(self, design: Design) -> float:
-        hits, misses = self.cache.hits, self.cache.misses
+        before = self.cache.counters()
         found = first_violation(design, self.constraints)
         values: dict[str, float] | None = None
         timing: dict[str, float] = {}
@@ -94,7 +94,7 @@ class _StepScorer:
             "infeasible": found,
             "timing": timing,
             "design_json": design_to_json(design),
-            "cache": {"hits": self.cache.hits - hits, "misses": self.cache.misses - misses},
+            "cache": self.cache.use_since(before),
         }
         if found is not None:
             raise ValueError(str(found))  # Algorithm 2 records it as infeasible, with this reason

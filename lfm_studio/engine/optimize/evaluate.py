@@ -31,8 +31,6 @@ from lfm_studio.engine.optimize.objectives import Objective
 from lfm_studio.engine.optimize.space import DesignSpace, Point
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
-DEFAULT_CACHE_BYTES = 512 * 2**20
-
 
 @dataclass
 class EvaluationRecord:
@@ -41,6 +39,9 @@ class EvaluationRecord:
     values : objective name -> value in the objective's unit (None when infeasible).
     timing : seconds per stage (``psf_s``, ``simulate_s``, ``reconstruct_s``, ``score_s``,
         ``total_s`` and ``overhead_s`` = total minus the stages).
+    cache : per-lenslet cache use (:meth:`LensletCache.use_since`): ``hits``, ``misses``, and
+        when the cache could not hold this candidate's lenslets ``not_stored``, ``needed_bytes``
+        and ``budget_bytes``.
     """
 
     params: Point
@@ -106,6 +107,8 @@ class Evaluator:
     catalogue : optional focal-length catalogue applied before the checks.
     settings : how candidates are simulated.
     seed : recorded with every trial (task scores use their own held-out seeds).
+    cache_bytes : budget of the per-lenslet cache (default: a quarter of the free memory of
+        ``settings.device``, between 512 MiB and 8 GiB: :func:`default_cache_bytes`).
     """
 
     def __init__(
@@ -118,7 +121,7 @@ class Evaluator:
         catalogue: FocalLengthCatalogue | None = None,
         settings: EvaluationSettings | None = None,
         seed: int = 0,
-        cache_bytes: int = DEFAULT_CACHE_BYTES,
+        cache_bytes: int | None = None,
     ) -> None:
         names = [o.name for o in objectives]
         if not objectives or len(set(names)) != len(names):
@@ -132,7 +135,7 @@ class Evaluator:
         self.settings = settings or EvaluationSettings()
         self.seed = seed
         self.cache_bytes = cache_bytes
-        self.cache = LensletCache(cache_bytes)
+        self.cache = LensletCache(cache_bytes, device=self.settings.device)
         self.evaluations = 0  # points scored (not counting infeasible ones)
 
     def __getstate__(self) -> dict[str, Any]:
@@ -142,7 +145,7 @@ class Evaluator:
 
     def __setstate__(self, state: Mapping[str, Any]) -> None:
         self.__dict__.update(state)
-        self.cache = LensletCache(self.cache_bytes)
+        self.cache = LensletCache(self.cache_bytes, device=self.settings.device)
 
     def build(self, point: Mapping[str, Any]) -> tuple[Design | None, Infeasible | None, tuple[str, ...]]:
         """``(design, None, warnings)`` or ``(None, reason, warnings)`` for ``point``."""
@@ -163,7 +166,7 @@ class Evaluator:
         design, infeasible, notes = self.build(point)
         values: dict[str, float] | None = None
         timing: dict[str, float] = {}
-        hits, misses = self.cache.hits, self.cache.misses
+        before = self.cache.counters()
         if design is not None:
             values, infeasible, timing = score_design(
                 design, self.objectives, self.settings, seed=self.seed, cache=self.cache
@@ -180,5 +183,5 @@ class Evaluator:
             design_json=None if design is None else design_to_json(design),
             seed=self.seed,
             warnings=notes,
-            cache={"hits": self.cache.hits - hits, "misses": self.cache.misses - misses},
+            cache=self.cache.use_since(before),
         )

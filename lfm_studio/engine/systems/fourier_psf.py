@@ -133,6 +133,23 @@ def lenslet_key(
     )
 
 
+def _origin_on_sensor(first: tuple[int, int], sensor: tuple[int, int]) -> tuple[int, int]:
+    """Pixel where the on-sensor part of a patch placed at ``first`` starts (clamped to the sensor)."""
+    return min(max(first[0], 0), sensor[0]), min(max(first[1], 0), sensor[1])
+
+
+def _on_sensor(patch: torch.Tensor, first: tuple[int, int], sensor: tuple[int, int]) -> torch.Tensor:
+    """The part of ``patch (Z, h, w)`` placed at pixel ``first`` that lies on a ``sensor`` (rows,
+    cols), as its own compact tensor (a view would keep the whole patch alive); it starts at
+    :func:`_origin_on_sensor`."""
+    _, h, w = patch.shape
+    (r0, c0), (rs, cs) = first, _origin_on_sensor(first, sensor)
+    re, ce = max(min(r0 + h, sensor[0]), rs), max(min(c0 + w, sensor[1]), cs)
+    if (re - rs, ce - cs) == (h, w):
+        return patch
+    return patch[:, rs - r0 : re - r0, cs - c0 : ce - c0].clone(memory_format=torch.contiguous_format)
+
+
 def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) -> None:
     """Add ``patch (Z, h, w)`` into ``target (Z, H, W)`` at pixel ``first`` (clipped to the sensor)."""
     _, h, w = patch.shape
@@ -256,10 +273,13 @@ def _per_lenslet(
 ) -> torch.Tensor:
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
+    if cache is not None:
+        cache.begin_round()
     for index, (lens, window) in enumerate(zip(system.mla.lenslets, windows, strict=True)):
         checkpoint(cancel, progress, index, total, f"lenslet {index + 1}/{total}")
         key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
         patch = cache.get(key) if cache is not None else None
+        first = _origin_on_sensor(window.first_pixel, system.sensor_shape)
         if patch is None:
             optics = (
                 parameters.lenslet(system, index)
@@ -272,11 +292,16 @@ def _per_lenslet(
                 pixel_integration=acc.pixel_integration, optics=optics,
             )  # fmt: skip
             report.lenslets_computed.append(index)
+            # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
+            patch = _on_sensor(patch, window.first_pixel, system.sensor_shape)
             if cache is not None:
                 cache.put(key, patch)
         else:
             report.lenslets_cached.append(index)
-        _place(out, patch, window.first_pixel)
+        assert isinstance(patch, torch.Tensor)
+        _place(out, patch, first)
+    if cache is not None:
+        cache.end_round()
     checkpoint(cancel, progress, total, total, "done")
     return out
 
