@@ -159,7 +159,8 @@ def conventional_system_of(
     if not isinstance(mla, RegularMLASpec) or mla.lattice != "square":
         raise ValueError(
             "conventional LFM needs a regular square MLA (layout 'regular', lattice 'square'); "
-            f"got layout {mla.layout!r}. Fix: use MLASpec square_grid / a RegularMLASpec."
+            f"got layout {mla.layout!r}, lattice {getattr(mla, 'lattice', None)!r}. "
+            "Fix: use MLASpec square_grid / a RegularMLASpec with lattice 'square'."
         )
     pitch_m = mla.pitch_um * 1e-6
     camera = design.camera
