@@ -29,6 +29,7 @@ from lfm_studio.engine.design.migrations import MIGRATIONS, register_migration
 from lfm_studio.engine.design.mla import LATTICES, AnyMLASpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
 from lfm_studio.engine.design.presets import list_presets, load_preset, resolve_design
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
 
 __all__ = [
     "ACCURACY_PRESETS",
@@ -48,6 +49,7 @@ __all__ = [
     "LensletSpec",
     "MLASpec",
     "ObjectiveSpec",
+    "PupilPhaseSpec",
     "RegularMLASpec",
     "RelayLensSpec",
     "canonical_json",

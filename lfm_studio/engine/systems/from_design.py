@@ -93,6 +93,7 @@ def fourier_system_of(design: Design, *, refine: int = 1) -> FourierLFMSystem:
         pixel_pitch=design.camera.pixel_pitch / refine,
         sensor_shape=(virtual_pixel_count(ny, refine), virtual_pixel_count(nx, refine)),
         wavelength=design.wavelength,
+        pupil_zernike_waves=design.pupil_phase.terms if design.pupil_phase is not None else (),
     )
 
 

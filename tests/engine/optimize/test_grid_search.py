@@ -121,3 +121,52 @@ def test_grid_search_over_the_lattice_records_every_choice(flfm):
     for record in result.records:
         if record.values:
             assert record.values["total_power"] > 0
+
+
+def test_grid_search_over_a_zernike_coefficient(flfm):
+    """A tiny FLFM with a pupil phase mask: a grid over the defocus coefficient (waves) evaluates a
+    PSF objective for every value; zero defocus gives the in-focus power distribution of the design
+    without a mask (equal PSFs: the same total power), and every candidate is feasible."""
+    design = flfm.updated(
+        camera=type(flfm.camera)(**{**flfm.camera.model_dump(), "pixel_count": (512, 512)}),
+        pupil_phase={"zernike_waves": {"4": 0.0}},
+    )
+    space = DesignSpace((Parameter("pupil_phase.zernike_waves.4", -0.5, 0.5, points=3),))
+    settings = EvaluationSettings(crop=64, depths_um=(0.0,))
+
+    def peak(stack) -> torch.Tensor:
+        return stack.data.double().amax()
+
+    evaluator = Evaluator(design, space, [PSFLoss("peak", peak)], settings=settings)
+    result = grid_search(evaluator)
+    assert [r.params["pupil_phase.zernike_waves.4"] for r in result.records] == [-0.5, 0.0, 0.5]
+    assert not result.infeasible
+    peaks = {r.params["pupil_phase.zernike_waves.4"]: r.values["peak"] for r in result.records}
+    plain = simulate_psf(flfm.updated(camera=design.camera), depths=(0.0,), crop=64)
+    assert peaks[0.0] == pytest.approx(float(plain.data.double().amax()), rel=1e-6)
+    # Defocus lowers the central sub-image's peak either way (0.5 wave over the whole pupil is a
+    # small defocus for one lenslet, ~1/6 of the pupil across: a few per mille here).
+    assert peaks[-0.5] < peaks[0.0] and peaks[0.5] < peaks[0.0]
+
+
+def test_a_rings_shape_that_breaks_the_rule_is_recorded_as_invalid(flfm):
+    from lfm_studio.engine.design import RegularMLASpec
+
+    design = flfm.updated(
+        mla=RegularMLASpec(
+            lattice="rings",
+            pitch_um=600.0,
+            shape=(3, 3),
+            focal_length_mm=16.8,
+            lenslet_aperture_diameter_um=600.0,
+        )
+    )
+    space = DesignSpace(
+        (Parameter("mla.shape[0]", choices=(3, 4)), Parameter("mla.shape[1]", choices=(3, 4)))
+    )
+    result = grid_search(Evaluator(design, space, [objective_named("effective_numerical_aperture")]))
+    reasons = {(r.params["mla.shape[0]"], r.params["mla.shape[1]"]): r.infeasible for r in result.records}
+    assert reasons[(3, 3)] is None
+    for pair in ((3, 4), (4, 3), (4, 4)):
+        assert reasons[pair].reason == "invalid_design"
+        assert "shape must be (2 r + 1, 2 r + 1) for lattice 'rings'" in reasons[pair].message
