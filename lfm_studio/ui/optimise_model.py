@@ -2,8 +2,9 @@
 
 :func:`freeable_fields` lists the design values the dock can free: the parameter panel's
 numeric fields (:data:`~lfm_studio.ui.parameter_fields.FIELDS`, single numbers of the
-design's kind) and the MLA's (every lenslet's focal length together with ``*``, one
-lenslet's focal length or centre by index, or a regular array's numeric fields).
+design's kind), the MLA's (every lenslet's focal length together with ``*``, one
+lenslet's focal length or centre by index, or a regular array's numeric fields) and the
+Zernike coefficients a Fourier design's ``pupil_phase`` lists.
 :class:`OptimiseRequest` is a whole run (free parameters with low/high/points, objective
 names from :func:`~lfm_studio.engine.optimize.objective_names`, sampler, budget, optional
 study file); :func:`run_optimisation` runs it through
@@ -92,6 +93,11 @@ def freeable_fields(design: Design) -> tuple[FreeableField, ...]:
     for key, label in _MLA_ARRAY_FIELDS:
         if _numeric(mla.get(key)):
             out.append(FreeableField(f"mla.{key}", label, unit_of(key).replace("um", "µm"), float(mla[key])))
+    if design.pupil_phase is not None:  # the Zernike terms the design lists (a Fourier pupil phase mask)
+        for j, waves in design.pupil_phase.terms:
+            out.append(
+                FreeableField(f"pupil_phase.zernike_waves.{j}", f"Pupil phase: Zernike {j}", "waves", waves)
+            )
     return tuple(out)
 
 

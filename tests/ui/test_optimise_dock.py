@@ -245,3 +245,16 @@ def test_every_freeable_field_is_a_design_space_path_with_its_current_value(pres
         count = len(explicit)
         assert {f"mla.lenslets[{count - 1}].center_um[0]", "mla.lenslets[*].focal_length_mm"} <= paths
     assert ("relay.focal_length_mm" in paths) == (design.kind == "fourier")
+
+
+def test_the_zernike_terms_of_a_pupil_phase_mask_are_freeable():
+    design = load_preset("xlfm_cong2017").updated(pupil_phase={"zernike_waves": {"4": 0.0, "11": -0.05}})
+    fields = {f.path: f for f in freeable_fields(design)}
+    assert fields["pupil_phase.zernike_waves.4"].value == 0.0
+    assert fields["pupil_phase.zernike_waves.11"].value == -0.05
+    assert fields["pupil_phase.zernike_waves.11"].unit == "waves"
+    space = DesignSpace((Parameter("pupil_phase.zernike_waves.11", low=-0.1, high=0.1, points=3),))
+    assert space.values_of(design) == {"pupil_phase.zernike_waves.11": -0.05}
+    assert not any(
+        p.startswith("pupil_phase") for p in (f.path for f in freeable_fields(load_preset("xlfm_cong2017")))
+    )

@@ -26,12 +26,14 @@ from lfm_studio.engine.design.evolve import evolve
 from lfm_studio.engine.design.hashing import canonical_json, lenslet_hashes, optics_hash, spec_hash
 from lfm_studio.engine.design.lenslet import LensletSpec
 from lfm_studio.engine.design.migrations import MIGRATIONS, register_migration
-from lfm_studio.engine.design.mla import AnyMLASpec, MLASpec, RegularMLASpec
+from lfm_studio.engine.design.mla import LATTICES, AnyMLASpec, MLASpec, RegularMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
 from lfm_studio.engine.design.presets import list_presets, load_preset, resolve_design
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
 
 __all__ = [
     "ACCURACY_PRESETS",
+    "LATTICES",
     "METADATA_FIELDS",
     "MIGRATIONS",
     "PRESET_ERROR_BOUNDS",
@@ -47,6 +49,7 @@ __all__ = [
     "LensletSpec",
     "MLASpec",
     "ObjectiveSpec",
+    "PupilPhaseSpec",
     "RegularMLASpec",
     "RelayLensSpec",
     "canonical_json",

@@ -43,6 +43,7 @@ from lfm_studio.engine.design.errors import DesignError, fmt, warn_design
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
 from lfm_studio.engine.design.mla import AnyMLASpec, RegularMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
 
 
 class Design(Protocol):
@@ -57,6 +58,8 @@ class Design(Protocol):
     def objective(self) -> ObjectiveSpec: ...
     @property
     def relay(self) -> RelayLensSpec | None: ...
+    @property
+    def pupil_phase(self) -> PupilPhaseSpec | None: ...
     @property
     def mla(self) -> AnyMLASpec: ...
     @property
@@ -88,6 +91,14 @@ def check_design(design: Design) -> None:
             raise DesignError(
                 f"kind 'conventional' puts the MLA on the native image plane and uses no relay lens; got relay "
                 f"focal_length_mm {fmt(design.relay.focal_length_mm)}. Fix: set relay to None, or use kind 'fourier'."
+            )
+        if design.pupil_phase is not None:
+            raise DesignError(
+                "pupil_phase (a Zernike phase mask on the pupil) is modelled for kind 'fourier' only; got it on a "
+                "kind 'conventional' design. The conventional field at the native image plane is the radial Debye "
+                "integral, which assumes a rotationally symmetric pupil without phase, so a mask cannot enter it "
+                "(not even the rotationally symmetric m = 0 terms: not implemented). Fix: remove pupil_phase, or "
+                "use kind 'fourier'."
             )
         _check_conventional_sub_images(design)
 

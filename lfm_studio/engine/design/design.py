@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any, Literal
 
-from pydantic import model_validator
+from pydantic import SerializationInfo, SerializerFunctionWrapHandler, model_serializer, model_validator
 
 from lfm_studio.engine.design.accuracy import AccuracySpec
 from lfm_studio.engine.design.base import SpecModel, si
@@ -29,6 +29,7 @@ from lfm_studio.engine.design.errors import DesignError, fmt, require_positive
 from lfm_studio.engine.design.evolve import rebuild
 from lfm_studio.engine.design.mla import AnyMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
 
 SCHEMA_VERSION = 1
 """Version of the design-file schema this lfm_studio writes (older ones are migrated on load)."""
@@ -59,6 +60,10 @@ class Design(SpecModel):
     objective : ObjectiveSpec
     relay : RelayLensSpec or None
         The Fourier lens; required for ``"fourier"``, must be None for ``"conventional"``.
+    pupil_phase : PupilPhaseSpec or None
+        Fourier kind only: a Zernike phase mask on the relayed pupil (at the MLA plane),
+        ``{"zernike_waves": {"4": 0.1}}`` (:mod:`~lfm_studio.engine.design.pupil_phase`).
+        Left out of files and hashes when None, so designs without one keep theirs.
     mla : MLASpec or RegularMLASpec
     mla_to_camera_distance_mm : float
         Distance from the MLA to the sensor, millimetres.
@@ -76,6 +81,7 @@ class Design(SpecModel):
     wavelength_nm: float
     objective: ObjectiveSpec
     relay: RelayLensSpec | None = None
+    pupil_phase: PupilPhaseSpec | None = None
     mla: AnyMLASpec
     mla_to_camera_distance_mm: float
     camera: CameraSpec
@@ -105,6 +111,16 @@ class Design(SpecModel):
         )
         check_design(self)
         return self
+
+    @model_serializer(mode="wrap")
+    def _drop_absent_pupil_phase(
+        self, handler: SerializerFunctionWrapHandler, info: SerializationInfo
+    ) -> dict[str, Any]:
+        # A design without a phase mask dumps (and so writes and hashes) as before the field existed.
+        data: dict[str, Any] = handler(self)
+        if data.get("pupil_phase", 0) is None:
+            del data["pupil_phase"]
+        return data
 
     # ----- SI accessors and derived geometry (metres) -----
 

@@ -2,7 +2,8 @@
 
 :class:`MLASpec` is the general form (any layout, per-lenslet focal length, shape
 and aperture: what a Fourier LFM and the MLA editor use). :class:`RegularMLASpec`
-describes a regular square or hexagonal array by its pitch and size, so the
+describes a regular square or hexagonal array, or hexagonal rings around a central
+lenslet (:data:`LATTICES`), by its pitch and size, so the
 thousands of lenslets of a conventional LFM stay a few lines in a design file; its
 ``lenslets`` property expands it (lazily) into the same :class:`LensletSpec` tuple.
 Both check at construction that every lenslet lies inside the optional array
@@ -14,7 +15,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from functools import cached_property
-from typing import Annotated, Any, Literal
+from typing import Annotated, Any, Literal, get_args
 
 from pydantic import Discriminator, Tag, model_validator
 
@@ -23,11 +24,15 @@ from lfm_studio.engine.design.errors import DesignError, fmt, require_finite, re
 from lfm_studio.engine.design.geometry import candidate_pairs, list_pairs
 from lfm_studio.engine.design.lenslet import LensletShape, LensletSpec, overlap_depth_um
 from lfm_studio.engine.design.mla_builders import hex_grid, multifocal_hex, square_grid
-from lfm_studio.engine.design.mla_layouts import hex_rect_sites, square_sites
+from lfm_studio.engine.design.mla_layouts import hex_rect_sites, hex_ring_sites, square_sites
 
 # Overlaps and rim excursions below this (micrometres) are rounding, not design: generated
 # centres are rounded to 1e-6 um.
 TOLERANCE_UM = 1e-5
+
+Lattice = Literal["square", "hex", "rings"]
+LATTICES: tuple[str, ...] = get_args(Lattice)
+"""The lattices of a :class:`RegularMLASpec` (one source for checks, docs, spaces and front ends)."""
 
 
 def check_lenslets(lenslets: Sequence[LensletSpec], array_aperture_diameter_um: float | None) -> None:
@@ -123,13 +128,18 @@ class RegularMLASpec(_MLACommon, SpecModel):
     Attributes
     ----------
     layout : "regular"
-    lattice : "square" or "hex"
+    lattice : "square", "hex" or "rings" (:data:`LATTICES`)
         Hexagonal arrays have rows along x, ``pitch sqrt(3)/2`` apart, alternate rows
         shifted by half a pitch (see :func:`~lfm_studio.engine.design.mla_layouts.hex_rect_sites`).
+        ``"rings"``: a central lenslet on ``offset_um`` and ``r`` concentric hexagonal rings
+        around it, ``1 + 3 r (r + 1)`` lenslets, six neighbours each at the pitch (see
+        :func:`~lfm_studio.engine.design.mla_layouts.hex_ring_sites`).
     pitch_um : float
         Centre-to-centre spacing in micrometres.
     shape : (ny, nx)
-        Rows and lenslets per row; the array is centred on ``offset_um``.
+        Rows and lenslets per row; the array is centred on ``offset_um``. For ``"rings"``
+        it must be ``(2 r + 1, 2 r + 1)``: the rows of the hexagonal patch and the lenslets
+        of its widest (central) row, so ``r = (ny - 1) / 2`` (:attr:`rings`).
     focal_length_mm : float
         Focal length of every lenslet, mm.
     lenslet_aperture_diameter_um : float or None
@@ -142,7 +152,7 @@ class RegularMLASpec(_MLACommon, SpecModel):
     """
 
     layout: Literal["regular"] = "regular"
-    lattice: Literal["square", "hex"] = "square"
+    lattice: Lattice = "square"
     pitch_um: float
     shape: tuple[int, int]
     focal_length_mm: float
@@ -157,6 +167,14 @@ class RegularMLASpec(_MLACommon, SpecModel):
         require_positive("focal_length_mm", self.focal_length_mm, "mm", "e.g. 3.")
         if self.shape[0] < 1 or self.shape[1] < 1:
             raise DesignError(f"shape must be (ny, nx) with both >= 1; got {self.shape}. Fix: e.g. (88, 88).")
+        ny, nx = self.shape
+        if self.lattice == "rings" and (ny != nx or ny % 2 == 0):
+            r = max(0, (max(ny, nx) - 1) // 2)
+            raise DesignError(
+                f"shape must be (2 r + 1, 2 r + 1) for lattice 'rings' (r hexagonal rings around a central "
+                f"lenslet: 2 r + 1 rows, 2 r + 1 lenslets in the central row, 1 + 3 r (r + 1) lenslets); got "
+                f"{self.shape}. Fix: e.g. ({2 * r + 1}, {2 * r + 1}) for {r} ring(s), {1 + 3 * r * (r + 1)} lenslets."
+            )
         if self.lenslet_aperture_diameter_um is not None:
             require_positive(
                 "lenslet_aperture_diameter_um", self.lenslet_aperture_diameter_um, "um", "or leave it out."
@@ -178,14 +196,26 @@ class RegularMLASpec(_MLACommon, SpecModel):
     def centers_um(self, limit: tuple[int, int] | None = None) -> list[tuple[float, float]]:
         """Lenslet centres in micrometres, row by row (increasing y, then x).
 
-        ``limit=(ry, rx)``: only the first ``ry`` rows and ``rx`` columns (a corner patch).
+        ``limit=(ry, rx)``: only the first ``ry`` rows and ``rx`` columns (a corner patch);
+        for ``"rings"`` any limit gives the central lenslet and its first ring (the
+        neighbourhood every lenslet has).
         """
+        if self.lattice == "rings":
+            rings = self.rings if limit is None else min(self.rings, 1)
+            return hex_ring_sites(self.pitch_um, rings, self.offset_um)
         sites = square_sites if self.lattice == "square" else hex_rect_sites
         return sites(self.pitch_um, self.shape, self.offset_um, limit)
 
     @property
+    def rings(self) -> int:
+        """Rings around the central lenslet of a ``"rings"`` lattice, ``(ny - 1) // 2`` (0 for the others)."""
+        return (self.shape[0] - 1) // 2 if self.lattice == "rings" else 0
+
+    @property
     def count(self) -> int:
-        """Number of lenslets, ``ny * nx`` (without building them)."""
+        """Number of lenslets (without building them): ``ny * nx``, or ``1 + 3 r (r + 1)`` for ``"rings"``."""
+        if self.lattice == "rings":
+            return 1 + 3 * self.rings * (self.rings + 1)
         return self.shape[0] * self.shape[1]
 
     def _lenslets(self, limit: tuple[int, int] | None = None) -> tuple[LensletSpec, ...]:

@@ -20,6 +20,11 @@ the pupil amplitude is ``1/sqrt(cos theta)`` and the energy per solid angle is u
 the normalisation ``C`` makes the pupil power ``integral |A|^2 dA`` equal to the
 collected fraction ``(1 - cos(alpha))/2`` of a unit-power isotropic emitter.
 
+``zernike_waves`` (``{noll index: waves}``) adds the phase mask
+``2 pi sum_j c_j Z_j(rho_x / (NA f_obj), rho_y / (NA f_obj))`` (:func:`zernike_phase`, unit-RMS
+Noll Zernikes over the pupil) to the depth-independent phase: :func:`pupil_terms_at` is the
+one place it is formed, so the Fourier LFM's per-lenslet and full-field paths apply it alike.
+
 ``model="paraxial"``: ``cos(theta) -> 1`` in the amplitude and the defocus phase
 becomes the quadratic ``-k z rho^2 / (2 n f_obj^2)``. It differs from the Debye form by
 at most ``(NA/n)^2 / 4`` in amplitude (aplanatic) and ``n k |z| (NA/n)^4 / 8`` rad in phase.
@@ -29,6 +34,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping
 
 import torch
 
@@ -40,6 +46,7 @@ from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import Apodization, ObjectiveLens, _value, resolve_apodization
 from lfm_studio.engine.optics.phase_kernels import shift_ramp, wavenumber
 from lfm_studio.engine.optics.pupils import disk_coverage, radial_distance
+from lfm_studio.engine.optics.zernike import zernike_phase
 
 _MODELS = ("debye", "paraxial")
 
@@ -82,6 +89,7 @@ def pupil_field(
     check_sampling: bool = True,
     model: str = "debye",
     apodization: Apodization = "aplanatic",
+    zernike_waves: Mapping[int, Scalar | torch.Tensor] | None = None,
     dtype: torch.dtype = torch.complex64,
     device: Device = None,
 ) -> Field:
@@ -107,6 +115,7 @@ def pupil_field(
     model : ``"debye"`` (exact ``n k z cos(theta)`` defocus, apodization ``P/cos``) or
         ``"paraxial"`` (quadratic defocus, uniform amplitude).
     apodization : see :mod:`objective` (ignored by the paraxial model).
+    zernike_waves : phase mask ``{noll index: waves}`` over the pupil (see the module docstring).
     dtype, device : complex dtype and device of the result.
 
     Returns
@@ -132,6 +141,7 @@ def pupil_field(
         center=center,
         model=model,
         apodization=apodization,
+        zernike_waves=zernike_waves,
         device=zt.device,
     )
     phase = zt[:, None, None] * defocus + tilt  # (Z, ny, nx), float64
@@ -150,6 +160,7 @@ def pupil_terms(
     center: tuple[float, float] = (0.0, 0.0),
     model: str = "debye",
     apodization: Apodization = "aplanatic",
+    zernike_waves: Mapping[int, Scalar | torch.Tensor] | None = None,
     device: Device = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The depth-independent parts of :func:`pupil_field`, float64 ``(ny, nx)`` each.
@@ -169,6 +180,7 @@ def pupil_terms(
         position=position,
         model=model,
         apodization=apodization,
+        zernike_waves=zernike_waves,
     )
 
 
@@ -182,6 +194,7 @@ def pupil_terms_at(
     model: str = "debye",
     apodization: Apodization = "aplanatic",
     soft_edge_spacing: Scalar | None = None,
+    zernike_waves: Mapping[int, Scalar | torch.Tensor] | None = None,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`pupil_terms` at pupil-plane coordinates ``x``, ``y`` (float64, metres, broadcastable).
 
@@ -191,6 +204,8 @@ def pupil_terms_at(
     samples, metres, float or 0-d tensor) is given: then the amplitude is weighted by the
     antialiased area coverage of the disk of radius ``NA f_obj`` (:func:`disk_coverage`,
     evaluated in units of samples), which is differentiable in the NA and the spacing.
+    ``zernike_waves`` adds its Zernike phase (normalised to the pupil radius ``NA f_obj``)
+    to ``tilt``; its coefficients may be tensors.
     """
     if model not in _MODELS:
         raise ValueError(f"model must be one of {_MODELS}; got {model!r}. Fix: use 'debye' at high NA.")
@@ -235,5 +250,7 @@ def pupil_terms_at(
     if weight is not None:
         amplitude = amplitude * weight
     tilt = shift_ramp(x, y, (x0, y0), k, f)  # -k (x x0 + y y0) / f_obj
+    if zernike_waves:
+        tilt = tilt + zernike_phase(zernike_waves, x, y, as_t(objective.numerical_aperture) * f)
     amplitude, defocus, tilt = torch.broadcast_tensors(amplitude, defocus, tilt)
     return amplitude, defocus, tilt

@@ -2,7 +2,8 @@
 
 A :class:`Parameter` names one value of a design (``objective.numerical_aperture``,
 ``relay.focal_length_mm``, ``mla.pitch_um``, ``mla.lenslets[3].center_um[0]``,
-``mla.lattice``) and the values it may take: ``low``/``high`` with an optional ``step``
+``mla.lattice``, ``pupil_phase.zernike_waves.4``: a Zernike coefficient of a Fourier design's
+pupil phase mask, in waves) and the values it may take: ``low``/``high`` with an optional ``step``
 (a grid) or ``points`` (that many evenly spaced values), or a list of ``choices``.
 ``*`` as an index sets every item (``mla.lenslets[*].focal_length_mm``), a comma list sets
 those items together (``mla.lenslets[1,3,5].focal_length_mm``: a lenslet group, or lenslets
@@ -34,7 +35,7 @@ from lfm_studio.engine.design import Design
 Value = float | int | str | bool
 Point = dict[str, Value]
 
-UNIT_SUFFIXES = {"_mm": "mm", "_um": "um", "_nm": "nm", "_e": "e-", "_adu": "ADU"}
+UNIT_SUFFIXES = {"_mm": "mm", "_um": "um", "_nm": "nm", "_e": "e-", "_adu": "ADU", "_waves": "waves"}
 """Field-name suffixes and the unit they mean (fields without one are unitless)."""
 
 _INDEX = re.compile(r"\[([^\]]*)\]")

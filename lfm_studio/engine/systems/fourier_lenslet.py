@@ -17,7 +17,8 @@ Every phase and aperture comes from :mod:`~lfm_studio.engine.optics.phase_kernel
 same functions as the public elements). The window (``N``, placement) is planned from
 floats; the physics is evaluated from :class:`LensletOptics`, whose values may be 0-d
 tensors: the result is then differentiable in the lenslet's focal length, aperture and
-centre, the wavelength, NA, the relay and camera distances and a pupil phase mask.
+centre, the wavelength, NA, the relay and camera distances, a pupil phase mask and the
+Zernike pupil-phase coefficients (formed by :func:`pupil_terms_at`, as in the full-field path).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
@@ -99,7 +100,7 @@ def lenslet_psf(
     amplitude, defocus, tilt = pupil_terms_at(
         v.objective, (x + cx) / m_r, (y + cy) / m_r, lam,
         position=(-source_position[0], -source_position[1]), model=model,
-        soft_edge_spacing=dx / m_r if v.soft_pupil_edge else None,
+        soft_edge_spacing=dx / m_r if v.soft_pupil_edge else None, zernike_waves=dict(v.zernike_waves),
     )  # fmt: skip
     # Coverage in units of samples (scale-free): the aperture then follows dx's gradient too.
     aperture = aperture_coverage(

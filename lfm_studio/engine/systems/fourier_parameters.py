@@ -18,12 +18,17 @@ moves the part of the pupil it samples; the NA enters through an antialiased pup
 ``numerical_aperture`` is given (a binary rim has no gradient). A ``pupil_phase``
 (:class:`~lfm_studio.engine.optics.phase_mask.PhaseMask` on the MLA plane, the
 BFP-conjugate plane where an SLM sits in the relay) is sampled bilinearly on each
-lenslet's patch. The lenslet cache is bypassed whenever parameters are given.
+lenslet's patch. ``zernike_waves`` (``{noll index: 0-d tensor in waves}``) overrides or adds
+terms of the system's Zernike pupil phase (``FourierLFMSystem.pupil_zernike_waves``, a
+design's ``pupil_phase``), evaluated in closed form where the pupil field is
+(:func:`~lfm_studio.engine.optics.pupil_field.pupil_terms_at`). The lenslet cache is
+bypassed whenever parameters are given.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,6 +57,8 @@ class FourierParameters:
     mla_to_camera : 0-d, MLA-to-sensor distance, m.
     fourier_focal_length : 0-d, Fourier (relay) lens focal length, m.
     pupil_phase : phase mask on the MLA plane (grid centred on the optical axis), rad.
+    zernike_waves : ``{noll index: 0-d tensor}``, Zernike pupil-phase coefficients in waves that
+        override (or add to) the system's ``pupil_zernike_waves``.
     """
 
     focal_lengths: torch.Tensor | None = None
@@ -62,6 +69,7 @@ class FourierParameters:
     mla_to_camera: torch.Tensor | None = None
     fourier_focal_length: torch.Tensor | None = None
     pupil_phase: PhaseMask | None = None
+    zernike_waves: Mapping[int, torch.Tensor] | None = None
 
     def check(self, system: FourierLFMSystem) -> None:
         """Raise ``ValueError`` naming the field whose shape does not fit ``system``."""
@@ -84,6 +92,18 @@ class FourierParameters:
                 )
             if not bool(torch.isfinite(value.detach()).all()):
                 raise ValueError(f"FourierParameters.{name} must be finite; got {value.detach()}.")
+        for j, c in (self.zernike_waves or {}).items():
+            if isinstance(j, bool) or not isinstance(j, int) or j < 1:
+                raise ValueError(
+                    f"FourierParameters.zernike_waves keys must be Noll indices >= 1; got {j!r}."
+                )
+            if not isinstance(c, torch.Tensor) or c.ndim != 0 or c.is_complex():
+                raise ValueError(
+                    f"FourierParameters.zernike_waves[{j}] must be a real 0-d tensor (waves); got "
+                    f"{getattr(c, 'shape', type(c).__name__)}. Fix: e.g. torch.tensor(0.1, requires_grad=True)."
+                )
+            if not bool(torch.isfinite(c.detach())):
+                raise ValueError(f"FourierParameters.zernike_waves[{j}] must be finite; got {c.detach()}.")
         if self.pupil_phase is not None and not isinstance(self.pupil_phase, PhaseMask):
             raise ValueError(
                 f"FourierParameters.pupil_phase must be a PhaseMask; got {type(self.pupil_phase).__name__}."
@@ -112,7 +132,17 @@ class FourierParameters:
         }
         changes["objective"] = objective
         changes["mla"] = dataclasses.replace(system.mla, lenslets=tuple(lenses))
+        if self.zernike_waves:
+            terms = dict(system.pupil_zernike_waves)
+            terms.update({j: _value(c) for j, c in self.zernike_waves.items()})
+            changes["pupil_zernike_waves"] = tuple(terms.items())
         return dataclasses.replace(system, **changes)
+
+    def zernike_terms(self, system: FourierLFMSystem) -> tuple[tuple[int, Scalar], ...]:
+        """The system's Zernike pupil-phase terms with these overrides (tensors where given), by index."""
+        terms: dict[int, Scalar] = dict(system.pupil_zernike_waves)
+        terms.update({j: c.to(torch.float64) for j, c in (self.zernike_waves or {}).items()})
+        return tuple(sorted(terms.items(), key=lambda item: item[0]))
 
     def lenslet(self, system: FourierLFMSystem, index: int) -> LensletOptics:
         """The optics lenslet ``index`` is computed with (tensors where overridden)."""
@@ -133,6 +163,7 @@ class FourierParameters:
             objective=objective,
             pupil_phase=self.pupil_phase,
             soft_pupil_edge=self.numerical_aperture is not None,
+            zernike_waves=self.zernike_terms(system),
         )
 
 
@@ -154,6 +185,7 @@ class LensletOptics:
     objective: ObjectiveLens
     pupil_phase: PhaseMask | None = None
     soft_pupil_edge: bool = False
+    zernike_waves: tuple[tuple[int, Scalar], ...] = ()
 
     @staticmethod
     def of(system: FourierLFMSystem, lens: Lenslet) -> LensletOptics:
@@ -167,6 +199,7 @@ class LensletOptics:
             mla_to_camera=system.mla_to_camera,
             relay_magnification=system.fourier_focal_length / system.objective.tube_lens_focal_length,
             objective=system.objective,
+            zernike_waves=system.pupil_zernike_waves,
         )
 
 
@@ -193,6 +226,7 @@ def parameters_require_grad(parameters: FourierParameters | None, system: Fourie
         tensors += [getattr(parameters, name) for name in names]
         if parameters.pupil_phase is not None:
             tensors.append(parameters.pupil_phase.phase)
+        tensors += list((parameters.zernike_waves or {}).values())
     tensors += [lens.focal_length for lens in system.mla.lenslets]
     tensors += [getattr(system.objective, f.name) for f in dataclasses.fields(system.objective)]
     return any(isinstance(t, torch.Tensor) and t.requires_grad for t in tensors)

@@ -360,7 +360,7 @@ def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tenso
         relayed = pupil_field(
             system.objective, Grid(grid.shape, step / m_r), system.wavelength, z[i : i + 1],
             position=(-source[0], -source[1]), model=acc.model, center=(eps_x / m_r, eps_y / m_r),
-            check_sampling=False, dtype=cdtype, device=device,
+            check_sampling=False, zernike_waves=dict(system.pupil_zernike_waves), dtype=cdtype, device=device,
         )  # fmt: skip
         field = relayed.with_data(relayed.data / m_r * mla, grid=grid)
         at_sensor = propagate(field, system.mla_to_camera, method=acc.propagator, padding=acc.padding)

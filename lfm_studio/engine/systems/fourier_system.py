@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from lfm_studio.engine.errors import require_positive
 from lfm_studio.engine.optics.mla_layout import MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens, _value
+from lfm_studio.engine.optics.zernike import check_zernike_terms
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,10 @@ class FourierLFMSystem:
     pixel_pitch : sensor pixel pitch, m.
     sensor_shape : (ny, nx) sensor pixels; the optical axis is at pixel ``(ny//2, nx//2)``.
     wavelength : emission wavelength in vacuum, m.
+    pupil_zernike_waves : phase mask on the relayed pupil, ``((noll index, waves), ...)``:
+        unit-RMS Noll Zernikes over the pupil of radius :attr:`pupil_radius_at_mla`, in
+        MLA-plane coordinates (:func:`~lfm_studio.engine.optics.pupil_field.pupil_terms_at`
+        applies it for both PSF paths). Empty: no mask.
     """
 
     objective: ObjectiveLens
@@ -50,6 +55,7 @@ class FourierLFMSystem:
     pixel_pitch: float
     sensor_shape: tuple[int, int]
     wavelength: float
+    pupil_zernike_waves: tuple[tuple[int, float], ...] = ()
 
     def __post_init__(self) -> None:
         require_positive("fourier_focal_length", self.fourier_focal_length, "m", "e.g. 100 * mm.")
@@ -60,6 +66,11 @@ class FourierLFMSystem:
         if int(ny) != ny or int(nx) != nx or ny < 1 or nx < 1:
             raise ValueError(f"sensor_shape must be two positive integers; got {self.sensor_shape!r}.")
         object.__setattr__(self, "sensor_shape", (int(ny), int(nx)))
+        terms = tuple((j, float(c)) for j, c in self.pupil_zernike_waves)
+        check_zernike_terms([j for j, _ in terms], "pupil_zernike_waves")
+        if len({j for j, _ in terms}) != len(terms):
+            raise ValueError(f"pupil_zernike_waves lists a Noll index twice: {terms}.")
+        object.__setattr__(self, "pupil_zernike_waves", tuple(sorted(terms)))
 
     @property
     def relay_magnification(self) -> float:

@@ -93,6 +93,7 @@ def fourier_system_of(design: Design, *, refine: int = 1) -> FourierLFMSystem:
         pixel_pitch=design.camera.pixel_pitch / refine,
         sensor_shape=(virtual_pixel_count(ny, refine), virtual_pixel_count(nx, refine)),
         wavelength=design.wavelength,
+        pupil_zernike_waves=design.pupil_phase.terms if design.pupil_phase is not None else (),
     )
 
 
@@ -161,7 +162,8 @@ def conventional_system_of(
     if not isinstance(mla, RegularMLASpec) or mla.lattice != "square":
         raise ValueError(
             "conventional LFM needs a regular square MLA (layout 'regular', lattice 'square'); "
-            f"got layout {mla.layout!r}. Fix: use MLASpec square_grid / a RegularMLASpec."
+            f"got layout {mla.layout!r}, lattice {getattr(mla, 'lattice', None)!r}. "
+            "Fix: use MLASpec square_grid / a RegularMLASpec with lattice 'square'."
         )
     pitch_m = mla.pitch_um * 1e-6
     camera = design.camera

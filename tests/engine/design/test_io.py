@@ -205,3 +205,15 @@ def test_regular_mla_file_stays_compact(conventional):
     assert data["mla"]["layout"] == "regular" and "lenslets" not in data["mla"]
     del data["mla"]["layout"]  # hand-written files may leave the tag out: pitch_um says "regular"
     assert design_from_json(json.dumps(data)) == conventional
+
+
+def test_a_rings_lattice_round_trips_through_a_file(tmp_path, fourier):
+    from lfm_studio.engine.design import RegularMLASpec
+
+    mla = RegularMLASpec(lattice="rings", pitch_um=600.0, shape=(3, 3), focal_length_mm=16.8)
+    design = fourier.updated(mla=mla)
+    path = save_design(design, tmp_path / "rings.json")
+    again = load_design(path)
+    assert again == design and again.mla.lattice == "rings" and again.mla.count == 7
+    assert again.mla.lenslets == design.mla.lenslets
+    assert json.loads(path.read_text(encoding="utf-8"))["mla"]["lattice"] == "rings"

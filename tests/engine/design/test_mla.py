@@ -179,3 +179,62 @@ def test_a_large_regular_array_validates_without_expanding():
     mla = RegularMLASpec(pitch_um=125.0, shape=(400, 400), focal_length_mm=1.875)
     assert mla.count == 160_000
     assert "lenslets" not in mla.__dict__  # the lenslets are built only on first use
+
+
+@pytest.mark.parametrize("rings", [0, 1, 2, 4])
+@pytest.mark.parametrize("fill", [0.6, 1.0])
+def test_rings_lattice_count_symmetry_and_no_overlap(rings, fill):
+    """Lattice "rings": 1 + 3 r (r + 1) lenslets on concentric hexagonal rings, r = (ny - 1) / 2,
+    point- and six-fold symmetric about the centre, nearest neighbours one pitch apart, and no
+    overlap at any fill factor <= 1 (the design's own overlap check passes, and is re-done here)."""
+    side = 2 * rings + 1
+    mla = RegularMLASpec(
+        lattice="rings", pitch_um=100.0, shape=(side, side), focal_length_mm=2.0,
+        lenslet_aperture_diameter_um=100.0 * fill,
+    )  # fmt: skip
+    centers = [lens.center_um for lens in mla.lenslets]
+    assert mla.rings == rings and mla.count == len(centers) == 1 + 3 * rings * (rings + 1)
+    assert len(set(centers)) == len(centers)
+    assert (0.0, 0.0) in centers
+    _assert_point_symmetric(centers)
+    for x, y in centers:  # six-fold: each centre rotated by 60 degrees is a centre
+        c, s = math.cos(math.pi / 3), math.sin(math.pi / 3)
+        assert min(math.dist((c * x - s * y, s * x + c * y), o) for o in centers) < 1e-5
+    if rings:
+        assert min(_nearest_distances(centers)) == pytest.approx(100.0, abs=1e-5)
+        assert max(math.hypot(*p) for p in centers) == pytest.approx(100.0 * rings, abs=1e-5)
+    MLASpec(lenslets=mla.lenslets)  # the explicit form's full pairwise overlap check agrees
+    assert mla.lenslets == MLASpec.hex_grid(100.0, 2.0, rings=rings, fill_factor=fill).lenslets
+
+
+def test_rings_lattice_shape_rule_and_offset():
+    with pytest.raises(
+        ValueError, match=r"shape must be \(2 r \+ 1, 2 r \+ 1\) for lattice 'rings'.*got \(4, 5\)"
+    ):
+        RegularMLASpec(lattice="rings", pitch_um=100.0, shape=(4, 5), focal_length_mm=2.0)
+    with pytest.raises(ValueError, match=r"got \(4, 4\)\. Fix: e\.g\. \(3, 3\) for 1 ring\(s\), 7 lenslets"):
+        RegularMLASpec(lattice="rings", pitch_um=100.0, shape=(4, 4), focal_length_mm=2.0)
+    with pytest.raises(ValueError, match="overlap by 10 um"):
+        RegularMLASpec(
+            lattice="rings",
+            pitch_um=100.0,
+            shape=(3, 3),
+            focal_length_mm=2.0,
+            lenslet_aperture_diameter_um=110.0,
+        )
+    moved = RegularMLASpec(
+        lattice="rings", pitch_um=100.0, shape=(3, 3), focal_length_mm=2.0, offset_um=(10.0, -5.0)
+    )
+    assert (10.0, -5.0) in [lens.center_um for lens in moved.lenslets]
+    _assert_point_symmetric([lens.center_um for lens in moved.lenslets], about=(10.0, -5.0))
+
+
+def test_lattices_are_listed_once():
+    from typing import get_args
+
+    from lfm_studio.engine.design import LATTICES
+
+    assert LATTICES == ("square", "hex", "rings")
+    assert get_args(RegularMLASpec.model_fields["lattice"].annotation) == LATTICES
+    with pytest.raises(ValueError, match="'square', 'hex' or 'rings'"):
+        RegularMLASpec(lattice="spiral", pitch_um=100.0, shape=(3, 3), focal_length_mm=2.0)

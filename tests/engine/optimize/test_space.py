@@ -125,3 +125,23 @@ def test_unknown_paths_are_named(flfm):
         DesignSpace((Parameter("wavelength_nm", 500, 600, step=50),)).apply(
             flfm, {"relay.focal_length_mm": 1.0}
         )
+
+
+def test_a_zernike_coefficient_of_the_pupil_phase_is_a_parameter(flfm):
+    """``pupil_phase.zernike_waves.4`` (or ``[4]``) frees the defocus coefficient of a Fourier design's
+    pupil phase mask, in waves; the term must be listed in the design (0 is fine)."""
+    masked = flfm.updated(pupil_phase={"zernike_waves": {"4": 0.0, "11": 0.02}})
+    entry = {"path": "pupil_phase.zernike_waves.4", "low": -0.2, "high": 0.2, "points": 5, "unit": "waves"}
+    space = space_from_json(json.dumps({"parameters": [entry]}))
+    param = space.parameters[0]
+    assert param.unit == "waves" and unit_of("pupil_phase.zernike_waves[4]") == "waves"
+    assert param.grid() == (-0.2, -0.1, 0.0, 0.1, 0.2)
+    space.check_paths(masked)
+    assert space.values_of(masked) == {"pupil_phase.zernike_waves.4": 0.0}
+    out = space.apply(masked, {"pupil_phase.zernike_waves.4": -0.1})
+    assert out.pupil_phase.zernike_waves == {4: -0.1, 11: 0.02}
+    assert masked.pupil_phase.zernike_waves == {4: 0.0, 11: 0.02}  # the base is untouched
+    with pytest.raises(ValueError, match=r"no field 'pupil_phase' here"):
+        space.check_paths(flfm)  # no mask in the design: nothing to free
+    with pytest.raises(ValueError, match=r"no field '7' here; known: \['11', '4'\]"):
+        DesignSpace((Parameter("pupil_phase.zernike_waves[7]", -0.1, 0.1, points=3),)).check_paths(masked)

@@ -45,6 +45,7 @@ ALTERNATIVES = {
     "method": "per_lenslet",  # from "auto", which resolves to the per-lenslet path here
     "propagator": "asm",
     "depth_chunk": 1,
+    "pupil_zernike_waves": ((4, 0.1),),  # from no mask: a defocus term (the design's pupil_phase)
 }
 
 
@@ -95,6 +96,7 @@ def test_every_system_field_changes_the_key_except_the_rest_of_the_array():
         assert _key(system=system) != _key(), name
         names.append(name)
     assert "objective.numerical_aperture" in names and "wavelength" in names
+    assert "pupil_zernike_waves" in names
     assert (
         len(names)
         == len(dataclasses.fields(FourierLFMSystem)) - 1 + len(dataclasses.fields(ObjectiveLens)) - 1
