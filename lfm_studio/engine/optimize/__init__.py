@@ -24,7 +24,8 @@ mask from a lenslet list). PSF-engineering losses of section 5.2.2 (:mod:`.psf_l
 
 Gradient optimisation (:mod:`.gradient`): :func:`.gradient.optimize_psf` descends a PSF loss
 through the differentiable Fourier fast path (Adam / L-BFGS, bounds projected after each step,
-a float32-float64 gradient check, each step a study trial).
+a float32-float64 gradient check, each step a study trial); :func:`.end_to_end.optimize_end_to_end`
+trains the optics and an unrolled-RL reconstruction jointly on a task loss (either side frozen on request).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
@@ -42,6 +43,7 @@ from lfm_studio.engine.optimize.constraints import (
     NoSubImageOverlap,
     SubImagesOnSensor,
 )
+from lfm_studio.engine.optimize.end_to_end import optimize_end_to_end
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
 from lfm_studio.engine.optimize.gradient import GradientResult, optimize_psf
 from lfm_studio.engine.optimize.gradient_params import DIFFERENTIABLE_PATHS, NotDifferentiableError
@@ -99,6 +101,7 @@ __all__ = [
     "mtf_support",
     "objective_named",
     "objective_names",
+    "optimize_end_to_end",
     "optimize_psf",
     "register_objective",
     "run_algorithm2_study",

@@ -162,6 +162,7 @@ class GradientResult:
     check : the float32 / float64 start-gradient comparison (None when not asked).
     study : the stored ``optuna.Study`` (None when not recorded).
     extra : end-to-end numbers (held-out losses, the floor; see :mod:`.end_to_end`).
+    model : the trained reconstruction of an end-to-end run (None otherwise).
     """
 
     design: Design
@@ -174,6 +175,7 @@ class GradientResult:
     check: PrecisionCheck | None = None
     study: Any = None
     extra: dict[str, Any] = field(default_factory=dict)
+    model: Any = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready numbers (stored as the study's ``gradient`` attribute)."""
