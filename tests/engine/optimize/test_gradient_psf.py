@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from lfm_studio.engine.design.errors import DesignWarning
-from lfm_studio.engine.optimize import DesignSpace, FocalLengthCatalogue, Parameter
+from lfm_studio.engine.optimize import DesignSpace, FocalLengthCatalogue, Infeasible, Parameter
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.gradient import optimize_psf, psf_objective
 from lfm_studio.engine.optimize.gradient_params import NotDifferentiableError, bind_space
@@ -122,3 +122,32 @@ def test_parameters_the_fast_path_cannot_differentiate_are_refused_by_name():
             bind_space(DesignSpace((param,)), design)
     with pytest.raises(ValueError, match="differentiable PSF objective"):
         psf_objective("lateral_resolution")
+
+
+class _CameraWithin:
+    """A constraint that is not a box: the camera at most ``limit_mm`` behind the MLA."""
+
+    name = "camera_within"
+
+    def __init__(self, limit_mm: float) -> None:
+        self.limit_mm = limit_mm
+
+    def check(self, design):
+        if design.mla_to_camera_distance_mm <= self.limit_mm:
+            return None
+        return Infeasible("camera_too_far", f"{design.mla_to_camera_distance_mm} mm > {self.limit_mm} mm")
+
+
+def test_a_step_breaking_a_constraint_is_backtracked_and_float64_runs(poor_start):
+    """From 15 mm the descent pulls the camera back (to about 17 mm unconstrained); a 15.5 mm limit holds."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        result = optimize_psf(
+            poor_start, SPACE, "axial_crb", steps=4, lr=0.2, settings=SETTINGS,
+            constraints=(_CameraWithin(15.5),), check_float64=False, dtype="float64",
+        )  # fmt: skip
+    distances = [h.point["mla_to_camera_distance_mm"] for h in result.history]
+    assert all(d <= 15.5 for d in distances), distances
+    assert result.design.mla_to_camera_distance_mm <= 15.5
+    assert any(h.backtracks > 0 and "camera_too_far" in h.infeasible for h in result.history)
+    assert result.final_value < result.start_value
