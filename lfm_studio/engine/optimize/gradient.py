@@ -14,8 +14,9 @@ per-lenslet Fourier fast path (:mod:`.gradient_params` lists the parameters it c
 - **projection** after each step: ``u`` clamped to ``[0, 1]`` (the bounds). The other
   constraints (the design's own checks and ``constraints``, default
   :func:`.constraints.default_constraints`) are not a box: a step that breaks one is
-  backtracked, halving it towards the last feasible point up to :data:`BACKTRACKS` times (kept
-  in place when none is feasible), and recorded (``gradient.backtracks``);
+  backtracked, halving it towards the last feasible point up to :data:`BACKTRACKS` times; when
+  none is feasible each parameter's move is tried alone and kept if feasible (sliding along
+  the boundary), and the backtracking is recorded (``gradient.backtracks``, ``backtrack_reason``);
 - **catalogue**: focal lengths descend continuously within their bounds; with a
   :class:`.constraints.FocalLengthCatalogue` the final design is snapped to the nearest stock
   values at the end and evaluated again (``snapped_value`` next to ``final_value``);
@@ -177,6 +178,12 @@ class GradientResult:
     extra: dict[str, Any] = field(default_factory=dict)
     model: Any = None
 
+    @property
+    def best(self) -> StepRecord | None:
+        """The step with the lowest loss (the objective's best; the final design is the last point)."""
+        finite = [h for h in self.history if math.isfinite(h.loss)]
+        return min(finite, key=lambda h: h.loss) if finite else None
+
     def summary(self) -> dict[str, Any]:
         """JSON-ready numbers (stored as the study's ``gradient`` attribute)."""
         return {
@@ -186,6 +193,7 @@ class GradientResult:
             "snapped_value": self.snapped_value,
             "check": None if self.check is None else self.check.to_dict(),
             "final_point": self.history[-1].point if self.history else None,
+            "best_step": None if self.best is None else self.best.step,
             **self.extra,
         }
 
@@ -300,6 +308,18 @@ def _closure(
     return closure
 
 
+def _slide(setup: DescentSetup, last_good: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """After every halving failed: move the parameters one at a time, keeping each move that stays
+    feasible (slides along a constraint boundary instead of stopping at it)."""
+    point = last_good.clone()
+    for i in range(point.numel()):
+        trial = point.clone()
+        trial[i] = target[i]
+        if _feasible(setup.binding, setup.design, trial, setup.constraints)[1] is None:
+            point = trial
+    return point
+
+
 def descend(
     setup: DescentSetup, u: torch.Tensor, loss_at: Callable[[torch.Tensor, int], torch.Tensor]
 ) -> list[StepRecord]:
@@ -345,7 +365,7 @@ def descend(
                     reason = str(found)
                     backtracks += 1
                     if backtracks > BACKTRACKS:
-                        u.copy_(last_good)
+                        u.copy_(_slide(setup, last_good, target))
                         break
                     u.copy_(last_good + (target - last_good) * 0.5**backtracks)
                 last_good = u.detach().clone()
