@@ -242,7 +242,7 @@ def run_gradient(args: argparse.Namespace) -> int:
             f"{result.start_value:.6g} -> {result.final_value:.6g} {unit}.".strip(),
         )
         save_design(chosen, out, overwrite=args.overwrite)
-    for note in dict.fromkeys(str(w.message) for w in caught):
+    for note in dict.fromkeys([*result.warnings, *(str(w.message) for w in caught)]):
         print(f"design warning: {note}", file=sys.stderr)
     for step in result.history:
         point = ", ".join(f"{k}={v:.6g}" for k, v in step.point.items())

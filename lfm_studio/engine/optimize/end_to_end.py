@@ -51,6 +51,7 @@ from lfm_studio.engine.optimize.gradient import (
     _feasible,
     descend,
     precision_check,
+    quietly,
     snap_design,
     start_point,
     study_settings,
@@ -273,7 +274,7 @@ def optimize_end_to_end(
         else sum(float((p.detach() - q).pow(2).sum()) for p, q in zip(net.parameters(), initial, strict=True))
     )
     final_values = binding.values(u.detach().to(torch.float64))
-    final = space.apply(design, binding.point(final_values))
+    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
     final_held_out, volume = held_out_loss(final_values, design)
     result = GradientResult(final, start_design, history, history[0].value, history[-1].value, check=check)
     result.extra = {
@@ -285,11 +286,13 @@ def optimize_end_to_end(
         **options,
     }
     result.model = net
+    result.warnings = notes
     if catalogue is not None:
         snapped, snapped_values = snap_design(binding, final, catalogue)
         result.snapped_value, _ = held_out_loss(snapped_values, snapped)
         result.extra["held_out_snapped"] = result.snapped_value
         result.unsnapped_design, result.design = final, snapped
+        result.warnings = quietly(lambda: catalogue.snap(final))[1]
     if recorder is not None:
         recorder.finish(result.summary())
         result.study = recorder.study

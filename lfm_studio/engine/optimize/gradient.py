@@ -32,14 +32,17 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from typing import Any
 
 import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
+from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.optimize import psf_losses
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.constraints import (
@@ -164,6 +167,7 @@ class GradientResult:
     study : the stored ``optuna.Study`` (None when not recorded).
     extra : end-to-end numbers (held-out losses, the floor; see :mod:`.end_to_end`).
     model : the trained reconstruction of an end-to-end run (None otherwise).
+    warnings : the design warnings of :attr:`design` (caught during the run, not emitted).
     """
 
     design: Design
@@ -177,6 +181,7 @@ class GradientResult:
     study: Any = None
     extra: dict[str, Any] = field(default_factory=dict)
     model: Any = None
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def best(self) -> StepRecord | None:
@@ -194,6 +199,7 @@ class GradientResult:
             "check": None if self.check is None else self.check.to_dict(),
             "final_point": self.history[-1].point if self.history else None,
             "best_step": None if self.best is None else self.best.step,
+            "warnings": list(self.warnings),
             **self.extra,
         }
 
@@ -253,12 +259,25 @@ def psf_objective(objective: str | PSFLoss, options: Mapping[str, Any] | None = 
 # The descent loop (shared with the end-to-end optimiser)
 
 
+def quietly(build: Callable[[], Design]) -> tuple[Design, list[str]]:
+    """``build()`` with its design warnings caught and returned (each once), not emitted: a
+    descent validates a design at every step, the warnings go into the records instead."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DesignWarning)
+        design = build()
+    notes = [str(w.message) for w in caught if issubclass(w.category, DesignWarning)]
+    for w in caught:
+        if not issubclass(w.category, DesignWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return design, list(dict.fromkeys(notes))
+
+
 def _feasible(
     binding: SpaceBinding, design: Design, u: torch.Tensor, constraints: Sequence[Constraint]
 ) -> tuple[Design | None, Infeasible | None]:
     point = binding.point(binding.values(u.detach().to(torch.float64)))
     try:
-        candidate = binding.space.apply(design, point)
+        candidate, _ = quietly(lambda: binding.space.apply(design, point))
     except ValueError as error:
         return None, infeasible_from_error(error)
     found = first_violation(candidate, constraints)
@@ -386,12 +405,14 @@ def descend(
         )
         history.append(record)
         if setup.study is not None:
-            design_json = design_to_json(setup.binding.space.apply(setup.design, point))
+            at, notes = quietly(partial(setup.binding.space.apply, setup.design, point))
+            design_json = design_to_json(at)
             setup.study.add(
                 point,
                 value,
                 design_json,
                 seconds=record.seconds,
+                warnings=notes,
                 gradient={
                     "step": step,
                     "loss": loss_value,
@@ -409,7 +430,7 @@ def descend(
 def start_point(binding: SpaceBinding, design: Design) -> tuple[torch.Tensor, Design]:
     """``u`` of the design's values, clamped to the bounds, and the design at that point."""
     u = binding.normalised(binding.values_of(design)).clamp(0.0, 1.0)
-    start = binding.space.apply(design, binding.point(binding.values(u)))
+    start, _ = quietly(lambda: binding.space.apply(design, binding.point(binding.values(u))))
     return u, start
 
 
@@ -417,7 +438,7 @@ def snap_design(
     binding: SpaceBinding, design: Design, catalogue: FocalLengthCatalogue
 ) -> tuple[Design, torch.Tensor]:
     """``design`` snapped to the catalogue and its values at the space's paths (``(P,)`` float64)."""
-    snapped = catalogue.snap(design)
+    snapped, _ = quietly(lambda: catalogue.snap(design))
     return snapped, binding.values_of(snapped)
 
 
@@ -513,15 +534,17 @@ def optimize_psf(
     )  # fmt: skip
     history = descend(setup, u, lambda x, _step: loss_of(binding.values(x), design, dtype))
     final_values = binding.values(u.detach().to(torch.float64))
-    final = space.apply(design, binding.point(final_values))
+    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
     with torch.no_grad():
         final_value = float(loss_of(final_values, design, dtype)) * direction
     result = GradientResult(final, start_design, history, history[0].value, final_value, check=check)
+    result.warnings = notes
     if catalogue is not None:
         snapped, snapped_values = snap_design(binding, final, catalogue)
         with torch.no_grad():
             result.snapped_value = float(loss_of(snapped_values, snapped, dtype)) * direction
         result.unsnapped_design, result.design = final, snapped
+        result.warnings = quietly(lambda: catalogue.snap(final))[1]
     if recorder is not None:
         recorder.finish(result.summary())
         result.study = recorder.study

@@ -14,7 +14,7 @@ Gradient runs are not resumable: a second run needs a new study name.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from lfm_studio.engine.design import Design
@@ -64,6 +64,7 @@ class GradientStudy:
         *,
         seconds: float,
         gradient: Mapping[str, Any],
+        warnings: Sequence[str] = (),
     ) -> None:
         """Store one step (a ``COMPLETE`` trial; a non-finite value is stored ``FAIL`` with reason ``not_finite``)."""
         optuna = require_optuna()
@@ -79,7 +80,7 @@ class GradientStudy:
             "timing": {"total_s": seconds},
             "design_json": design_json,
             "seed": self.seed,
-            "warnings": [],
+            "warnings": list(warnings),
             "cache": {},
             "gradient": dict(gradient),
         }

@@ -151,3 +151,53 @@ def test_a_step_breaking_a_constraint_is_backtracked_and_float64_runs(poor_start
     assert result.design.mla_to_camera_distance_mm <= 15.5
     assert any(h.backtracks > 0 and "camera_too_far" in h.infeasible for h in result.history)
     assert result.final_value < result.start_value
+
+
+@pytest.mark.parametrize("name", ["axial_crb", "mtf_support"])
+def test_every_kind_of_bound_parameter_passes_gradcheck_in_float64(name):
+    """NA (its rim cuts the outer lenslets at 0.45), relay and lenslet focal lengths, a lenslet
+    centre (lenslet 3, 20 um clear of the central one), tied apertures and the wavelength."""
+    space = DesignSpace(
+        (
+            Parameter("objective.numerical_aperture", 0.4, 0.5),
+            Parameter("relay.focal_length_mm", 70.0, 80.0),
+            Parameter("mla.lenslets[3].center_um[0]", 580.0, 620.0),
+            Parameter("mla.lenslets[0,3].aperture_diameter_um", 500.0, 600.0),
+            Parameter("mla.lenslets[4].focal_length_mm", 15.0, 19.0),
+            Parameter("wavelength_nm", 600.0, 700.0),
+        )
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        design = space.apply(
+            tiny_flfm(),
+            {"objective.numerical_aperture": 0.45, "mla.lenslets[0,3].aperture_diameter_um": 560.0},
+        )
+    binding = bind_space(space, design)
+    assert [b.field for b in binding.bindings] == [
+        "numerical_aperture", "fourier_focal_length", "centers", "aperture_diameters", "focal_lengths",
+        "wavelength",
+    ]  # fmt: skip
+    loss = psf_objective(name)
+    settings = EvaluationSettings(crop=None, dtype="float64")
+
+    def objective(u: torch.Tensor) -> torch.Tensor:
+        return loss.loss(binding.psf_stack(design, binding.values(u), settings))
+
+    u = binding.normalised(binding.values_of(design)).clone().requires_grad_(True)
+    objective(u).backward()
+    assert int((u.grad != 0).sum()) == 6, u.grad  # every parameter moves the objective
+    u.grad = None
+    assert torch.autograd.gradcheck(objective, (u,), eps=1e-6, atol=1e-7, rtol=1e-4)
+
+
+def test_cancel_stops_before_the_first_step(poor_start):
+    from lfm_studio.engine.progress import CancelledError
+
+    seen = []
+    with pytest.raises(CancelledError):
+        optimize_psf(
+            poor_start, SPACE, steps=3, settings=SETTINGS, constraints=(), check_float64=False,
+            progress=lambda done, total, message: seen.append((done, total)), cancel=lambda: True,
+        )  # fmt: skip
+    assert seen == [(0, 3)]
