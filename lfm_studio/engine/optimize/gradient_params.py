@@ -13,7 +13,10 @@ comma list, as everywhere in a design space):
 - ``relay.focal_length_mm``, ``mla_to_camera_distance_mm``, ``wavelength_nm``,
 - ``mla.lenslets[i].focal_length_mm``, ``mla.lenslets[i].aperture_diameter_um``,
   ``mla.lenslets[i].center_um[0]`` / ``[1]`` (a list MLA),
-- ``mla.focal_length_mm`` (a regular MLA: every lenslet).
+- a regular MLA: ``mla.focal_length_mm`` and ``mla.lenslet_aperture_diameter_um`` (every
+  lenslet), ``mla.pitch_um`` (every centre scales about the offset; the apertures follow the
+  pitch when the design leaves ``lenslet_aperture_diameter_um`` unset) and ``mla.offset_um[0|1]``
+  (every centre shifts). The lenslet count and lattice stay as they are.
 
 Anything else (counts, layouts, choices, integer parameters, conventional-LFM designs) is
 refused with :class:`NotDifferentiableError`, which lists these paths. The optimiser works on
@@ -48,6 +51,10 @@ DIFFERENTIABLE_PATHS: tuple[str, ...] = (
     "mla.lenslets[i].center_um[0]",
     "mla.lenslets[i].center_um[1]",
     "mla.focal_length_mm",
+    "mla.pitch_um",
+    "mla.lenslet_aperture_diameter_um",
+    "mla.offset_um[0]",
+    "mla.offset_um[1]",
 )
 """The design paths the gradient optimiser can free (``i``: an index, ``*`` or a comma list)."""
 
@@ -59,6 +66,13 @@ _SCALAR_FIELDS = {
     ("wavelength_nm",): "wavelength",
 }
 _LENSLET_FIELDS = {"focal_length_mm": "focal_lengths", "aperture_diameter_um": "aperture_diameters"}
+_REGULAR_FIELDS: dict[tuple[str, ...], tuple[str, int | None]] = {
+    ("mla", "focal_length_mm"): ("focal_lengths", None),
+    ("mla", "lenslet_aperture_diameter_um"): ("aperture_diameters", None),
+    ("mla", "pitch_um"): ("pitch", None),
+    ("mla", "offset_um", "0"): ("offset", 0),
+    ("mla", "offset_um", "1"): ("offset", 1),
+}
 
 
 class NotDifferentiableError(ValueError):
@@ -95,8 +109,10 @@ def _bind(param: Parameter, design: Design) -> Binding:
     if parts in _SCALAR_FIELDS:
         return Binding(param, _SCALAR_FIELDS[parts], (), None, to_si)
     count = len(design.mla.lenslets)
-    if parts == ("mla", "focal_length_mm") and design.mla.layout == "regular":
-        return Binding(param, "focal_lengths", tuple(range(count)), None, to_si)
+    if design.mla.layout == "regular" and parts in _REGULAR_FIELDS:
+        field, coordinate = _REGULAR_FIELDS[parts]
+        lenslets = tuple(range(count)) if field in ("focal_lengths", "aperture_diameters") else ()
+        return Binding(param, field, lenslets, coordinate, to_si)
     if len(parts) >= 4 and parts[:2] == ("mla", "lenslets") and design.mla.layout == "lenslets":
         try:
             items = tuple(i % count for i in _indices(parts[2], count))
@@ -137,8 +153,11 @@ class SpaceBinding:
         return {b.parameter.path: float(v) for b, v in zip(self.bindings, flat, strict=True)}
 
     def values_of(self, design: Design) -> torch.Tensor:
-        """The design's current values at the space's paths, ``(P,)`` float64."""
-        point = self.space.values_of(design)
+        """The design's current values at the space's paths, ``(P,)`` float64 (an unset regular
+        lenslet aperture reads as the pitch it defaults to)."""
+        point = dict(self.space.values_of(design))
+        if point.get("mla.lenslet_aperture_diameter_um", 0.0) is None:
+            point["mla.lenslet_aperture_diameter_um"] = design.mla.lenslet_aperture_um  # type: ignore[union-attr]
         return torch.tensor([float(point[p]) for p in self.space.names], dtype=torch.float64)
 
     def parameters(self, design: Design, values: torch.Tensor) -> FourierParameters:
@@ -146,8 +165,17 @@ class SpaceBinding:
         lenslets = design.mla.lenslets
         si = values.to(torch.float64)
         fields: dict[str, torch.Tensor] = {}
+        lattice: dict[str, torch.Tensor] = {}  # a regular MLA's pitch and offset
         for k, b in enumerate(self.bindings):
             value = si[k] * b.to_si
+            if b.field in ("pitch", "offset"):
+                if b.field == "pitch":
+                    lattice["pitch"] = value
+                else:
+                    if "offset" not in lattice:
+                        lattice["offset"] = torch.tensor(design.mla.offset_um, dtype=torch.float64) * 1e-6  # type: ignore[union-attr]
+                    lattice["offset"] = lattice["offset"].index_put((torch.tensor(b.coordinate),), value)
+                continue
             if not b.lenslets:
                 fields[b.field] = value
                 continue
@@ -165,6 +193,8 @@ class SpaceBinding:
             else:
                 column = torch.full_like(index, b.coordinate)
                 fields[b.field] = target.index_put((index, column), value.expand(len(b.lenslets)))
+        if lattice:
+            fields.update(_lattice_fields(design, lattice, "aperture_diameters" in fields))
         return FourierParameters(
             focal_lengths=fields.get("focal_lengths"),
             aperture_diameters=fields.get("aperture_diameters"),
@@ -205,6 +235,24 @@ class SpaceBinding:
             parameters=self.parameters(design, values),
         )
         return dataclasses.replace(stack, volume_oversampling=refine)
+
+
+def _lattice_fields(
+    design: Design, lattice: dict[str, torch.Tensor], apertures_bound: bool
+) -> dict[str, torch.Tensor]:
+    """Centres (and apertures that default to the pitch) of a regular MLA with a tensor pitch / offset:
+    ``centre = offset + k pitch`` with each lenslet's lattice coordinates ``k`` (square or hex)."""
+    mla = design.mla
+    pitch0 = mla.pitch_um * 1e-6  # type: ignore[union-attr]
+    offset0 = torch.tensor(mla.offset_um, dtype=torch.float64) * 1e-6  # type: ignore[union-attr]
+    centres0 = torch.tensor([lens.center for lens in mla.lenslets], dtype=torch.float64)
+    steps = (centres0 - offset0) / pitch0
+    pitch = lattice.get("pitch", torch.tensor(pitch0, dtype=torch.float64))
+    offset = lattice.get("offset", offset0)
+    out = {"centers": offset + steps * pitch}
+    if "pitch" in lattice and not apertures_bound and mla.lenslet_aperture_diameter_um is None:  # type: ignore[union-attr]
+        out["aperture_diameters"] = pitch.expand(len(mla.lenslets))
+    return out
 
 
 def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:

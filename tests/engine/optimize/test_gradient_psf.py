@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 
 import pytest
 import torch
 
+from lfm_studio.engine.design import RegularMLASpec
 from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.optimize import DesignSpace, FocalLengthCatalogue, Infeasible, Parameter
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
@@ -14,6 +16,8 @@ from lfm_studio.engine.optimize.gradient import optimize_psf, psf_objective
 from lfm_studio.engine.optimize.gradient_params import NotDifferentiableError, bind_space
 from lfm_studio.engine.optimize.study import load_study, record_of
 from lfm_studio.engine.optimize.study_report import trial_rows
+from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
+from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of
 
 from .conftest import tiny_flfm
 
@@ -201,3 +205,55 @@ def test_cancel_stops_before_the_first_step(poor_start):
             progress=lambda done, total, message: seen.append((done, total)), cancel=lambda: True,
         )  # fmt: skip
     assert seen == [(0, 3)]
+
+
+@pytest.fixture(scope="module")
+def regular_row():
+    """The tiny FLFM with a regular MLA: one row of three square 600 um lenslets (aperture = pitch)."""
+    design = tiny_flfm()
+    mla = RegularMLASpec(pitch_um=600.0, shape=(1, 3), focal_length_mm=16.8, lenslet_shape="square")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        return design.updated(mla=mla)
+
+
+REGULAR = DesignSpace(
+    (
+        Parameter("mla.pitch_um", 560.0, 620.0),
+        Parameter("mla.offset_um[0]", -20.0, 20.0),
+        Parameter("mla.focal_length_mm", 15.0, 19.0),
+    )
+)
+
+
+def test_regular_mla_pitch_offset_and_focal_length_match_the_design_written_with_them(regular_row):
+    binding = bind_space(REGULAR, regular_row)
+    point = {"mla.pitch_um": 590.0, "mla.offset_um[0]": 7.0, "mla.focal_length_mm": 17.5}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        applied = REGULAR.apply(regular_row, point)
+    params = binding.parameters(regular_row, torch.tensor(list(point.values()), dtype=torch.float64))
+    expected = torch.tensor([lens.center for lens in applied.mla.lenslets], dtype=torch.float64)
+    assert torch.allclose(params.centers, expected, rtol=0, atol=1e-12)
+    assert torch.allclose(params.aperture_diameters, torch.full((3,), 590e-6, dtype=torch.float64))
+    settings = EvaluationSettings(crop=None, dtype="float64")
+    through = binding.psf_stack(regular_row, binding.values_of(applied), settings).data
+    system = fourier_system_of(applied)
+    accuracy = dataclasses.replace(fourier_accuracy_of(applied), method="per_lenslet", dtype=torch.float64)
+    plain = fourier_psf_stack(system, (-20e-6, 0.0, 20e-6), accuracy=accuracy).data
+    assert float((through - plain).abs().max() / plain.max()) < 1e-9
+
+
+def test_regular_mla_parameters_pass_gradcheck(regular_row):
+    binding = bind_space(REGULAR, regular_row)
+    loss = psf_objective("depth_dissimilarity")
+    settings = EvaluationSettings(crop=None, dtype="float64")
+
+    def objective(u: torch.Tensor) -> torch.Tensor:
+        return loss.loss(binding.psf_stack(regular_row, binding.values(u), settings))
+
+    u = torch.tensor([0.5, 0.6, 0.4], dtype=torch.float64, requires_grad=True)
+    objective(u).backward()
+    assert int((u.grad != 0).sum()) == 3, u.grad
+    u.grad = None
+    assert torch.autograd.gradcheck(objective, (u,), eps=1e-6, atol=1e-7, rtol=1e-4)
