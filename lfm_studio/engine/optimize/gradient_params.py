@@ -40,6 +40,8 @@ from lfm_studio.engine.simulation import design_depths
 from lfm_studio.engine.systems.fourier_parameters import FourierParameters
 from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
 from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of, virtual_pixel_count
+from lfm_studio.engine.systems.kinds import kind_of
+from lfm_studio.engine.systems.kinds_fourier import FOURIER
 
 DIFFERENTIABLE_PATHS: tuple[str, ...] = (
     "objective.numerical_aperture",
@@ -257,10 +259,11 @@ def _lattice_fields(
 
 def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:
     """Bind every parameter of ``space`` (:class:`NotDifferentiableError` for one that cannot be)."""
-    if design.kind != "fourier":
+    kind = kind_of(design)
+    if kind is not FOURIER:
         raise NotDifferentiableError(
             f"gradient optimisation needs a Fourier LFM (the differentiable per-lenslet fast path); the design "
-            f"is {design.kind!r}. Differentiable paths: {', '.join(DIFFERENTIABLE_PATHS)}. Fix: use grid search "
+            f"is a {kind.title}. Differentiable paths: {', '.join(DIFFERENTIABLE_PATHS)}. Fix: use grid search "
             "or a sampler for this design."
         )
     space.check_paths(design)

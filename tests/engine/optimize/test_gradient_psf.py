@@ -257,3 +257,17 @@ def test_regular_mla_parameters_pass_gradcheck(regular_row):
     assert int((u.grad != 0).sum()) == 3, u.grad
     u.grad = None
     assert torch.autograd.gradcheck(objective, (u,), eps=1e-6, atol=1e-7, rtol=1e-4)
+
+
+def test_a_conventional_design_is_refused_by_name():
+    from lfm_studio.engine.design import list_presets, load_preset
+    from lfm_studio.engine.systems.kinds import kind_of
+    from lfm_studio.engine.systems.kinds_fourier import FOURIER
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        designs = [load_preset(name) for name in list_presets()]
+    conventional = next(d for d in designs if kind_of(d) is not FOURIER)
+    space = DesignSpace((Parameter("objective.numerical_aperture", 0.3, 0.5),))
+    with pytest.raises(NotDifferentiableError, match="needs a Fourier LFM"):
+        bind_space(space, conventional)
