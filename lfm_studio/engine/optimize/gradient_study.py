@@ -20,7 +20,14 @@ from typing import Any
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
 from lfm_studio.engine.optimize.space import DesignSpace
-from lfm_studio.engine.optimize.study import DEFAULT_STUDY_NAME, RECORD, open_stored, require_optuna
+from lfm_studio.engine.optimize.study import (
+    DEFAULT_STUDY_NAME,
+    RECORD,
+    make_storage,
+    open_stored,
+    require_optuna,
+    storage_url,
+)
 
 
 class GradientStudy:
@@ -47,6 +54,11 @@ class GradientStudy:
             "sampler": sampler,
             "seed": seed,
         }
+        if study_name in optuna.study.get_all_study_names(storage=make_storage(storage)):
+            raise ValueError(
+                f"study {study_name!r} already exists in {storage_url(storage)}; gradient runs are not resumable. "
+                "Fix: choose another --study-name or database."
+            )
         self.study = open_stored(attrs, [objective["direction"]], storage, study_name=study_name)
         self.objective = objective["name"]
         self.seed = seed

@@ -61,6 +61,9 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     assert main(["study", "show", str(files / "g.db")]) == 0
     shown = capsys.readouterr().out
     assert "complete 3" in shown and "axial_crb [um] (min)" in shown
+    (files / "best.json").unlink()
+    assert _optimize(files, "--gradient", "psf", "--steps", "1") == 2  # the study exists
+    assert "gradient runs are not resumable" in capsys.readouterr().err
 
 
 def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, capsys):
