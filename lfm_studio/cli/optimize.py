@@ -11,6 +11,12 @@ trials and the best candidate (one objective) or the Pareto front (several).
 --study sqlite:///s.db --out best.json`` runs the thesis' Algorithm 2 (greedy merges of
 ``D``-um cells of the MLA plane) on one objective, recording every layout in the study
 (``--resume`` takes stored layouts' scores from it). See docs/optimize.md.
+
+``optimize DESIGN --space space.json --gradient psf --objective axial_crb --steps 20 --out best.json``
+descends a differentiable PSF objective through the Fourier fast path (Adam or ``--optimizer
+lbfgs``; bounds projected after each step; ``--catalogue`` snaps focal lengths at the end);
+``--gradient end-to-end`` trains the optics and an unrolled-RL reconstruction jointly on the
+task loss (``--freeze-optics`` / ``--freeze-reconstruction``). Every step is a trial of the study.
 """
 
 from __future__ import annotations
@@ -178,7 +184,105 @@ def run_algorithm2(args: argparse.Namespace) -> int:
     return 0
 
 
+def run_gradient(args: argparse.Namespace) -> int:
+    """``optimize --gradient psf|end-to-end``: gradient descent recorded into a study; writes the final design."""
+    from lfm_studio.cli.simulate import _design_file
+    from lfm_studio.engine.design import resolve_design, save_design
+    from lfm_studio.engine.design.errors import DesignWarning
+    from lfm_studio.engine.io import check_output
+    from lfm_studio.engine.learned.data import TrainingDataSpec
+    from lfm_studio.engine.optimize import FocalLengthCatalogue, load_space, optimize_end_to_end, optimize_psf
+
+    if args.algorithm2:
+        raise ValueError("--gradient and --algorithm2 are two different searches. Fix: pick one.")
+    if args.resume:
+        raise ValueError("gradient runs are not resumable. Fix: drop --resume and give a new --study-name.")
+    out = check_output(
+        args.out,
+        overwrite=args.overwrite,
+        inputs=[_design_file(args.design), args.space, _study_file(args.study)],
+    )
+    design = resolve_design(args.design)
+    space = load_space(args.space)
+    common = {
+        "steps": args.steps, "optimizer": args.optimizer, "lr": args.lr, "schedule": args.schedule,
+        "dtype": "float64" if args.float64 else "float32", "settings": _settings(args),
+        "constraints": _constraints(args, design),
+        "catalogue": FocalLengthCatalogue(args.catalogue) if args.catalogue else None,
+        "check_float64": not args.no_float64_check, "study": args.study, "study_name": args.study_name,
+        "seed": args.seed,
+    }  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DesignWarning)
+        with progress_bar(f"optimise (gradient {args.gradient})") as progress:
+            if args.gradient == "psf":
+                objective = args.objective or "axial_crb"
+                options = {"photons": args.photons, "background": args.background}
+                result = optimize_psf(design, space, objective, options=options, progress=progress, **common)
+                unit = result.study.user_attrs["objectives"][0]["unit"]
+            else:
+                if args.objective:
+                    raise ValueError(
+                        "--gradient end-to-end optimises the task loss; --objective does not apply. Fix: drop it."
+                    )
+                objective, unit = "task_loss", ""
+                data = TrainingDataSpec(
+                    phantoms=args.phantom, objects=(4, 10), photons=(args.photons,), seed=args.seed
+                )
+                result = optimize_end_to_end(
+                    design, space, reconstruction=args.reconstruction, freeze_optics=args.freeze_optics,
+                    freeze_reconstruction=args.freeze_reconstruction, lr_reconstruction=args.lr_reconstruction,
+                    iterations=args.unrolled_iterations, batch=args.batch, held_out=args.held_out, data=data,
+                    progress=progress, **common,
+                )  # fmt: skip
+        chosen = result.design.updated(
+            name=f"{design.name} (gradient {args.gradient})",
+            description=f"{design.description} Optimised by lfm-studio optimize --gradient {args.gradient}: study "
+            f"{args.study_name!r} in {args.study}, {len(result.history)} {args.optimizer} steps, {objective} "
+            f"{result.start_value:.6g} -> {result.final_value:.6g} {unit}.".strip(),
+        )
+        save_design(chosen, out, overwrite=args.overwrite)
+    for note in dict.fromkeys([*result.warnings, *(str(w.message) for w in caught)]):
+        print(f"design warning: {note}", file=sys.stderr)
+    for step in result.history:
+        point = ", ".join(f"{k}={v:.6g}" for k, v in step.point.items())
+        note = f"  (update backtracked: {step.infeasible.split(':')[0]})" if step.infeasible else ""
+        print(
+            f"step {step.step:3d}  {objective} {step.value:.6g} {unit}  |grad| {step.grad_norm:.3g}  {point}{note}"
+        )
+    print(f"{objective}: start {result.start_value:.6g} {unit}, final {result.final_value:.6g} {unit}")
+    if result.best is not None:
+        print(
+            f"best step {result.best.step}: {objective} {result.best.value:.6g} {unit} (the design written is the final one)"
+        )
+    if result.snapped_value is not None:
+        what = "held-out task loss" if args.gradient == "end-to-end" else objective
+        before = result.extra.get("held_out_final", result.final_value)
+        print(f"snapped to the catalogue: {what} {before:.6g} -> {result.snapped_value:.6g} {unit}")
+    if args.gradient == "end-to-end":
+        extra = result.extra
+        print(
+            f"held-out task loss: start {extra['held_out_start']:.6g}, final {extra['held_out_final']:.6g} "
+            f"(all-zero volume: {extra['zero_floor']:.6g}); final volume "
+            f"{extra['final_volume_trivial'] or 'not trivial'}"
+        )
+    if result.check is not None:
+        verdict = "within" if result.check.passed else "OUTSIDE"
+        print(
+            f"float32 vs float64 start gradient: relative difference {result.check.relative_error:.3g} "
+            f"({verdict} the tolerance {result.check.tolerance:g})"
+        )
+    print(f"wrote {out}")
+    return 0
+
+
 def run_optimize(args: argparse.Namespace) -> int:
+    if args.gradient is not None:
+        return run_gradient(args)
+    if args.objective is None:
+        raise ValueError(
+            "optimize needs --objective NAME. Fix: e.g. --objective task_ncc (docs/optimize.md)."
+        )
     if args.algorithm2:
         return run_algorithm2(args)
     if args.space is None:
@@ -273,7 +377,10 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
         "--space", default=None, help="design space JSON (docs/optimize.md); not with --algorithm2"
     )
     opt.add_argument(
-        "--objective", required=True, help="objective name, or several comma-separated (a Pareto front)"
+        "--objective",
+        default=None,
+        help="objective name, or several comma-separated (a Pareto front); required except with "
+        "--gradient (psf: default axial_crb; end-to-end: the task loss)",
     )
     opt.add_argument(
         "--study", default=DEFAULT_STUDY, help=f"study database URL or file (default {DEFAULT_STUDY})"
@@ -310,6 +417,32 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
         help="none, mirror, mirror-xy, 4-fold or 8-fold: every merge applies to the block's symmetric images",
     )
     alg2.add_argument("--sizes", type=_sizes, default=None, help="block sizes to try, cells (default 1..M-1)")
+    grad = opt.add_argument_group("gradient optimisation (Fourier LFM; docs/optimize.md)")
+    grad.add_argument(
+        "--gradient", choices=("psf", "end-to-end"), default=None, help="gradient descent instead of a search"
+    )
+    grad.add_argument("--steps", type=int, default=20, help="gradient steps (one study trial each)")
+    grad.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam")
+    grad.add_argument(
+        "--lr", type=float, default=0.05, help="optics step, fraction of each parameter's range"
+    )
+    grad.add_argument("--schedule", choices=("constant", "cosine", "exponential", "step"), default="constant")
+    grad.add_argument("--float64", action="store_true", help="run in float64 (default float32)")
+    grad.add_argument(
+        "--no-float64-check", action="store_true", help="skip the float32-float64 start-gradient check"
+    )
+    grad.add_argument("--background", type=float, default=1.0, help="axial_crb background, photons per pixel")
+    grad.add_argument("--reconstruction", choices=("unrolled-rl", "rl"), default="unrolled-rl")
+    grad.add_argument(
+        "--freeze-optics", action="store_true", help="end-to-end: train the reconstruction only"
+    )
+    grad.add_argument(
+        "--freeze-reconstruction", action="store_true", help="end-to-end: train the optics only"
+    )
+    grad.add_argument("--lr-reconstruction", type=float, default=0.01)
+    grad.add_argument("--unrolled-iterations", type=int, default=4, help="unrolled RL steps")
+    grad.add_argument("--batch", type=int, default=2, help="training phantoms per step")
+    grad.add_argument("--held-out", type=int, default=4, help="held-out phantoms scored at the start and end")
     cons = opt.add_argument_group("constraints")
     cons.add_argument(
         "--catalogue", type=_floats, default=None, help="stock lenslet focal lengths in mm (snap)"

@@ -22,6 +22,11 @@ mask from a lenslet list). PSF-engineering losses of section 5.2.2 (:mod:`.psf_l
 :func:`.psf_losses.axial_crb`, also the named objectives ``axial_crb`` (um),
 ``depth_dissimilarity`` and ``mtf_support``.
 
+Gradient optimisation (:mod:`.gradient`): :func:`.gradient.optimize_psf` descends a PSF loss
+through the differentiable Fourier fast path (Adam / L-BFGS, bounds projected after each step,
+a float32-float64 gradient check, each step a study trial); :func:`.end_to_end.optimize_end_to_end`
+trains the optics and an unrolled-RL reconstruction jointly on a task loss (either side frozen on request).
+
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
@@ -38,7 +43,10 @@ from lfm_studio.engine.optimize.constraints import (
     NoSubImageOverlap,
     SubImagesOnSensor,
 )
+from lfm_studio.engine.optimize.end_to_end import optimize_end_to_end
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
+from lfm_studio.engine.optimize.gradient import GradientResult, optimize_psf
+from lfm_studio.engine.optimize.gradient_params import DIFFERENTIABLE_PATHS, NotDifferentiableError
 from lfm_studio.engine.optimize.grid_search import SearchResult, best_of, grid_search
 from lfm_studio.engine.optimize.mla_cells import MLAPlane
 from lfm_studio.engine.optimize.objectives import (
@@ -58,6 +66,7 @@ from lfm_studio.engine.optimize.task_score import TaskScore, score_volume
 
 __all__ = [
     "DEFAULT_CONSTRAINTS",
+    "DIFFERENTIABLE_PATHS",
     "Algorithm2Result",
     "Candidate",
     "ClosedForm",
@@ -66,12 +75,14 @@ __all__ = [
     "EvaluationSettings",
     "Evaluator",
     "FocalLengthCatalogue",
+    "GradientResult",
     "Infeasible",
     "InsidePupil",
     "LayoutTrial",
     "MLAPlane",
     "MinimumLensletSize",
     "NoSubImageOverlap",
+    "NotDifferentiableError",
     "Objective",
     "PSFLoss",
     "Parameter",
@@ -90,6 +101,8 @@ __all__ = [
     "mtf_support",
     "objective_named",
     "objective_names",
+    "optimize_end_to_end",
+    "optimize_psf",
     "register_objective",
     "run_algorithm2_study",
     "score_volume",

@@ -28,6 +28,12 @@ def adjoint_normaliser(projector: Projector) -> torch.Tensor:
     return norm.clamp_min(float(norm.max()) * 1e-6)
 
 
+def differentiable_normaliser(projector: Projector) -> torch.Tensor:
+    """:func:`adjoint_normaliser` with gradients to the projector's PSF (end-to-end optics training)."""
+    norm = projector.adjoint(torch.ones(tuple(projector.image_shape), dtype=projector_dtype(projector)))
+    return torch.maximum(norm, norm.detach().max() * 1e-6)
+
+
 class _DoubleConv(nn.Sequential):
     def __init__(self, inputs: int, outputs: int) -> None:
         super().__init__(

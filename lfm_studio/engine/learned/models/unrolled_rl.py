@@ -16,7 +16,12 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from lfm_studio.engine.learned.models.common import adjoint_normaliser, image_scale, projector_dtype
+from lfm_studio.engine.learned.models.common import (
+    adjoint_normaliser,
+    differentiable_normaliser,
+    image_scale,
+    projector_dtype,
+)
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.reconstruct.unrolled import rl_ratio
 
@@ -75,14 +80,21 @@ class UnrolledRL(nn.Module):
         self.log_exponents = nn.Parameter(torch.zeros(iterations))
         self.to(projector_dtype(projector))
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
-        y = image.to(self.norm.dtype).clamp_min(0.0)  # read noise may make pixels negative
+    def forward(self, image: torch.Tensor, projector: Projector | None = None) -> torch.Tensor:
+        """The volume reconstructed from ``image``; ``projector`` replaces the stored one for this call
+        (end-to-end optics optimisation: a projector whose PSF carries gradients, with the same
+        volume and image shapes; its sensitivity ``A^T 1`` is then computed with gradients)."""
+        if projector is None:
+            projector, norm = self.projector, self.norm
+        else:
+            norm = differentiable_normaliser(projector)
+        y = image.to(norm.dtype).clamp_min(0.0)  # read noise may make pixels negative
         scale = image_scale(y)
         y = y / scale
         background = self.config["background"] / scale
         tiny = torch.finfo(y.dtype).eps
-        x = torch.ones_like(self.norm) * (y.sum() / self.norm.sum())  # flat start (keeps the graph to y)
+        x = torch.ones_like(norm) * (y.sum() / norm.sum())  # flat start (keeps the graph to y)
         for step, log_exponent in zip(self.steps, self.log_exponents, strict=True):
-            ratio = rl_ratio(self.projector, y, x, self.norm, background=background)
+            ratio = rl_ratio(projector, y, x, norm, background=background)
             x = step(x * ratio.clamp_min(tiny) ** torch.exp(EXPONENT_RATE * log_exponent))
         return x * scale

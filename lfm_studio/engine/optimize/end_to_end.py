@@ -1,0 +1,315 @@
+"""End-to-end optimisation (thesis 5.3.2): optics and a differentiable reconstruction trained jointly.
+
+Each step of :func:`optimize_end_to_end`:
+
+1. the PSF stack of the current optics through the differentiable Fourier fast path
+   (:meth:`.gradient_params.SpaceBinding.psf_stack`), and its shift-invariant projector on a
+   volume grid fixed at the start (the lateral voxel count of the start design; the voxel
+   follows the magnification);
+2. ``batch`` seeded training phantoms (:func:`lfm_studio.engine.learned.data.make_sample`, split
+   ``train``, indices ``step * batch + i``: a new batch every step) imaged at the photon budget of
+   ``data`` (Poisson shot noise and Gaussian read noise). The noise realisation is held fixed
+   while differentiating: ``image = A(theta) x + (noisy - A(theta) x).detach()``, so the gradient
+   reaches the optics through the expected image (the usual reparameterisation for Poisson data);
+3. the reconstruction: ``"unrolled-rl"``, the learned unrolled Richardson-Lucy model
+   (:class:`lfm_studio.engine.learned.models.unrolled_rl.UnrolledRL`, run with the current
+   projector), or ``"rl"``, plain unrolled Richardson-Lucy
+   (:func:`lfm_studio.engine.reconstruct.unrolled.richardson_lucy_unrolled`, nothing to train);
+4. the task loss: the energy-normalised MSE of engine/learned
+   (:func:`lfm_studio.engine.learned.losses.training_loss`; the all-zero volume scores ``1 +
+   high_pass_weight``, the *floor*), averaged over the batch; Adam / L-BFGS steps on the optics
+   (normalised to ``[0, 1]`` and projected on the bounds, as :mod:`.gradient`) and the
+   reconstruction weights (``lr_reconstruction``), either side frozen on request.
+
+Held-out phantoms (split ``test``, never trained on) are scored at the start and the end (and
+after snapping to a focal-length catalogue) with the same loss; the last held-out
+reconstruction is checked not to be all zero or constant (``final_volume_trivial``).
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import replace
+
+import torch
+from torch import nn
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.learned.data import Sample, Split, TrainingDataSpec, make_sample
+from lfm_studio.engine.learned.losses import training_loss, trivial_reason
+from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
+from lfm_studio.engine.operators.binned import BinnedProjector
+from lfm_studio.engine.operators.shift_invariant import ShiftInvariantProjector
+from lfm_studio.engine.optimize.candidate import EvaluationSettings
+from lfm_studio.engine.optimize.constraints import Constraint, FocalLengthCatalogue, default_constraints
+from lfm_studio.engine.optimize.gradient import (
+    GRADIENT_TOLERANCE,
+    DescentSetup,
+    GradientResult,
+    _feasible,
+    descend,
+    precision_check,
+    quietly,
+    snap_design,
+    start_point,
+    study_settings,
+)
+from lfm_studio.engine.optimize.gradient_params import bind_space
+from lfm_studio.engine.optimize.gradient_study import GradientStudy
+from lfm_studio.engine.optimize.space import DesignSpace
+from lfm_studio.engine.progress import CancelToken, ProgressCallback
+from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
+from lfm_studio.engine.simulation import ImagingSetup
+from lfm_studio.engine.systems.kinds_base import Projector, depth_step
+
+RECONSTRUCTIONS: tuple[str, ...] = ("unrolled-rl", "rl")
+DEFAULT_DATA = TrainingDataSpec(phantoms="beads", objects=(4, 10), photons=(2e4,), read_noise=1.0)
+"""Training phantoms when none are given: 4-10 beads per volume, 2e4 photons per image."""
+
+
+def fixed_grid_setup(stack: PSFStack, lateral: int) -> ImagingSetup:
+    """The shift-invariant setup of ``stack`` on a ``(Z, lateral, lateral)`` volume (differentiable in the PSF)."""
+    voxel = stack.object_pixel_size
+    projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
+    if stack.volume_oversampling > 1:
+        projector = BinnedProjector(projector, stack.volume_oversampling)
+    return ImagingSetup(projector, (len(stack.depths), lateral, lateral), (depth_step(stack), voxel, voxel))
+
+
+def sample_loss(
+    sample: Sample,
+    projector: Projector,
+    reconstruct: Callable[[torch.Tensor, Projector], torch.Tensor],
+    high_pass_weight: float,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(loss, volume)`` of one phantom: imaged through ``projector`` with the sample's noise held
+    fixed (gradients reach the optics through the expected image), then reconstructed."""
+    truth = sample.truth.to(projector.dtype)
+    expected = projector.forward(truth)
+    image = expected + (sample.image.to(projector.dtype) - expected.detach())
+    volume = reconstruct(image, projector)
+    return training_loss(volume, truth, high_pass_weight), volume
+
+
+def optimize_end_to_end(
+    design: Design,
+    space: DesignSpace,
+    *,
+    reconstruction: str = "unrolled-rl",
+    freeze_optics: bool = False,
+    freeze_reconstruction: bool = False,
+    steps: int = 20,
+    optimizer: str = "adam",
+    lr: float = 0.05,
+    lr_reconstruction: float = 0.01,
+    schedule: str = "constant",
+    dtype: str = "float32",
+    iterations: int = 4,
+    batch: int = 2,
+    held_out: int = 4,
+    data: TrainingDataSpec | None = None,
+    high_pass_weight: float = 0.0,
+    model: nn.Module | None = None,
+    settings: EvaluationSettings | None = None,
+    constraints: Sequence[Constraint] | None = None,
+    catalogue: FocalLengthCatalogue | None = None,
+    check_float64: bool = True,
+    tolerance: float = GRADIENT_TOLERANCE,
+    study: str | None = None,
+    study_name: str = "lfm_study",
+    seed: int = 0,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> GradientResult:
+    """Train the optics in ``space`` and a differentiable reconstruction jointly on a task loss.
+
+    Parameters (those shared with :func:`.gradient.optimize_psf` mean the same)
+    ----------
+    reconstruction : "unrolled-rl" (learned, :class:`UnrolledRL` with ``iterations`` steps; pass
+        ``model`` to start from a trained one) or "rl" (plain unrolled RL, ``iterations`` steps;
+        nothing to train, so the reconstruction is frozen).
+    freeze_optics, freeze_reconstruction : keep that side fixed (not both).
+    lr, lr_reconstruction : learning rates of the optics (fraction of each range) and of the
+        reconstruction weights (Adam; L-BFGS takes one group with ``lr``).
+    batch : training phantoms per step; held_out : test phantoms scored at the start and the end.
+    data : the phantoms and photon budget (default :data:`DEFAULT_DATA` with ``seed``).
+    high_pass_weight : the high-pass term of the loss (0: plain energy-normalised MSE, floor 1).
+
+    Returns
+    -------
+    :class:`.gradient.GradientResult`: ``start_value`` / ``final_value`` are the training loss of
+    the first step and of the last; ``extra`` holds ``held_out_start``, ``held_out_final`` (and
+    ``held_out_snapped``), ``zero_floor``, ``final_volume_trivial``, ``reconstruction_change`` (L2 norm
+    of the change of the reconstruction weights) and the settings; ``model``
+    is the (trained) reconstruction, None for "rl".
+    """
+    if reconstruction not in RECONSTRUCTIONS:
+        raise ValueError(f"reconstruction must be one of {RECONSTRUCTIONS}; got {reconstruction!r}.")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    if reconstruction == "rl":
+        freeze_reconstruction = True
+    if freeze_optics and freeze_reconstruction:
+        raise ValueError(
+            "nothing to optimise: the optics and the reconstruction are both frozen (plain 'rl' has no "
+            "weights). Fix: unfreeze one side, or use reconstruction='unrolled-rl'."
+        )
+    if not (isinstance(batch, int) and batch >= 1 and isinstance(held_out, int) and held_out >= 1):
+        raise ValueError(f"batch and held_out must be integers >= 1; got {batch!r}, {held_out!r}.")
+    spec = data or replace(DEFAULT_DATA, seed=seed)
+    binding = bind_space(space, design)
+    base = settings or EvaluationSettings()
+    constraints = default_constraints(design) if constraints is None else tuple(constraints)
+    u0, start_design = start_point(binding, design)
+    _, found = _feasible(binding, design, u0, constraints)
+    if found is not None:
+        raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
+
+    def setup_at(values: torch.Tensor, at: Design, precision: str) -> ImagingSetup:
+        return fixed_grid_setup(binding.psf_stack(at, values, replace(base, dtype=precision)), lateral)
+
+    with torch.no_grad():
+        start_stack = binding.psf_stack(design, binding.values(u0), replace(base, dtype=dtype))
+    lateral = shift_invariant_lateral(start_stack)
+    start_setup = fixed_grid_setup(start_stack, lateral)
+    net: nn.Module | None = None
+    if reconstruction == "unrolled-rl":
+        net = model if model is not None else UnrolledRL(start_setup.projector, iterations=iterations)
+        net = net.to(start_setup.projector.dtype)
+        net.requires_grad_(not freeze_reconstruction)
+
+    def reconstructor(network: nn.Module | None) -> Callable[[torch.Tensor, Projector], torch.Tensor]:
+        if network is None:
+            return lambda image, projector: richardson_lucy_unrolled(
+                projector, image.clamp_min(0.0), iterations
+            )
+        return lambda image, projector: network(image, projector=projector)
+
+    def batch_loss(
+        setup: ImagingSetup, samples: Sequence[Sample], network: nn.Module | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        losses, volume = [], None
+        for sample in samples:
+            loss, volume = sample_loss(sample, setup.projector, reconstructor(network), high_pass_weight)
+            losses.append(loss)
+        assert volume is not None
+        return torch.stack(losses).mean(), volume
+
+    def samples_of(setup: ImagingSetup, split: Split, start: int, count: int) -> list[Sample]:
+        return [make_sample(spec, setup, split, start + i) for i in range(count)]
+
+    def held_out_loss(values: torch.Tensor, at: Design) -> tuple[float, torch.Tensor]:
+        with torch.no_grad():
+            setup = setup_at(values, at, dtype)
+            loss, volume = batch_loss(setup, samples_of(setup, "test", 0, held_out), net)
+        return float(loss), volume
+
+    start_held_out, _ = held_out_loss(binding.values(u0), design)
+    check = None
+    if check_float64:
+        check_samples = samples_of(start_setup, "train", 0, batch)
+
+        def fresh(precision: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
+            leaf = u0.clone().requires_grad_(True)
+            network = None if net is None else copy.deepcopy(net).to(_dtype(precision)).requires_grad_(True)
+            setup = setup_at(binding.values(leaf), design, precision)
+            loss, _ = batch_loss(setup, check_samples, network)
+            weights = [] if network is None else list(network.parameters())
+            return loss.to(torch.float64), [leaf, *weights]
+
+        check = precision_check(fresh, tolerance)
+
+    def loss_at(u: torch.Tensor, step: int) -> torch.Tensor:
+        setup = setup_at(binding.values(u), design, dtype)
+        with torch.no_grad():
+            samples = samples_of(setup, "train", step * batch, batch)
+        loss, _ = batch_loss(setup, samples, net)
+        return loss.to(torch.float64)
+
+    options = {
+        "reconstruction": reconstruction,
+        "freeze_optics": freeze_optics,
+        "freeze_reconstruction": freeze_reconstruction,
+        "optimizer": optimizer,
+        "lr": lr,
+        "lr_reconstruction": lr_reconstruction,
+        "schedule": schedule,
+        "steps": steps,
+        "iterations": iterations,
+        "batch": batch,
+        "held_out": held_out,
+        "high_pass_weight": high_pass_weight,
+        "data": spec.to_dict(),
+    }
+    recorder = None
+    if study is not None:
+        recorder = GradientStudy(
+            study,
+            design=design,
+            space=space,
+            objective={"name": "task_loss", "unit": "", "direction": "minimize"},
+            settings=study_settings(replace(base, dtype=dtype), **options),
+            sampler=f"gradient-{optimizer}",
+            seed=seed,
+            study_name=study_name,
+        )
+    u = u0.clone().requires_grad_(not freeze_optics)
+    extra_groups = (
+        []
+        if net is None or freeze_reconstruction
+        else [{"params": list(net.parameters()), "lr": lr_reconstruction}]
+    )
+    setup = DescentSetup(
+        binding, design, steps, optimizer, lr, schedule, constraints, freeze_optics, extra_groups,
+        recorder, progress, cancel, "minimize",
+    )  # fmt: skip
+    initial = [] if net is None else [p.detach().clone() for p in net.parameters()]
+    history = descend(setup, u, loss_at)
+    change = (
+        0.0
+        if net is None
+        else sum(float((p.detach() - q).pow(2).sum()) for p, q in zip(net.parameters(), initial, strict=True))
+    )
+    final_values = binding.values(u.detach().to(torch.float64))
+    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
+    final_held_out, volume = held_out_loss(final_values, design)
+    result = GradientResult(final, start_design, history, history[0].value, history[-1].value, check=check)
+    result.extra = {
+        "held_out_start": start_held_out,
+        "held_out_final": final_held_out,
+        "zero_floor": 1.0 + high_pass_weight,
+        "final_volume_trivial": trivial_reason(volume),
+        "reconstruction_change": math.sqrt(change),
+        **options,
+    }
+    result.model = net
+    result.warnings = notes
+    if catalogue is not None:
+        snapped, snapped_values = snap_design(binding, final, catalogue)
+        result.snapped_value, _ = held_out_loss(snapped_values, snapped)
+        result.extra["held_out_snapped"] = result.snapped_value
+        result.unsnapped_design, result.design = final, snapped
+        result.warnings = quietly(lambda: catalogue.snap(final))[1]
+    if recorder is not None:
+        recorder.finish(result.summary())
+        result.study = recorder.study
+    return result
+
+
+def _dtype(name: str) -> torch.dtype:
+    return torch.float64 if name == "float64" else torch.float32
+
+
+def shift_invariant_lateral(stack: PSFStack) -> int:
+    """The lateral voxel count :func:`~lfm_studio.engine.systems.kinds_fourier.shift_invariant_setup`
+    gives ``stack`` (odd; the design's field of view over the voxel, else a quarter of the sensor)."""
+    voxel = stack.object_pixel_size
+    field_of_view = (
+        getattr(stack.design, "field_of_view_diameter", None) if stack.design is not None else None
+    )
+    ny, nx = stack.data.shape[-2:]
+    lateral = min(ny, nx) // 4 if not field_of_view else max(1, math.ceil(field_of_view / voxel))
+    return lateral + 1 - lateral % 2

@@ -1,0 +1,551 @@
+"""Gradient optimisation of a design (thesis 5.2.2 PSF engineering; 5.3.2 end to end in :mod:`.end_to_end`).
+
+:func:`optimize_psf` descends a differentiable PSF-engineering objective (b) through the
+per-lenslet Fourier fast path (:mod:`.gradient_params` lists the parameters it can free):
+
+- **optimiser**: ``"adam"`` (:class:`torch.optim.Adam`) or ``"lbfgs"``
+  (:class:`torch.optim.LBFGS` with ``max_iter=1``: one evaluation per step, the curvature
+  history kept across steps; no line search, so every step evaluates once);
+- **variables**: ``u`` in ``[0, 1]`` per parameter (``value = low + (high - low) u``), so one
+  learning rate fits parameters in mm, um and unitless alike (``lr`` is a fraction of each
+  parameter's range per step, for Adam roughly the step length);
+- **schedule** (:data:`SCHEDULES`): a factor on ``lr`` per step, ``constant``, ``cosine`` (to 5 %),
+  ``exponential`` (to 10 %) or ``step`` (halved every third of the run);
+- **projection** after each step: ``u`` clamped to ``[0, 1]`` (the bounds). The other
+  constraints (the design's own checks and ``constraints``, default
+  :func:`.constraints.default_constraints`) are not a box: a step that breaks one is
+  backtracked, halving it towards the last feasible point up to :data:`BACKTRACKS` times; when
+  none is feasible each parameter's move is tried alone and kept if feasible (sliding along
+  the boundary), and the backtracking is recorded (``gradient.backtracks``, ``backtrack_reason``);
+- **catalogue**: focal lengths descend continuously within their bounds; with a
+  :class:`.constraints.FocalLengthCatalogue` the final design is snapped to the nearest stock
+  values at the end and evaluated again (``snapped_value`` next to ``final_value``);
+- **precision**: the run computes in ``settings.dtype`` (default float32; ``"float64"`` to run
+  in double); :func:`precision_check` compares the start gradient in float32 with float64
+  (relative L2 difference, :data:`GRADIENT_TOLERANCE`), stored in the result and the study.
+
+Each step can be recorded into a stored study (:class:`.gradient_study.GradientStudy`; one
+trial per step, ``lfm-studio study show`` lists it).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+from functools import partial
+from typing import Any
+
+import torch
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.design_io import design_to_json
+from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.optimize import psf_losses
+from lfm_studio.engine.optimize.candidate import EvaluationSettings
+from lfm_studio.engine.optimize.constraints import (
+    Constraint,
+    FocalLengthCatalogue,
+    Infeasible,
+    default_constraints,
+    first_violation,
+    infeasible_from_error,
+)
+from lfm_studio.engine.optimize.gradient_params import SpaceBinding, bind_space
+from lfm_studio.engine.optimize.gradient_study import GradientStudy
+from lfm_studio.engine.optimize.objectives import PSFLoss, objective_named, sign
+from lfm_studio.engine.optimize.space import DesignSpace
+from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+
+OPTIMIZERS: tuple[str, ...] = ("adam", "lbfgs")
+SCHEDULES: tuple[str, ...] = ("constant", "cosine", "exponential", "step")
+BACKTRACKS = 6
+GRADIENT_TOLERANCE = 1e-3
+"""Default bound of ``|g32 - g64| / |g64|`` for the start gradient (see :func:`precision_check`)."""
+
+LossFunction = Callable[[torch.Tensor, str], torch.Tensor]
+"""``loss(u, dtype_name) -> 0-d tensor`` (minimised), differentiable in ``u``."""
+
+
+def schedule_factor(name: str, step: int, steps: int) -> float:
+    """The learning-rate factor of ``schedule`` ``name`` at ``step`` of ``steps`` (1 at step 0)."""
+    t = step / max(1, steps)
+    if name == "constant":
+        return 1.0
+    if name == "cosine":
+        return 0.05 + 0.95 * 0.5 * (1.0 + math.cos(math.pi * t))
+    if name == "exponential":
+        return 0.1**t
+    if name == "step":
+        return 0.5 ** (step // max(1, math.ceil(steps / 3)))
+    raise ValueError(f"schedule must be one of {SCHEDULES}; got {name!r}.")
+
+
+def make_optimizer(name: str, groups: list[dict[str, Any]]) -> torch.optim.Optimizer:
+    """Adam over the parameter groups, or L-BFGS (one group: its parameters, the first group's ``lr``)."""
+    if name == "adam":
+        return torch.optim.Adam(groups)
+    if name == "lbfgs":
+        params = [p for g in groups for p in g["params"]]
+        return torch.optim.LBFGS(params, lr=groups[0]["lr"], max_iter=1, history_size=10)
+    raise ValueError(f"optimizer must be one of {OPTIMIZERS}; got {optimizer_hint(name)}.")
+
+
+def optimizer_hint(name: str) -> str:
+    return f"{name!r}. Fix: 'adam' (robust) or 'lbfgs' (smooth, few parameters)"
+
+
+@dataclass(frozen=True)
+class PrecisionCheck:
+    """Start gradient in float32 against float64: ``relative_error = |g32 - g64| / |g64|`` (L2)."""
+
+    relative_error: float
+    tolerance: float
+    gradient_float32: tuple[float, ...]
+    gradient_float64: tuple[float, ...]
+
+    @property
+    def passed(self) -> bool:
+        return self.relative_error <= self.tolerance
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "relative_error": self.relative_error,
+            "tolerance": self.tolerance,
+            "passed": self.passed,
+            "gradient_float32": list(self.gradient_float32),
+            "gradient_float64": list(self.gradient_float64),
+        }
+
+
+def precision_check(
+    loss: Callable[[str], tuple[torch.Tensor, Sequence[torch.Tensor]]], tolerance: float = GRADIENT_TOLERANCE
+) -> PrecisionCheck:
+    """Compare the gradient in float32 with float64. ``loss(dtype_name)`` returns the loss and the
+    leaf tensors whose gradients are compared (fresh leaves per call)."""
+    grads = []
+    for dtype in ("float32", "float64"):
+        value, leaves = loss(dtype)
+        found = torch.autograd.grad(value, list(leaves), allow_unused=True)
+        flat = [torch.zeros_like(x) if g is None else g for x, g in zip(leaves, found, strict=True)]
+        grads.append(torch.cat([g.detach().reshape(-1).to(torch.float64) for g in flat]))
+    g32, g64 = grads
+    error = float((g32 - g64).norm() / g64.norm().clamp_min(1e-300))
+    return PrecisionCheck(error, tolerance, tuple(g32.tolist()), tuple(g64.tolist()))
+
+
+@dataclass(frozen=True)
+class StepRecord:
+    """One step: the point evaluated (design values), its objective ``value`` and minimised ``loss``,
+    ``grad_norm`` (of the normalised ``u`` and any reconstruction weights), the learning rate,
+    seconds, and how often the update was halved to stay feasible."""
+
+    step: int
+    point: dict[str, float]
+    value: float
+    loss: float
+    grad_norm: float
+    lr: float
+    seconds: float
+    backtracks: int = 0
+    infeasible: str | None = None
+
+
+@dataclass
+class GradientResult:
+    """What a gradient run returns.
+
+    design : the final design (written through the space's ``apply``; snapped when a catalogue is given).
+    start_design : the (bound-projected) start.
+    history : one :class:`StepRecord` per step.
+    start_value, final_value : the objective at the start and at the final (unsnapped) point.
+    snapped_value : the objective after snapping to the catalogue (None without one).
+    unsnapped_design : the final design before snapping.
+    check : the float32 / float64 start-gradient comparison (None when not asked).
+    study : the stored ``optuna.Study`` (None when not recorded).
+    extra : end-to-end numbers (held-out losses, the floor; see :mod:`.end_to_end`).
+    model : the trained reconstruction of an end-to-end run (None otherwise).
+    warnings : the design warnings of :attr:`design` (caught during the run, not emitted).
+    """
+
+    design: Design
+    start_design: Design
+    history: list[StepRecord]
+    start_value: float
+    final_value: float
+    snapped_value: float | None = None
+    unsnapped_design: Design | None = None
+    check: PrecisionCheck | None = None
+    study: Any = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    model: Any = None
+    warnings: list[str] = field(default_factory=list)
+
+    @property
+    def best(self) -> StepRecord | None:
+        """The step with the lowest loss (the objective's best; the final design is the last point)."""
+        finite = [h for h in self.history if math.isfinite(h.loss)]
+        return min(finite, key=lambda h: h.loss) if finite else None
+
+    def summary(self) -> dict[str, Any]:
+        """JSON-ready numbers (stored as the study's ``gradient`` attribute)."""
+        return {
+            "steps": len(self.history),
+            "start_value": self.start_value,
+            "final_value": self.final_value,
+            "snapped_value": self.snapped_value,
+            "check": None if self.check is None else self.check.to_dict(),
+            "final_point": self.history[-1].point if self.history else None,
+            "best_step": None if self.best is None else self.best.step,
+            "warnings": list(self.warnings),
+            **self.extra,
+        }
+
+
+# ---------------------------------------------------------------------------------------------
+# Objectives (b) in differentiable form
+
+
+@dataclass(frozen=True)
+class SoftMTFSupportLoss:
+    """Mean over depths of the MTF support fraction with a sigmoid step of width ``softness``
+    (:func:`.psf_losses.mtf_support`): the differentiable form of the ``mtf_support`` objective."""
+
+    threshold: float = 0.1
+    band: float = 0.5
+    softness: float = 0.02
+
+    def __call__(self, stack: Any) -> torch.Tensor:
+        data = torch.as_tensor(stack.data)
+        flat = data.reshape(-1, *data.shape[-3:])
+        return torch.stack(
+            [
+                psf_losses.mtf_support(
+                    p, threshold=self.threshold, band=self.band, softness=self.softness
+                ).mean()
+                for p in flat
+            ]
+        ).mean()
+
+
+PSF_OBJECTIVES: tuple[str, ...] = ("axial_crb", "depth_dissimilarity", "mtf_support")
+
+
+def psf_objective(objective: str | PSFLoss, options: Mapping[str, Any] | None = None) -> PSFLoss:
+    """A differentiable PSF-engineering objective: a name of :data:`PSF_OBJECTIVES` (``mtf_support``
+    in its soft form, ``options["softness"]``, default 0.02) or a :class:`PSFLoss` (whose loss
+    must be differentiable in the stack)."""
+    if isinstance(objective, PSFLoss):
+        return objective
+    options = dict(options or {})
+    if objective == "mtf_support":
+        return PSFLoss(
+            "mtf_support", SoftMTFSupportLoss(softness=float(options.get("softness", 0.02))), "", "maximize"
+        )
+    if objective not in PSF_OBJECTIVES:
+        raise ValueError(
+            f"gradient PSF engineering needs a differentiable PSF objective, one of {PSF_OBJECTIVES}; got "
+            f"{objective!r}. Fix: pick one of those (closed-form and task objectives have no gradient here; "
+            "use --gradient end-to-end for the task loss)."
+        )
+    built = objective_named(objective, options)
+    assert isinstance(built, PSFLoss)
+    return built
+
+
+# ---------------------------------------------------------------------------------------------
+# The descent loop (shared with the end-to-end optimiser)
+
+
+def quietly(build: Callable[[], Design]) -> tuple[Design, list[str]]:
+    """``build()`` with its design warnings caught and returned (each once), not emitted: a
+    descent validates a design at every step, the warnings go into the records instead."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", DesignWarning)
+        design = build()
+    notes = [str(w.message) for w in caught if issubclass(w.category, DesignWarning)]
+    for w in caught:
+        if not issubclass(w.category, DesignWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return design, list(dict.fromkeys(notes))
+
+
+def _feasible(
+    binding: SpaceBinding, design: Design, u: torch.Tensor, constraints: Sequence[Constraint]
+) -> tuple[Design | None, Infeasible | None]:
+    point = binding.point(binding.values(u.detach().to(torch.float64)))
+    try:
+        candidate, _ = quietly(lambda: binding.space.apply(design, point))
+    except ValueError as error:
+        return None, infeasible_from_error(error)
+    found = first_violation(candidate, constraints)
+    return (None, found) if found is not None else (candidate, None)
+
+
+@dataclass
+class DescentSetup:
+    """What :func:`descend` needs besides the loss: the optics, optimiser and records."""
+
+    binding: SpaceBinding
+    design: Design
+    steps: int
+    optimizer: str = "adam"
+    lr: float = 0.05
+    schedule: str = "constant"
+    constraints: Sequence[Constraint] = ()
+    freeze_optics: bool = False
+    extra_groups: list[dict[str, Any]] = field(default_factory=list)
+    study: GradientStudy | None = None
+    progress: ProgressCallback | None = None
+    cancel: CancelToken = None
+    direction: str = "minimize"
+
+
+def _closure(
+    optimizer: torch.optim.Optimizer,
+    loss_at: Callable[[torch.Tensor, int], torch.Tensor],
+    u: torch.Tensor,
+    step: int,
+    weights: list[torch.Tensor],
+    seen: dict[str, Any],
+) -> Callable[[], torch.Tensor]:
+    """The loss-and-gradient closure of one step; the first call's loss, point and gradient norm go into ``seen``."""
+
+    def closure() -> torch.Tensor:
+        optimizer.zero_grad()
+        loss = loss_at(u, step)
+        loss.backward()
+        if "loss" not in seen:  # the point of this step (L-BFGS calls once with max_iter=1)
+            seen["loss"] = float(loss.detach())
+            seen["u"] = u.detach().clone()
+            grads = [p.grad.detach().reshape(-1) for p in weights if p.grad is not None]
+            seen["grad_norm"] = float(torch.cat(grads).norm()) if grads else 0.0
+        return loss
+
+    return closure
+
+
+def _slide(setup: DescentSetup, last_good: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """After every halving failed: move the parameters one at a time, keeping each move that stays
+    feasible (slides along a constraint boundary instead of stopping at it)."""
+    point = last_good.clone()
+    for i in range(point.numel()):
+        trial = point.clone()
+        trial[i] = target[i]
+        if _feasible(setup.binding, setup.design, trial, setup.constraints)[1] is None:
+            point = trial
+    return point
+
+
+def descend(
+    setup: DescentSetup, u: torch.Tensor, loss_at: Callable[[torch.Tensor, int], torch.Tensor]
+) -> list[StepRecord]:
+    """Run ``setup.steps`` steps on ``u`` (a leaf tensor in ``[0, 1]``, updated in place) and the
+    ``extra_groups`` parameters; ``loss_at(u, step)`` is the minimised loss (objective times its sign)."""
+    if setup.optimizer not in OPTIMIZERS:
+        raise ValueError(f"optimizer must be one of {OPTIMIZERS}; got {optimizer_hint(setup.optimizer)}.")
+    schedule_factor(setup.schedule, 0, setup.steps)  # names the schedule early
+    if not (isinstance(setup.steps, int) and setup.steps >= 1):
+        raise ValueError(f"steps must be an integer >= 1; got {setup.steps!r}.")
+    groups: list[dict[str, Any]] = [] if setup.freeze_optics else [{"params": [u], "lr": setup.lr}]
+    groups += setup.extra_groups
+    if not groups:
+        raise ValueError("nothing to optimise: the optics are frozen and there are no other parameters.")
+    for group in groups:
+        group["initial_lr"] = group["lr"]
+    optimizer = make_optimizer(setup.optimizer, groups)
+    history: list[StepRecord] = []
+    weights = [p for g in groups for p in g["params"]]
+    last_good = u.detach().clone()
+    for step in range(setup.steps):
+        checkpoint(setup.cancel, setup.progress, step, setup.steps, f"gradient step {step + 1}/{setup.steps}")
+        factor = schedule_factor(setup.schedule, step, setup.steps)
+        for group, source in zip(optimizer.param_groups, groups, strict=False):
+            group["lr"] = source["initial_lr"] * factor
+        start = time.perf_counter()
+        seen: dict[str, Any] = {}
+        closure = _closure(optimizer, loss_at, u, step, weights, seen)
+        if setup.optimizer == "lbfgs":
+            optimizer.step(closure)  # type: ignore[arg-type]
+        else:
+            closure()
+            optimizer.step()
+        backtracks, reason = 0, None
+        with torch.no_grad():
+            u.clamp_(0.0, 1.0)  # projection onto the bounds
+            if not setup.freeze_optics:
+                target = u.detach().clone()
+                while True:
+                    _, found = _feasible(setup.binding, setup.design, u, setup.constraints)
+                    if found is None:
+                        break
+                    reason = str(found)
+                    backtracks += 1
+                    if backtracks > BACKTRACKS:
+                        u.copy_(_slide(setup, last_good, target))
+                        break
+                    u.copy_(last_good + (target - last_good) * 0.5**backtracks)
+                last_good = u.detach().clone()
+        values = setup.binding.values(seen["u"].to(torch.float64))
+        point = setup.binding.point(values)
+        loss_value = seen["loss"]
+        value = loss_value * sign(setup.direction)
+        record = StepRecord(
+            step,
+            point,
+            value,
+            loss_value,
+            seen["grad_norm"],
+            float(optimizer.param_groups[0]["lr"]),
+            time.perf_counter() - start,
+            backtracks,
+            reason,
+        )
+        history.append(record)
+        if setup.study is not None:
+            at, notes = quietly(partial(setup.binding.space.apply, setup.design, point))
+            design_json = design_to_json(at)
+            setup.study.add(
+                point,
+                value,
+                design_json,
+                seconds=record.seconds,
+                warnings=notes,
+                gradient={
+                    "step": step,
+                    "loss": loss_value,
+                    "grad_norm": record.grad_norm,
+                    "lr": record.lr,
+                    "optimizer": setup.optimizer,
+                    "backtracks": backtracks,
+                    "backtrack_reason": reason,
+                },
+            )
+    checkpoint(setup.cancel, setup.progress, setup.steps, setup.steps, "gradient steps done")
+    return history
+
+
+def start_point(binding: SpaceBinding, design: Design) -> tuple[torch.Tensor, Design]:
+    """``u`` of the design's values, clamped to the bounds, and the design at that point."""
+    u = binding.normalised(binding.values_of(design)).clamp(0.0, 1.0)
+    start, _ = quietly(lambda: binding.space.apply(design, binding.point(binding.values(u))))
+    return u, start
+
+
+def snap_design(
+    binding: SpaceBinding, design: Design, catalogue: FocalLengthCatalogue
+) -> tuple[Design, torch.Tensor]:
+    """``design`` snapped to the catalogue and its values at the space's paths (``(P,)`` float64)."""
+    snapped, _ = quietly(lambda: catalogue.snap(design))
+    return snapped, binding.values_of(snapped)
+
+
+def study_settings(settings: EvaluationSettings, **options: Any) -> dict[str, Any]:
+    return {**settings.to_dict(), "gradient": options}
+
+
+def optimize_psf(
+    design: Design,
+    space: DesignSpace,
+    objective: str | PSFLoss = "axial_crb",
+    *,
+    steps: int = 20,
+    optimizer: str = "adam",
+    lr: float = 0.05,
+    schedule: str = "constant",
+    dtype: str = "float32",
+    settings: EvaluationSettings | None = None,
+    options: Mapping[str, Any] | None = None,
+    constraints: Sequence[Constraint] | None = None,
+    catalogue: FocalLengthCatalogue | None = None,
+    check_float64: bool = True,
+    tolerance: float = GRADIENT_TOLERANCE,
+    study: str | None = None,
+    study_name: str = "lfm_study",
+    seed: int = 0,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> GradientResult:
+    """PSF engineering: descend a differentiable PSF objective (b) over ``space`` from ``design``.
+
+    Parameters
+    ----------
+    design : a Fourier-LFM design (the start; values outside the bounds are projected onto them).
+    space : the free parameters (:data:`.gradient_params.DIFFERENTIABLE_PATHS`; others are refused
+        with :class:`.gradient_params.NotDifferentiableError`). Their bounds are the box projected on.
+    objective : ``axial_crb`` (um, minimise), ``depth_dissimilarity`` (minimise), ``mtf_support``
+        (soft, maximise), or a :class:`PSFLoss` with a differentiable loss.
+    steps, optimizer, lr, schedule : the descent (see the module docstring); ``lr`` in units of
+        each parameter's range.
+    dtype : "float32" (default) or "float64" (the whole run in double).
+    settings : depths, crop, device (``settings.dtype`` is replaced by ``dtype``).
+    options : objective options (``photons``, ``background`` for ``axial_crb``; ``softness``).
+    constraints : checked after every step (default :func:`.constraints.default_constraints`);
+        the design's own validation always applies.
+    catalogue : focal lengths snapped to it at the end (value before and after reported).
+    check_float64 : compare the start gradient in float32 and float64 (:class:`PrecisionCheck`).
+    study, study_name : a database (URL or SQLite path) to record every step into; None: not recorded.
+    seed : recorded with every trial (the PSF objectives are deterministic).
+    progress, cancel : as everywhere in the engine.
+    """
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    built = psf_objective(objective, options)
+    binding = bind_space(space, design)
+    base = settings or EvaluationSettings()
+    run_settings = replace(base, dtype=dtype)
+    constraints = default_constraints(design) if constraints is None else tuple(constraints)
+    u0, start_design = start_point(binding, design)
+    _, found = _feasible(binding, design, u0, constraints)
+    if found is not None:
+        raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
+    direction = sign(built.direction)
+
+    def loss_of(values: torch.Tensor, at: Design, precision: str) -> torch.Tensor:
+        stack = binding.psf_stack(at, values, replace(base, dtype=precision))
+        return direction * built.loss(stack).to(torch.float64)
+
+    check = None
+    if check_float64:
+
+        def fresh(precision: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
+            leaf = u0.clone().requires_grad_(True)
+            return loss_of(binding.values(leaf), design, precision), [leaf]
+
+        check = precision_check(fresh, tolerance)
+    recorder = None
+    if study is not None:
+        recorder = GradientStudy(
+            study,
+            design=design,
+            space=space,
+            objective={"name": built.name, "unit": built.unit, "direction": built.direction},
+            settings=study_settings(run_settings, optimizer=optimizer, lr=lr, schedule=schedule, steps=steps),
+            sampler=f"gradient-{optimizer}",
+            seed=seed,
+            study_name=study_name,
+        )
+    u = u0.clone().requires_grad_(True)
+    setup = DescentSetup(
+        binding, design, steps, optimizer, lr, schedule, constraints,
+        study=recorder, progress=progress, cancel=cancel, direction=built.direction,
+    )  # fmt: skip
+    history = descend(setup, u, lambda x, _step: loss_of(binding.values(x), design, dtype))
+    final_values = binding.values(u.detach().to(torch.float64))
+    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
+    with torch.no_grad():
+        final_value = float(loss_of(final_values, design, dtype)) * direction
+    result = GradientResult(final, start_design, history, history[0].value, final_value, check=check)
+    result.warnings = notes
+    if catalogue is not None:
+        snapped, snapped_values = snap_design(binding, final, catalogue)
+        with torch.no_grad():
+            result.snapped_value = float(loss_of(snapped_values, snapped, dtype)) * direction
+        result.unsnapped_design, result.design = final, snapped
+        result.warnings = quietly(lambda: catalogue.snap(final))[1]
+    if recorder is not None:
+        recorder.finish(result.summary())
+        result.study = recorder.study
+    return result

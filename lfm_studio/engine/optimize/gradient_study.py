@@ -1,0 +1,111 @@
+"""The gradient optimiser recorded into a stored study (the format of :func:`.study.run_study`).
+
+Every step is one Optuna trial: the parameters are the design values of the point evaluated
+at that step (before the update), the value is the objective there, and the ``record`` user
+attribute holds, as for grid search and Algorithm 2, ``values``, ``timing`` (``total_s``:
+seconds of the step, forward + backward + update), ``design_json`` (the design at that
+point), ``seed``, and ``gradient``: the step number, the minimised loss, the gradient norm
+(of the normalised parameters ``u``), the learning rate and any backtracking. The study's
+``sampler`` attribute is ``gradient-adam`` / ``gradient-lbfgs`` and its ``gradient``
+attribute holds the run summary (start / final / snapped values, the float32-float64 check).
+Gradient runs are not resumable: a second run needs a new study name.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.design_io import design_to_json
+from lfm_studio.engine.optimize.space import DesignSpace
+from lfm_studio.engine.optimize.study import (
+    DEFAULT_STUDY_NAME,
+    RECORD,
+    make_storage,
+    open_stored,
+    require_optuna,
+    storage_url,
+)
+
+
+class GradientStudy:
+    """Writes one trial per gradient step into a new stored study."""
+
+    def __init__(
+        self,
+        storage: str,
+        *,
+        design: Design,
+        space: DesignSpace,
+        objective: Mapping[str, str],
+        settings: Mapping[str, Any],
+        sampler: str,
+        seed: int,
+        study_name: str = DEFAULT_STUDY_NAME,
+    ) -> None:
+        optuna = require_optuna()
+        attrs = {
+            "base_design": design_to_json(design),
+            "space": space.to_dict(),
+            "objectives": [dict(objective)],
+            "settings": dict(settings),
+            "sampler": sampler,
+            "seed": seed,
+        }
+        if study_name in optuna.study.get_all_study_names(storage=make_storage(storage)):
+            raise ValueError(
+                f"study {study_name!r} already exists in {storage_url(storage)}; gradient runs are not resumable. "
+                "Fix: choose another --study-name or database."
+            )
+        self.study = open_stored(attrs, [objective["direction"]], storage, study_name=study_name)
+        self.objective = objective["name"]
+        self.seed = seed
+        self.space = space
+        self._dists = {
+            p.path: optuna.distributions.FloatDistribution(float(p.low), float(p.high))  # type: ignore[arg-type]
+            for p in space.parameters
+        }
+
+    def add(
+        self,
+        point: Mapping[str, float],
+        value: float,
+        design_json: str,
+        *,
+        seconds: float,
+        gradient: Mapping[str, Any],
+        warnings: Sequence[str] = (),
+    ) -> None:
+        """Store one step (a ``COMPLETE`` trial; a non-finite value is stored ``FAIL`` with reason ``not_finite``)."""
+        optuna = require_optuna()
+        params = {
+            p.path: min(max(float(point[p.path]), float(p.low)), float(p.high))  # type: ignore[arg-type]
+            for p in self.space.parameters
+        }
+        finite = math.isfinite(value)
+        record: dict[str, Any] = {
+            "values": {self.objective: value} if finite else None,
+            "infeasible_reason": None if finite else "not_finite",
+            "infeasible_message": None if finite else f"the objective is {value}",
+            "timing": {"total_s": seconds},
+            "design_json": design_json,
+            "seed": self.seed,
+            "warnings": list(warnings),
+            "cache": {},
+            "gradient": dict(gradient),
+        }
+        state = optuna.trial.TrialState.COMPLETE if finite else optuna.trial.TrialState.FAIL
+        trial = optuna.trial.create_trial(
+            params=params,
+            distributions=self._dists,
+            values=[value] if finite else None,
+            state=state,
+            user_attrs={RECORD: record},
+        )
+        self.study.add_trial(trial)
+
+    def finish(self, summary: Mapping[str, Any]) -> None:
+        """Store the run summary as the study attribute ``gradient``."""
+        self.study.set_user_attr("gradient", dict(summary))

@@ -1,0 +1,75 @@
+"""``lfm-studio optimize --gradient psf|end-to-end`` and ``study show`` on the tiny five-lenslet FLFM."""
+
+from __future__ import annotations
+
+import warnings
+
+import pytest
+
+from lfm_studio.cli import main
+from lfm_studio.engine.design import load_design, save_design
+from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.optimize import DesignSpace, Parameter
+
+from .conftest import tiny_flfm
+
+pytest.importorskip("optuna")
+
+SPACE = DesignSpace(
+    (
+        Parameter("mla.lenslets[*].focal_length_mm", 12.0, 24.0),
+        Parameter("mla_to_camera_distance_mm", 14.0, 20.0),
+    )
+)
+
+
+@pytest.fixture
+def files(tmp_path):
+    """A 280 px sensor (the sub-images fit: the default constraints pass), out of focus."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        design = SPACE.apply(
+            tiny_flfm(pixels=280),
+            {"mla.lenslets[*].focal_length_mm": 22.0, "mla_to_camera_distance_mm": 15.0},
+        )
+        save_design(design, tmp_path / "tiny.json")
+    (tmp_path / "space.json").write_text(SPACE.to_json())
+    return tmp_path
+
+
+def _optimize(path, *extra):
+    return main(
+        [
+            "optimize", str(path / "tiny.json"), "--space", str(path / "space.json"), "--crop", "280",
+            "--study", f"sqlite:///{path / 'g.db'}", "--out", str(path / "best.json"), *extra,
+        ]
+    )  # fmt: skip
+
+
+def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, capsys):
+    code = _optimize(
+        files, "--gradient", "psf", "--objective", "axial_crb", "--steps", "3", "--lr", "0.05",
+        "--photons", "1000", "--catalogue", "10,16.8,20,26",
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "step   2  axial_crb" in out and "snapped to the catalogue" in out
+    assert "float32 vs float64 start gradient: relative difference" in out and "within" in out
+    best = load_design(files / "best.json")
+    assert "gradient psf" in best.name
+    assert {lens.focal_length_mm for lens in best.mla.lenslets} <= {10.0, 16.8, 20.0, 26.0}
+    assert main(["study", "show", str(files / "g.db")]) == 0
+    shown = capsys.readouterr().out
+    assert "complete 3" in shown and "axial_crb [um] (min)" in shown
+    (files / "best.json").unlink()
+    assert _optimize(files, "--gradient", "psf", "--steps", "1") == 2  # the study exists
+    assert "gradient runs are not resumable" in capsys.readouterr().err
+
+
+def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, capsys):
+    assert _optimize(files, "--gradient", "end-to-end", "--objective", "axial_crb") == 2
+    assert "--objective does not apply" in capsys.readouterr().err
+    code = _optimize(
+        files, "--gradient", "end-to-end", "--reconstruction", "rl", "--freeze-optics", "--steps", "1"
+    )
+    assert code == 2 and "nothing to optimise" in capsys.readouterr().err
