@@ -25,9 +25,9 @@ from typing import Any
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_from_json
+from lfm_studio.engine.design.space import unit_of
 from lfm_studio.engine.optimize import DesignSpace, EvaluationSettings, Evaluator, Parameter, objective_named
 from lfm_studio.engine.optimize.objectives import sign
-from lfm_studio.engine.optimize.space import unit_of
 from lfm_studio.engine.optimize.study import record_of, run_study
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback

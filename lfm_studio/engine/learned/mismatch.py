@@ -19,7 +19,7 @@ projector. The phantom lives on the nominal volume grid (the truth); a jittered 
 another magnification has another voxel size, so the phantom is resampled onto the jittered
 grid at the same physical positions (:func:`resample_to_grid`) before it is imaged.
 
-Fields are set with the optimiser's design-space code (:class:`~lfm_studio.engine.optimize.space.DesignSpace`:
+Fields are set with the optimiser's design-space code (:class:`~lfm_studio.engine.design.space.DesignSpace`:
 dotted paths, the new design validated once by its own checks): :func:`jitter_space`.
 """
 
@@ -34,7 +34,7 @@ import torch
 
 from lfm_studio.engine.design.design import Design
 from lfm_studio.engine.design.errors import DesignWarning
-from lfm_studio.engine.optimize.space import DesignSpace, Parameter
+from lfm_studio.engine.design.space import DesignSpace, Parameter
 from lfm_studio.engine.simulation import ImagingSetup
 
 JITTER_LIMIT = 0.2
@@ -64,7 +64,7 @@ def jitter_paths(design: Design) -> dict[str, list[str]]:
     Quantities: ``"mla focal length"`` (``mla.focal_length_mm``, or every lenslet's
     ``mla.lenslets[i].focal_length_mm``), ``"fourier lens focal length"`` (``relay.focal_length_mm``;
     only where the design has a relay), ``"numerical aperture"`` and ``"wavelength"``. Paths
-    are those of the optimiser's design spaces (:mod:`lfm_studio.engine.optimize.space`).
+    are those of the optimiser's design spaces (:mod:`lfm_studio.engine.design.space`).
     """
     mla = design.mla
     if hasattr(mla, "focal_length_mm"):

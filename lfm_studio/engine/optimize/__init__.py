@@ -30,6 +30,7 @@ trains the optics and an unrolled-RL reconstruction jointly on a task loss (eith
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
 
+from lfm_studio.engine.design.space import DesignSpace, Parameter, load_space, space_from_json
 from lfm_studio.engine.optimize import task_score as _task_score  # noqa: F401  (registers task_* objectives)
 from lfm_studio.engine.optimize.algorithm2 import Algorithm2Result, LayoutTrial, algorithm2
 from lfm_studio.engine.optimize.algorithm2_study import run_algorithm2_study
@@ -61,7 +62,6 @@ from lfm_studio.engine.optimize.objectives import (
     register_objective,
 )
 from lfm_studio.engine.optimize.psf_losses import axial_crb, depth_dissimilarity, mtf_support
-from lfm_studio.engine.optimize.space import DesignSpace, Parameter, load_space, space_from_json
 from lfm_studio.engine.optimize.task_score import TaskScore, score_volume
 
 __all__ = [

@@ -37,6 +37,7 @@ import torch
 from torch import nn
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.space import DesignSpace
 from lfm_studio.engine.learned.data import Sample, Split, TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss, trivial_reason
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
@@ -58,7 +59,6 @@ from lfm_studio.engine.optimize.gradient import (
 )
 from lfm_studio.engine.optimize.gradient_params import bind_space
 from lfm_studio.engine.optimize.gradient_study import GradientStudy
-from lfm_studio.engine.optimize.space import DesignSpace
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled

@@ -17,6 +17,7 @@ from typing import Any
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
 from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.design.space import DesignSpace, Point
 from lfm_studio.engine.memory import MemoryBudgetError
 from lfm_studio.engine.optimize.candidate import Candidate, EvaluationSettings
 from lfm_studio.engine.optimize.constraints import (
@@ -28,7 +29,6 @@ from lfm_studio.engine.optimize.constraints import (
     infeasible_from_error,
 )
 from lfm_studio.engine.optimize.objectives import Objective
-from lfm_studio.engine.optimize.space import DesignSpace, Point
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
 

@@ -43,6 +43,7 @@ import torch
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
 from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.design.space import DesignSpace
 from lfm_studio.engine.optimize import psf_losses
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.constraints import (
@@ -56,7 +57,6 @@ from lfm_studio.engine.optimize.constraints import (
 from lfm_studio.engine.optimize.gradient_params import SpaceBinding, bind_space
 from lfm_studio.engine.optimize.gradient_study import GradientStudy
 from lfm_studio.engine.optimize.objectives import PSFLoss, objective_named, sign
-from lfm_studio.engine.optimize.space import DesignSpace
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 
 OPTIMIZERS: tuple[str, ...] = ("adam", "lbfgs")

@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import torch
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.space import DesignSpace, Parameter, _indices
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
-from lfm_studio.engine.optimize.space import DesignSpace, Parameter, _indices
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.simulation import design_depths
 from lfm_studio.engine.systems.fourier_parameters import FourierParameters

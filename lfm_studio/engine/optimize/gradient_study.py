@@ -19,7 +19,7 @@ from typing import Any
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
-from lfm_studio.engine.optimize.space import DesignSpace
+from lfm_studio.engine.design.space import DesignSpace
 from lfm_studio.engine.optimize.study import (
     DEFAULT_STUDY_NAME,
     RECORD,

@@ -12,9 +12,9 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from lfm_studio.engine.design.space import Point
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
 from lfm_studio.engine.optimize.objectives import Objective, sign
-from lfm_studio.engine.optimize.space import Point
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 
 

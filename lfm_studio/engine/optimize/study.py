@@ -32,8 +32,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from lfm_studio.engine.design.design_io import design_to_json
+from lfm_studio.engine.design.space import DesignSpace, Parameter, point_key
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
-from lfm_studio.engine.optimize.space import DesignSpace, Parameter, point_key
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 
 if TYPE_CHECKING:

@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from lfm_studio.engine.optimize.space import (
+from lfm_studio.engine.design.space import (
     DesignSpace,
     Parameter,
     path_parts,

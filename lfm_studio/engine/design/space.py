@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.design import Design
 
 Value = float | int | str | bool
 Point = dict[str, Value]
