@@ -17,6 +17,9 @@ comma list, as everywhere in a design space):
   lenslet), ``mla.pitch_um`` (every centre scales about the offset; the apertures follow the
   pitch when the design leaves ``lenslet_aperture_diameter_um`` unset) and ``mla.offset_um[0|1]``
   (every centre shifts). The lenslet count and lattice stay as they are.
+- ``pupil_phase.zernike_waves.<noll>``: a Zernike coefficient (waves) of the pupil phase mask
+  (thesis 5.2.2 PSF engineering), for a term the design's ``pupil_phase`` lists (list it at 0.0
+  to start from no mask); it overrides :attr:`FourierParameters.zernike_waves`.
 
 Anything else (counts, layouts, choices, integer parameters, conventional-LFM designs) is
 refused with :class:`NotDifferentiableError`, which lists these paths. The optimiser works on
@@ -57,10 +60,11 @@ DIFFERENTIABLE_PATHS: tuple[str, ...] = (
     "mla.lenslet_aperture_diameter_um",
     "mla.offset_um[0]",
     "mla.offset_um[1]",
+    "pupil_phase.zernike_waves.<noll>",
 )
 """The design paths the gradient optimiser can free (``i``: an index, ``*`` or a comma list)."""
 
-_SI = {"mm": 1e-3, "um": 1e-6, "nm": 1e-9, "": 1.0}
+_SI = {"mm": 1e-3, "um": 1e-6, "nm": 1e-9, "": 1.0, "waves": 1.0}
 _SCALAR_FIELDS = {
     ("objective", "numerical_aperture"): "numerical_aperture",
     ("relay", "focal_length_mm"): "fourier_focal_length",
@@ -84,14 +88,15 @@ class NotDifferentiableError(ValueError):
 @dataclass(frozen=True)
 class Binding:
     """Where parameter ``index`` of the space goes: a :class:`FourierParameters` field, the
-    lenslets it sets (``()`` for a 0-d field), the centre coordinate (``None`` otherwise) and
-    the factor from the design unit to SI."""
+    lenslets it sets (``()`` for a 0-d field), the centre coordinate (``None`` otherwise),
+    the factor from the design unit to SI and, for ``zernike_waves``, the Noll index."""
 
     parameter: Parameter
     field: str
     lenslets: tuple[int, ...]
     coordinate: int | None
     to_si: float
+    noll: int | None = None
 
 
 def _refuse(param: Parameter, why: str) -> NotDifferentiableError:
@@ -110,6 +115,10 @@ def _bind(param: Parameter, design: Design) -> Binding:
         raise _refuse(param, f"unit {param.unit!r} is not a length or unitless")
     if parts in _SCALAR_FIELDS:
         return Binding(param, _SCALAR_FIELDS[parts], (), None, to_si)
+    if len(parts) == 3 and parts[:2] == ("pupil_phase", "zernike_waves"):
+        if not parts[2].isdigit() or int(parts[2]) < 1:
+            raise _refuse(param, f"{parts[2]!r} is not one Noll index (an integer >= 1)")
+        return Binding(param, "zernike_waves", (), None, to_si, noll=int(parts[2]))
     count = len(design.mla.lenslets)
     if design.mla.layout == "regular" and parts in _REGULAR_FIELDS:
         field, coordinate = _REGULAR_FIELDS[parts]
@@ -168,8 +177,12 @@ class SpaceBinding:
         si = values.to(torch.float64)
         fields: dict[str, torch.Tensor] = {}
         lattice: dict[str, torch.Tensor] = {}  # a regular MLA's pitch and offset
+        zernike: dict[int, torch.Tensor] = {}
         for k, b in enumerate(self.bindings):
             value = si[k] * b.to_si
+            if b.noll is not None:
+                zernike[b.noll] = value
+                continue
             if b.field in ("pitch", "offset"):
                 if b.field == "pitch":
                     lattice["pitch"] = value
@@ -205,6 +218,7 @@ class SpaceBinding:
             numerical_aperture=fields.get("numerical_aperture"),
             mla_to_camera=fields.get("mla_to_camera"),
             fourier_focal_length=fields.get("fourier_focal_length"),
+            zernike_waves=zernike or None,
         )
 
     def psf_stack(self, design: Design, values: torch.Tensor, settings: EvaluationSettings) -> PSFStack:
@@ -268,10 +282,10 @@ def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:
         )
     space.check_paths(design)
     bindings = tuple(_bind(p, design) for p in space.parameters)
-    seen: dict[tuple[str, int, int | None], str] = {}
+    seen: dict[tuple[str, int, int | None, int | None], str] = {}
     for b in bindings:
         for i in b.lenslets or (-1,):
-            key = (b.field, i, b.coordinate)
+            key = (b.field, i, b.coordinate, b.noll)
             if key in seen:
                 raise ValueError(
                     f"parameters {seen[key]!r} and {b.parameter.path!r} both set {b.field}"
