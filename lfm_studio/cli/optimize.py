@@ -13,8 +13,8 @@ trials and the best candidate (one objective) or the Pareto front (several).
 (``--resume`` takes stored layouts' scores from it). See docs/optimize.md.
 
 ``optimize DESIGN --space space.json --gradient psf --objective axial_crb --steps 20 --out best.json``
-descends a differentiable PSF objective through the Fourier fast path (Adam or ``--optimizer
-lbfgs``; bounds projected after each step; ``--catalogue`` snaps focal lengths at the end);
+descends a differentiable PSF objective through the Fourier fast path or the conventional
+patterns (Adam or ``--optimizer lbfgs``; bounds projected after each step; ``--catalogue`` snaps focal lengths at the end);
 ``--gradient end-to-end`` trains the optics and an unrolled-RL reconstruction jointly on the
 task loss (``--freeze-optics`` / ``--freeze-reconstruction``). Every step is a trial of the study.
 """
@@ -417,7 +417,7 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
         help="none, mirror, mirror-xy, 4-fold or 8-fold: every merge applies to the block's symmetric images",
     )
     alg2.add_argument("--sizes", type=_sizes, default=None, help="block sizes to try, cells (default 1..M-1)")
-    grad = opt.add_argument_group("gradient optimisation (Fourier LFM; docs/optimize.md)")
+    grad = opt.add_argument_group("gradient optimisation (Fourier or conventional LFM; docs/optimize.md)")
     grad.add_argument(
         "--gradient", choices=("psf", "end-to-end"), default=None, help="gradient descent instead of a search"
     )

@@ -23,8 +23,8 @@ mask from a lenslet list). PSF-engineering losses of section 5.2.2 (:mod:`.psf_l
 ``depth_dissimilarity`` and ``mtf_support``.
 
 Gradient optimisation (:mod:`.gradient`): :func:`.gradient.optimize_psf` descends a PSF loss
-through the differentiable Fourier fast path (Adam / L-BFGS, bounds projected after each step,
-a float32-float64 gradient check, each step a study trial); :func:`.end_to_end.optimize_end_to_end`
+through the differentiable Fourier fast path or conventional patterns (Adam / L-BFGS, bounds
+projected after each step, a float32-float64 gradient check, each step a study trial); :func:`.end_to_end.optimize_end_to_end`
 trains the optics and an unrolled-RL reconstruction jointly on a task loss (either side frozen on request).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).

@@ -2,10 +2,12 @@
 
 Each step of :func:`optimize_end_to_end`:
 
-1. the PSF stack of the current optics through the differentiable Fourier fast path
-   (:meth:`.gradient_params.SpaceBinding.psf_stack`), and its shift-invariant projector on a
-   volume grid fixed at the start (the lateral voxel count of the start design; the voxel
-   follows the magnification);
+1. the PSF stack of the current optics through the differentiable fast path
+   (:meth:`.gradient_params.SpaceBinding.psf_stack`), and its projector: for a Fourier LFM the
+   shift-invariant projector on a volume grid fixed at the start (the lateral voxel count of the
+   start design; the voxel follows the magnification), for a conventional LFM the lenslet-lattice
+   projector of the pattern stack (:meth:`~lfm_studio.engine.systems.kinds_conventional.ConventionalKind.imaging_setup`;
+   its grid, lenslets times voxels per lenslet, does not change: pitch and counts are not freed);
 2. ``batch`` seeded training phantoms (:func:`lfm_studio.engine.learned.data.make_sample`, split
    ``train``, indices ``step * batch + i``: a new batch every step) imaged at the photon budget of
    ``data`` (Poisson shot noise and Gaussian read noise). The noise realisation is held fixed
@@ -64,6 +66,7 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 from lfm_studio.engine.simulation import ImagingSetup
 from lfm_studio.engine.systems.kinds_base import Projector, depth_step
+from lfm_studio.engine.systems.kinds_conventional import CONVENTIONAL
 
 RECONSTRUCTIONS: tuple[str, ...] = ("unrolled-rl", "rl")
 DEFAULT_DATA = TrainingDataSpec(phantoms="beads", objects=(4, 10), photons=(2e4,), read_noise=1.0)
@@ -168,13 +171,18 @@ def optimize_end_to_end(
     if found is not None:
         raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
 
+    conventional = binding.kind == "conventional"
+
+    def setup_of(stack: PSFStack) -> ImagingSetup:
+        return CONVENTIONAL.imaging_setup(stack) if conventional else fixed_grid_setup(stack, lateral)
+
     def setup_at(values: torch.Tensor, at: Design, precision: str) -> ImagingSetup:
-        return fixed_grid_setup(binding.psf_stack(at, values, replace(base, dtype=precision)), lateral)
+        return setup_of(binding.psf_stack(at, values, replace(base, dtype=precision)))
 
     with torch.no_grad():
         start_stack = binding.psf_stack(design, binding.values(u0), replace(base, dtype=dtype))
-    lateral = shift_invariant_lateral(start_stack)
-    start_setup = fixed_grid_setup(start_stack, lateral)
+    lateral = 0 if conventional else shift_invariant_lateral(start_stack)
+    start_setup = setup_of(start_stack)
     net: nn.Module | None = None
     if reconstruction == "unrolled-rl":
         net = model if model is not None else UnrolledRL(start_setup.projector, iterations=iterations)

@@ -1,7 +1,8 @@
 """Gradient optimisation of a design (thesis 5.2.2 PSF engineering; 5.3.2 end to end in :mod:`.end_to_end`).
 
 :func:`optimize_psf` descends a differentiable PSF-engineering objective (b) through the
-per-lenslet Fourier fast path (:mod:`.gradient_params` lists the parameters it can free):
+per-lenslet Fourier fast path, or the conventional-LFM patterns (:mod:`.gradient_params` lists
+the parameters it can free for each):
 
 - **optimiser**: ``"adam"`` (:class:`torch.optim.Adam`) or ``"lbfgs"``
   (:class:`torch.optim.LBFGS` with ``max_iter=1``: one evaluation per step, the curvature
@@ -472,8 +473,10 @@ def optimize_psf(
 
     Parameters
     ----------
-    design : a Fourier-LFM design (the start; values outside the bounds are projected onto them).
-    space : the free parameters (:data:`.gradient_params.DIFFERENTIABLE_PATHS`; others are refused
+    design : a Fourier- or conventional-LFM design (the start; values outside the bounds are projected
+        onto them).
+    space : the free parameters (:data:`.gradient_params.DIFFERENTIABLE_PATHS`, for a conventional LFM
+        :data:`.gradient_params.CONVENTIONAL_PATHS`; others are refused
         with :class:`.gradient_params.NotDifferentiableError`). Their bounds are the box projected on.
     objective : ``axial_crb`` (um, minimise), ``depth_dissimilarity`` (minimise), ``mtf_support``
         (soft, maximise), or a :class:`PSFLoss` with a differentiable loss.

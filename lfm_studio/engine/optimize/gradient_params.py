@@ -21,8 +21,16 @@ comma list, as everywhere in a design space):
   (thesis 5.2.2 PSF engineering), for a term the design's ``pupil_phase`` lists (list it at 0.0
   to start from no mask); it overrides :attr:`FourierParameters.zernike_waves`.
 
-Anything else (counts, layouts, choices, integer parameters, conventional-LFM designs) is
-refused with :class:`NotDifferentiableError`, which lists these paths. The optimiser works on
+A conventional LFM (:data:`CONVENTIONAL_PATHS`) is differentiable in ``objective.numerical_aperture``,
+``mla_to_camera_distance_mm``, ``wavelength_nm``, ``mla.focal_length_mm`` and
+``mla.lenslet_aperture_diameter_um`` (the tensor overrides of
+:func:`~lfm_studio.engine.systems.conventional_patterns.conventional_patterns`; the NA as a
+tensor in the system's objective). Its stack is planned (reach, grids, sample counts) from the
+design with the values written in, so the plan follows the point; the tensors carry the
+gradient. Its pitch, pixel and voxel counts stay fixed.
+
+Anything else (counts, layouts, choices, integer parameters) is refused with
+:class:`NotDifferentiableError`, which lists the paths of the design's kind. The optimiser works on
 ``u`` in ``[0, 1]`` per parameter (``value = low + (high - low) u``), so the bounds are a box
 and the projection is a clamp.
 """
@@ -30,20 +38,29 @@ and the projection is a clamp.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from dataclasses import dataclass
 
 import torch
 
-from lfm_studio.engine.design import Design
+from lfm_studio.engine.design import Design, RegularMLASpec
+from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.design.space import DesignSpace, Parameter, _indices
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.simulation import design_depths
+from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack
 from lfm_studio.engine.systems.fourier_parameters import FourierParameters
 from lfm_studio.engine.systems.fourier_psf import fourier_psf_stack
-from lfm_studio.engine.systems.from_design import fourier_accuracy_of, fourier_system_of, virtual_pixel_count
-from lfm_studio.engine.systems.kinds import kind_of
+from lfm_studio.engine.systems.from_design import (
+    conventional_accuracy_of,
+    conventional_system_of,
+    fourier_accuracy_of,
+    fourier_system_of,
+    virtual_pixel_count,
+)
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, kind_of
 from lfm_studio.engine.systems.kinds_fourier import FOURIER
 
 DIFFERENTIABLE_PATHS: tuple[str, ...] = (
@@ -62,7 +79,16 @@ DIFFERENTIABLE_PATHS: tuple[str, ...] = (
     "mla.offset_um[1]",
     "pupil_phase.zernike_waves.<noll>",
 )
-"""The design paths the gradient optimiser can free (``i``: an index, ``*`` or a comma list)."""
+"""The design paths the gradient optimiser can free in a Fourier LFM (``i``: an index, ``*`` or a comma list)."""
+
+CONVENTIONAL_PATHS: tuple[str, ...] = (
+    "objective.numerical_aperture",
+    "mla_to_camera_distance_mm",
+    "wavelength_nm",
+    "mla.focal_length_mm",
+    "mla.lenslet_aperture_diameter_um",
+)
+"""The design paths the gradient optimiser can free in a conventional LFM."""
 
 _SI = {"mm": 1e-3, "um": 1e-6, "nm": 1e-9, "": 1.0, "waves": 1.0}
 _SCALAR_FIELDS = {
@@ -70,6 +96,13 @@ _SCALAR_FIELDS = {
     ("relay", "focal_length_mm"): "fourier_focal_length",
     ("mla_to_camera_distance_mm",): "mla_to_camera",
     ("wavelength_nm",): "wavelength",
+}
+_CONVENTIONAL_FIELDS = {
+    ("objective", "numerical_aperture"): "numerical_aperture",
+    ("mla_to_camera_distance_mm",): "mla_to_camera",
+    ("wavelength_nm",): "wavelength",
+    ("mla", "focal_length_mm"): "lenslet_focal_length",
+    ("mla", "lenslet_aperture_diameter_um"): "lenslet_aperture",
 }
 _LENSLET_FIELDS = {"focal_length_mm": "focal_lengths", "aperture_diameter_um": "aperture_diameters"}
 _REGULAR_FIELDS: dict[tuple[str, ...], tuple[str, int | None]] = {
@@ -99,11 +132,22 @@ class Binding:
     noll: int | None = None
 
 
-def _refuse(param: Parameter, why: str) -> NotDifferentiableError:
+def _refuse(
+    param: Parameter, why: str, paths: tuple[str, ...] = DIFFERENTIABLE_PATHS
+) -> NotDifferentiableError:
     return NotDifferentiableError(
         f"parameter {param.path!r} cannot be optimised by gradient: {why}. Differentiable paths: "
-        f"{', '.join(DIFFERENTIABLE_PATHS)}. Fix: free one of those, or use grid search / a sampler."
+        f"{', '.join(paths)}. Fix: free one of those, or use grid search / a sampler."
     )
+
+
+def _bind_conventional(param: Parameter) -> Binding:
+    if param.choices is not None or param.integer:
+        raise _refuse(param, "it takes discrete values (choices or integer)", CONVENTIONAL_PATHS)
+    parts = tuple(param.parts)
+    if parts not in _CONVENTIONAL_FIELDS:
+        raise _refuse(param, "the conventional-LFM patterns have no tensor for it", CONVENTIONAL_PATHS)
+    return Binding(param, _CONVENTIONAL_FIELDS[parts], (), None, _SI[param.unit])
 
 
 def _bind(param: Parameter, design: Design) -> Binding:
@@ -138,12 +182,14 @@ def _bind(param: Parameter, design: Design) -> Binding:
 
 @dataclass(frozen=True)
 class SpaceBinding:
-    """A design space bound to the differentiable Fourier PSF of a design (see the module docstring)."""
+    """A design space bound to the differentiable PSF of a design (see the module docstring);
+    ``kind``: ``"fourier"`` or ``"conventional"``."""
 
     space: DesignSpace
     bindings: tuple[Binding, ...]
     low: torch.Tensor  # (P,) float64, design units
     high: torch.Tensor
+    kind: str = "fourier"
 
     @property
     def span(self) -> torch.Tensor:
@@ -224,9 +270,19 @@ class SpaceBinding:
     def psf_stack(self, design: Design, values: torch.Tensor, settings: EvaluationSettings) -> PSFStack:
         """The PSF stack of ``design`` with ``values`` written in as tensors (gradients reach them).
 
-        The per-lenslet path is forced (footprint interference between sub-images is left out, as
-        the per-lenslet PSF always does); ``settings`` gives the depths, crop, device and dtype.
+        Fourier LFM: the per-lenslet path is forced (footprint interference between sub-images is
+        left out, as the per-lenslet PSF always does). Conventional LFM: the pattern stack
+        ``(S, S, Z, H, H)`` (one PSF per voxel sub-position; the PSF losses average over them),
+        planned from the design with the values written in. ``settings`` gives the depths, crop
+        (for a conventional LFM: the lenslets that fit in ``crop`` pixels), device and dtype.
         """
+        depths = (
+            tuple(z * 1e-6 for z in settings.depths_um)
+            if settings.depths_um is not None
+            else design_depths(design)
+        )
+        if self.kind == "conventional":
+            return self._conventional_stack(design, values, settings, depths)
         refine = design.accuracy.volume_oversampling
         system = fourier_system_of(design, refine=refine)
         if settings.crop is not None:
@@ -237,11 +293,6 @@ class SpaceBinding:
         accuracy = dataclasses.replace(fourier_accuracy_of(design), method="per_lenslet")
         if settings.dtype is not None:
             accuracy = dataclasses.replace(accuracy, dtype=real_dtype_named(settings.dtype))
-        depths = (
-            tuple(z * 1e-6 for z in settings.depths_um)
-            if settings.depths_um is not None
-            else design_depths(design)
-        )
         stack = fourier_psf_stack(
             system,
             depths,
@@ -251,6 +302,40 @@ class SpaceBinding:
             parameters=self.parameters(design, values),
         )
         return dataclasses.replace(stack, volume_oversampling=refine)
+
+    def _conventional_stack(
+        self, design: Design, values: torch.Tensor, settings: EvaluationSettings, depths: tuple[float, ...]
+    ) -> PSFStack:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DesignWarning)
+            at = self.space.apply(design, self.point(values))
+        mla = at.mla
+        lenslets = None
+        if settings.crop is not None and isinstance(mla, RegularMLASpec):  # (as CONVENTIONAL.psf_stack)
+            count = max(1, int(settings.crop * at.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
+            lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
+        system = conventional_system_of(at, lenslets=lenslets)
+        accuracy = conventional_accuracy_of(at, system)
+        if settings.dtype is not None:
+            accuracy = dataclasses.replace(accuracy, dtype=real_dtype_named(settings.dtype))
+        si = values.to(torch.float64)
+        tensors = {b.field: si[k] * b.to_si for k, b in enumerate(self.bindings)}
+        na = tensors.pop("numerical_aperture", None)
+        if na is not None:
+            system = dataclasses.replace(
+                system, objective=dataclasses.replace(system.objective, numerical_aperture=na)
+            )
+        return conventional_psf_stack(
+            system,
+            depths,
+            accuracy=accuracy,
+            device=settings.device,
+            design=at,
+            lenslet_focal_length=tensors.get("lenslet_focal_length"),
+            mla_to_camera=tensors.get("mla_to_camera"),
+            wavelength=tensors.get("wavelength"),
+            lenslet_aperture=tensors.get("lenslet_aperture"),
+        )
 
 
 def _lattice_fields(
@@ -274,14 +359,17 @@ def _lattice_fields(
 def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:
     """Bind every parameter of ``space`` (:class:`NotDifferentiableError` for one that cannot be)."""
     kind = kind_of(design)
-    if kind is not FOURIER:
+    if kind is CONVENTIONAL:
+        space.check_paths(design)
+        bindings = tuple(_bind_conventional(p) for p in space.parameters)
+    elif kind is FOURIER:
+        space.check_paths(design)
+        bindings = tuple(_bind(p, design) for p in space.parameters)
+    else:
         raise NotDifferentiableError(
-            f"gradient optimisation needs a Fourier LFM (the differentiable per-lenslet fast path); the design "
-            f"is a {kind.title}. Differentiable paths: {', '.join(DIFFERENTIABLE_PATHS)}. Fix: use grid search "
-            "or a sampler for this design."
+            f"gradient optimisation needs a Fourier or conventional LFM; the design is a {kind.title}. "
+            "Fix: use grid search or a sampler for this design."
         )
-    space.check_paths(design)
-    bindings = tuple(_bind(p, design) for p in space.parameters)
     seen: dict[tuple[str, int, int | None, int | None], str] = {}
     for b in bindings:
         for i in b.lenslets or (-1,):
@@ -294,4 +382,4 @@ def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:
             seen[key] = b.parameter.path
     low = torch.tensor([float(b.parameter.low) for b in bindings], dtype=torch.float64)  # type: ignore[arg-type]
     high = torch.tensor([float(b.parameter.high) for b in bindings], dtype=torch.float64)  # type: ignore[arg-type]
-    return SpaceBinding(space, bindings, low, high)
+    return SpaceBinding(space, bindings, low, high, kind.name)

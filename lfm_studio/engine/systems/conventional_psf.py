@@ -13,6 +13,7 @@ from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.systems.conventional_patterns import (
     OUTPUT_OVERSAMPLING,
+    Scalar,
     conventional_patterns,
     mirrored,
     nip_field_size,
@@ -86,6 +87,10 @@ def conventional_psf_stack(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     design: Design | None = None,
+    lenslet_focal_length: Scalar | None = None,
+    mla_to_camera: Scalar | None = None,
+    wavelength: Scalar | None = None,
+    lenslet_aperture: Scalar | None = None,
 ) -> PSFStack:
     """All patterns of ``system`` as one :class:`PSFStack` with data ``(S, S, Z, H, H)``.
 
@@ -94,6 +99,12 @@ def conventional_psf_stack(
     (:class:`ConventionalPatterns`) lists each depth's reach so :func:`lattice_projector`
     crops them back. ``accuracy``:
     the knobs (default :class:`ConventionalAccuracy`); ``dtype``, when given, overrides its dtype.
+
+    ``lenslet_focal_length``, ``mla_to_camera``, ``wavelength``, ``lenslet_aperture``: optional
+    0-d tensors (metres) for gradients, passed to :func:`conventional_patterns` (and the
+    wavelength to the Debye NIP fields); a tensor NA travels in ``system.objective``. The plan
+    (reach, grids, sample counts) comes from the system's floats: pass a system holding the
+    same values.
     """
     acc = accuracy or ConventionalAccuracy()
     dtype = dtype or acc.dtype
@@ -119,7 +130,7 @@ def conventional_psf_stack(
         quadrants = nip_quadrants(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
             radial_sampling=acc.radial_sampling, model=acc.model, n_quadrature=acc.debye_points,
-            oversampling=acc.nip_oversampling,
+            oversampling=acc.nip_oversampling, wavelength=wavelength,
         )  # fmt: skip
         fields = mirrored(quadrants, nip_field_size(system, reach, acc.nip_oversampling))
         del quadrants
@@ -127,6 +138,8 @@ def conventional_psf_stack(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
             cancel=cancel, nip_field=fields, nip_oversampling=acc.nip_oversampling,
             pixel_oversampling=acc.pixel_oversampling, light_margin=acc.light_margin,
+            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+            lenslet_aperture=lenslet_aperture,
         )  # fmt: skip
         del fields
         h = patterns.shape[-1]

@@ -259,7 +259,7 @@ def test_regular_mla_parameters_pass_gradcheck(regular_row):
     assert torch.autograd.gradcheck(objective, (u,), eps=1e-6, atol=1e-7, rtol=1e-4)
 
 
-def test_a_conventional_design_is_refused_by_name():
+def test_a_conventional_design_refuses_a_fourier_only_path_by_name():
     from lfm_studio.engine.design import list_presets, load_preset
     from lfm_studio.engine.systems.kinds import kind_of
     from lfm_studio.engine.systems.kinds_fourier import FOURIER
@@ -268,6 +268,9 @@ def test_a_conventional_design_is_refused_by_name():
         warnings.simplefilter("ignore", DesignWarning)
         designs = [load_preset(name) for name in list_presets()]
     conventional = next(d for d in designs if kind_of(d) is not FOURIER)
-    space = DesignSpace((Parameter("objective.numerical_aperture", 0.3, 0.5),))
-    with pytest.raises(NotDifferentiableError, match="needs a Fourier LFM"):
+    assert bind_space(
+        DesignSpace((Parameter("objective.numerical_aperture", 0.3, 0.5),)), conventional
+    ).kind == ("conventional")
+    space = DesignSpace((Parameter("mla.pitch_um", 140.0, 160.0),))
+    with pytest.raises(NotDifferentiableError, match="conventional-LFM patterns have no tensor"):
         bind_space(space, conventional)
