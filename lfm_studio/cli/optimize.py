@@ -195,8 +195,15 @@ def run_gradient(args: argparse.Namespace) -> int:
 
     if args.algorithm2:
         raise ValueError("--gradient and --algorithm2 are two different searches. Fix: pick one.")
-    if args.resume:
-        raise ValueError("gradient runs are not resumable. Fix: drop --resume and give a new --study-name.")
+    if args.resume and args.gradient == "end-to-end":
+        raise ValueError(
+            "end-to-end runs are not resumable (the reconstruction weights are not stored). Fix: drop --resume "
+            "and give a new --study-name."
+        )
+    if args.keep_last and args.gradient == "end-to-end":
+        raise ValueError(
+            "--keep-last is for --gradient psf (end to end always keeps the last point). Fix: drop it."
+        )
     out = check_output(
         args.out,
         overwrite=args.overwrite,
@@ -218,7 +225,10 @@ def run_gradient(args: argparse.Namespace) -> int:
             if args.gradient == "psf":
                 objective = args.objective or "axial_crb"
                 options = {"photons": args.photons, "background": args.background}
-                result = optimize_psf(design, space, objective, options=options, progress=progress, **common)
+                result = optimize_psf(
+                    design, space, objective, options=options, progress=progress, resume=args.resume,
+                    final="last" if args.keep_last else "best", **common,
+                )  # fmt: skip
                 unit = result.study.user_attrs["objectives"][0]["unit"]
             else:
                 if args.objective:
@@ -251,10 +261,16 @@ def run_gradient(args: argparse.Namespace) -> int:
             f"step {step.step:3d}  {objective} {step.value:.6g} {unit}  |grad| {step.grad_norm:.3g}  {point}{note}"
         )
     print(f"{objective}: start {result.start_value:.6g} {unit}, final {result.final_value:.6g} {unit}")
-    if result.best is not None:
+    if result.resumed_from:
         print(
-            f"best step {result.best.step}: {objective} {result.best.value:.6g} {unit} (the design written is the final one)"
+            f"resumed: {result.resumed_from} stored steps, the optimiser restarted from the stored {result.final} point"
         )
+    if result.best is not None:
+        print(f"best step {result.best.step}: {objective} {result.best.value:.6g} {unit}")
+    if result.last_value is not None:
+        print(f"last point (after the last update): {objective} {result.last_value:.6g} {unit}")
+    if args.gradient == "psf":
+        print(f"the design written is the {result.final} point: {objective} {result.final_value:.6g} {unit}")
     if result.snapped_value is not None:
         what = "held-out task loss" if args.gradient == "end-to-end" else objective
         before = result.extra.get("held_out_final", result.final_value)
@@ -421,7 +437,17 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
     grad.add_argument(
         "--gradient", choices=("psf", "end-to-end"), default=None, help="gradient descent instead of a search"
     )
-    grad.add_argument("--steps", type=int, default=20, help="gradient steps (one study trial each)")
+    grad.add_argument(
+        "--steps",
+        type=int,
+        default=20,
+        help="gradient steps (one study trial each; with --resume, the total)",
+    )
+    grad.add_argument(
+        "--keep-last",
+        action="store_true",
+        help="psf: write the point after the last update, not the best point evaluated",
+    )
     grad.add_argument("--optimizer", choices=("adam", "lbfgs"), default="adam")
     grad.add_argument(
         "--lr", type=float, default=0.05, help="optics step, fraction of each parameter's range"

@@ -26,6 +26,12 @@ Each step of :func:`optimize_end_to_end`:
 Held-out phantoms (split ``test``, never trained on) are scored at the start and the end (and
 after snapping to a focal-length catalogue) with the same loss; the last held-out
 reconstruction is checked not to be all zero or constant (``final_volume_trivial``).
+
+The design returned is the last point (not the step of the lowest training loss, unlike
+:func:`.gradient.optimize_psf`): each step's loss is on a new batch and the reconstruction
+weights change with the optics, so the lowest one does not pick a better design, and the
+weights of past steps are not kept. For the same reason end-to-end runs are not resumable
+(neither the weights nor the optimiser state are stored): an existing study name is refused.
 """
 
 from __future__ import annotations
@@ -284,7 +290,11 @@ def optimize_end_to_end(
     final_values = binding.values(u.detach().to(torch.float64))
     final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
     final_held_out, volume = held_out_loss(final_values, design)
-    result = GradientResult(final, start_design, history, history[0].value, history[-1].value, check=check)
+    last_point = binding.point(final_values)
+    result = GradientResult(
+        final, start_design, history, history[0].value, history[-1].value, check=check, final="last",
+        final_point=last_point, last_point=last_point,
+    )  # fmt: skip
     result.extra = {
         "held_out_start": start_held_out,
         "held_out_final": final_held_out,

@@ -166,6 +166,10 @@ class GradientResult:
     unsnapped_design : the final design before snapping.
     check : the float32 / float64 start-gradient comparison (None when not asked).
     study : the stored ``optuna.Study`` (None when not recorded).
+    final : "best" (the design is the best evaluated point: a step or the last point) or "last".
+    final_point : the point of :attr:`design` before snapping (design units).
+    last_value, last_point : the objective and point after the last update.
+    resumed_from : the steps a resumed study held (0 for a fresh run); :attr:`history` holds them too.
     extra : end-to-end numbers (held-out losses, the floor; see :mod:`.end_to_end`).
     model : the trained reconstruction of an end-to-end run (None otherwise).
     warnings : the design warnings of :attr:`design` (caught during the run, not emitted).
@@ -183,10 +187,15 @@ class GradientResult:
     extra: dict[str, Any] = field(default_factory=dict)
     model: Any = None
     warnings: list[str] = field(default_factory=list)
+    final: str = "last"
+    final_point: dict[str, float] | None = None
+    last_value: float | None = None
+    last_point: dict[str, float] | None = None
+    resumed_from: int = 0
 
     @property
     def best(self) -> StepRecord | None:
-        """The step with the lowest loss (the objective's best; the final design is the last point)."""
+        """The step with the lowest loss (the objective's best among the steps)."""
         finite = [h for h in self.history if math.isfinite(h.loss)]
         return min(finite, key=lambda h: h.loss) if finite else None
 
@@ -198,7 +207,11 @@ class GradientResult:
             "final_value": self.final_value,
             "snapped_value": self.snapped_value,
             "check": None if self.check is None else self.check.to_dict(),
-            "final_point": self.history[-1].point if self.history else None,
+            "final": self.final,
+            "final_point": self.final_point,
+            "last_value": self.last_value,
+            "last_point": self.last_point,
+            "resumed_from": self.resumed_from,
             "best_step": None if self.best is None else self.best.step,
             "warnings": list(self.warnings),
             **self.extra,
@@ -302,6 +315,7 @@ class DescentSetup:
     progress: ProgressCallback | None = None
     cancel: CancelToken = None
     direction: str = "minimize"
+    first_step: int = 0  # a resumed run continues the step numbers (and the schedule) from here
 
 
 def _closure(
@@ -360,7 +374,7 @@ def descend(
     history: list[StepRecord] = []
     weights = [p for g in groups for p in g["params"]]
     last_good = u.detach().clone()
-    for step in range(setup.steps):
+    for step in range(setup.first_step, setup.steps):
         checkpoint(setup.cancel, setup.progress, step, setup.steps, f"gradient step {step + 1}/{setup.steps}")
         factor = schedule_factor(setup.schedule, step, setup.steps)
         for group, source in zip(optimizer.param_groups, groups, strict=False):
@@ -444,7 +458,53 @@ def snap_design(
 
 
 def study_settings(settings: EvaluationSettings, **options: Any) -> dict[str, Any]:
-    return {**settings.to_dict(), "gradient": options}
+    """The study's ``settings`` attribute (compared on resume; the step count is not part of it, so
+    a resumed run may ask for more steps)."""
+    return {**settings.to_dict(), "gradient": {k: v for k, v in options.items() if k != "steps"}}
+
+
+FINALS: tuple[str, ...] = ("best", "last")
+
+
+def step_from_trial(params: Mapping[str, float], value: float, record: Mapping[str, Any]) -> StepRecord:
+    """A stored gradient trial as a :class:`StepRecord`."""
+    g = record["gradient"]
+    return StepRecord(
+        int(g["step"]), dict(params), value, float(g["loss"]), float(g["grad_norm"]), float(g["lr"]),
+        float(record.get("timing", {}).get("total_s", 0.0)), int(g.get("backtracks", 0)), g.get("backtrack_reason"),
+    )  # fmt: skip
+
+
+def resume_point(
+    recorder: GradientStudy, binding: SpaceBinding, steps: int, final: str
+) -> tuple[list[StepRecord], torch.Tensor | None]:
+    """The steps a study holds and the ``u`` to restart from (None when it holds none).
+
+    ``final="best"``: the stored point (step or last point) with the lowest loss; ``"last"``:
+    the last point of the latest finished run when it ended after the last stored step, else
+    the last stored step's point (a killed run: the update of that step is lost)."""
+    stored = [step_from_trial(*t) for t in recorder.stored_steps()]
+    done = stored[-1].step + 1 if stored else 0
+    if done >= steps:
+        raise ValueError(
+            f"the study already holds {done} gradient steps; steps={steps} leaves nothing to resume. "
+            f"Fix: ask for more steps (--steps > {done})."
+        )
+    last = recorder.stored_last()
+    candidates: list[tuple[float, dict[str, float]]] = [(h.loss, h.point) for h in stored]
+    if last is not None:
+        candidates.append((float(last[2]["gradient"]["loss"]), last[0]))
+    if not candidates:
+        return stored, None
+    if final == "best":
+        finite = [c for c in candidates if math.isfinite(c[0])]
+        point = min(finite, key=lambda c: c[0])[1] if finite else candidates[-1][1]
+    elif last is not None and int(last[2]["gradient"]["step"]) == done:
+        point = last[0]
+    else:
+        point = stored[-1].point
+    values = torch.tensor([float(point[p]) for p in binding.space.names], dtype=torch.float64)
+    return stored, binding.normalised(values).clamp(0.0, 1.0)
 
 
 def optimize_psf(
@@ -466,6 +526,8 @@ def optimize_psf(
     study: str | None = None,
     study_name: str = "lfm_study",
     seed: int = 0,
+    final: str = "best",
+    resume: bool = False,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
 ) -> GradientResult:
@@ -491,10 +553,24 @@ def optimize_psf(
     check_float64 : compare the start gradient in float32 and float64 (:class:`PrecisionCheck`).
     study, study_name : a database (URL or SQLite path) to record every step into; None: not recorded.
     seed : recorded with every trial (the PSF objectives are deterministic).
+    final : "best" (default): the design returned (and snapped) is the best point evaluated, a
+        step or the point after the last update; "last": the point after the last update. Both
+        the best step and the last point are in the result and the study.
+    resume : continue the stored study ``study_name`` (same design, space, objective, settings and
+        seed; ``steps`` is the total, so rerunning a killed run's call finishes it). Stored steps
+        are never evaluated or recorded again: the run continues at the next step number. The
+        parameters ``u`` and the optimiser state (Adam's moments, L-BFGS' history) are not stored,
+        so the optimiser restarts fresh from the stored best point (``final="best"``) or the last
+        one (``final="last"``: the last point of a finished run, else the last stored step's point),
+        and the schedule continues at the global step. Without ``resume`` an existing study is refused.
     progress, cancel : as everywhere in the engine.
     """
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    if final not in FINALS:
+        raise ValueError(f"final must be one of {FINALS}; got {final!r}.")
+    if resume and study is None:
+        raise ValueError("resume=True needs a study to continue. Fix: give study (--study) and study_name.")
     built = psf_objective(objective, options)
     binding = bind_space(space, design)
     base = settings or EvaluationSettings()
@@ -510,14 +586,6 @@ def optimize_psf(
         stack = binding.psf_stack(at, values, replace(base, dtype=precision))
         return direction * built.loss(stack).to(torch.float64)
 
-    check = None
-    if check_float64:
-
-        def fresh(precision: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
-            leaf = u0.clone().requires_grad_(True)
-            return loss_of(binding.values(leaf), design, precision), [leaf]
-
-        check = precision_check(fresh, tolerance)
     recorder = None
     if study is not None:
         recorder = GradientStudy(
@@ -529,25 +597,57 @@ def optimize_psf(
             sampler=f"gradient-{optimizer}",
             seed=seed,
             study_name=study_name,
+            resume=resume,
         )
+    stored: list[StepRecord] = []
+    if recorder is not None and resume:
+        stored, restart = resume_point(recorder, binding, steps, final)
+        if restart is not None:
+            u0 = restart
+    check = None
+    if check_float64:
+
+        def fresh(precision: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
+            leaf = u0.clone().requires_grad_(True)
+            return loss_of(binding.values(leaf), design, precision), [leaf]
+
+        check = precision_check(fresh, tolerance)
     u = u0.clone().requires_grad_(True)
+    first = stored[-1].step + 1 if stored else 0
     setup = DescentSetup(
         binding, design, steps, optimizer, lr, schedule, constraints,
-        study=recorder, progress=progress, cancel=cancel, direction=built.direction,
+        study=recorder, progress=progress, cancel=cancel, direction=built.direction, first_step=first,
     )  # fmt: skip
-    history = descend(setup, u, lambda x, _step: loss_of(binding.values(x), design, dtype))
-    final_values = binding.values(u.detach().to(torch.float64))
-    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
+    history = stored + descend(setup, u, lambda x, _step: loss_of(binding.values(x), design, dtype))
+    last_values = binding.values(u.detach().to(torch.float64))
+    last_point = binding.point(last_values)
     with torch.no_grad():
-        final_value = float(loss_of(final_values, design, dtype)) * direction
-    result = GradientResult(final, start_design, history, history[0].value, final_value, check=check)
+        last_loss = float(loss_of(last_values, design, dtype))
+    if recorder is not None:
+        at, notes = quietly(lambda: space.apply(design, last_point))
+        recorder.add(
+            last_point, last_loss * direction, design_to_json(at), seconds=0.0, warnings=notes,
+            gradient={"step": steps, "last": True, "loss": last_loss, "grad_norm": None, "lr": None,
+                      "optimizer": optimizer, "backtracks": 0, "backtrack_reason": None},
+        )  # fmt: skip
+    chosen_point, chosen_loss = last_point, last_loss
+    if final == "best":
+        best = min((h for h in history if math.isfinite(h.loss)), key=lambda h: h.loss, default=None)
+        if best is not None and best.loss < last_loss:
+            chosen_point, chosen_loss = best.point, best.loss
+    chosen, notes = quietly(lambda: space.apply(design, chosen_point))
+    result = GradientResult(
+        chosen, start_design, history, history[0].value, chosen_loss * direction, check=check,
+        final=final, final_point=chosen_point, last_value=last_loss * direction, last_point=last_point,
+        resumed_from=len(stored),
+    )  # fmt: skip
     result.warnings = notes
     if catalogue is not None:
-        snapped, snapped_values = snap_design(binding, final, catalogue)
+        snapped, snapped_values = snap_design(binding, chosen, catalogue)
         with torch.no_grad():
             result.snapped_value = float(loss_of(snapped_values, snapped, dtype)) * direction
-        result.unsnapped_design, result.design = final, snapped
-        result.warnings = quietly(lambda: catalogue.snap(final))[1]
+        result.unsnapped_design, result.design = chosen, snapped
+        result.warnings = quietly(lambda: catalogue.snap(chosen))[1]
     if recorder is not None:
         recorder.finish(result.summary())
         result.study = recorder.study

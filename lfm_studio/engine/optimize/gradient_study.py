@@ -8,7 +8,12 @@ point), ``seed``, and ``gradient``: the step number, the minimised loss, the gra
 (of the normalised parameters ``u``), the learning rate and any backtracking. The study's
 ``sampler`` attribute is ``gradient-adam`` / ``gradient-lbfgs`` and its ``gradient``
 attribute holds the run summary (start / final / snapped values, the float32-float64 check).
-Gradient runs are not resumable: a second run needs a new study name.
+
+The last point of a run (after its last update; evaluated, but not a step) is stored too, as
+a trial whose ``gradient`` record has ``last: true`` and ``step`` = the steps done. A run on an
+existing study name is refused unless ``resume=True``: then the study must have been made with
+the same design, space, objective, settings and seed, and :meth:`GradientStudy.stored_steps` /
+:meth:`GradientStudy.stored_last` give what it holds (see :func:`.gradient.optimize_psf`).
 """
 
 from __future__ import annotations
@@ -44,6 +49,7 @@ class GradientStudy:
         sampler: str,
         seed: int,
         study_name: str = DEFAULT_STUDY_NAME,
+        resume: bool = False,
     ) -> None:
         optuna = require_optuna()
         attrs = {
@@ -54,12 +60,14 @@ class GradientStudy:
             "sampler": sampler,
             "seed": seed,
         }
-        if study_name in optuna.study.get_all_study_names(storage=make_storage(storage)):
+        if not resume and study_name in optuna.study.get_all_study_names(storage=make_storage(storage)):
             raise ValueError(
-                f"study {study_name!r} already exists in {storage_url(storage)}; gradient runs are not resumable. "
-                "Fix: choose another --study-name or database."
+                f"study {study_name!r} already exists in {storage_url(storage)}. Fix: choose another --study-name or "
+                "database, or continue a PSF run with resume=True (--resume)."
             )
-        self.study = open_stored(attrs, [objective["direction"]], storage, study_name=study_name)
+        self.study = open_stored(
+            attrs, [objective["direction"]], storage, study_name=study_name, resume=resume
+        )
         self.objective = objective["name"]
         self.seed = seed
         self.space = space
@@ -105,6 +113,27 @@ class GradientStudy:
             user_attrs={RECORD: record},
         )
         self.study.add_trial(trial)
+
+    def _gradient_trials(self) -> list[tuple[dict[str, float], float, dict[str, Any]]]:
+        """``(params, value, record)`` of every stored gradient trial (value NaN for a failed one)."""
+        out = []
+        for trial in self.study.get_trials(deepcopy=False):
+            record = dict(trial.user_attrs.get(RECORD) or {})
+            if "gradient" not in record or trial.state.name not in ("COMPLETE", "FAIL"):
+                continue
+            value = float(trial.values[0]) if trial.state.name == "COMPLETE" else math.nan
+            out.append(({k: float(v) for k, v in trial.params.items()}, value, record))
+        return out
+
+    def stored_steps(self) -> list[tuple[dict[str, float], float, dict[str, Any]]]:
+        """The stored steps (not the last points), ``(params, value, record)`` in step order."""
+        steps = [t for t in self._gradient_trials() if not t[2]["gradient"].get("last")]
+        return sorted(steps, key=lambda t: int(t[2]["gradient"]["step"]))
+
+    def stored_last(self) -> tuple[dict[str, float], float, dict[str, Any]] | None:
+        """The last point of the latest finished run (the one with the most steps), or None."""
+        lasts = [t for t in self._gradient_trials() if t[2]["gradient"].get("last")]
+        return max(lasts, key=lambda t: int(t[2]["gradient"]["step"])) if lasts else None
 
     def finish(self, summary: Mapping[str, Any]) -> None:
         """Store the run summary as the study attribute ``gradient``."""

@@ -60,10 +60,18 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     assert {lens.focal_length_mm for lens in best.mla.lenslets} <= {10.0, 16.8, 20.0, 26.0}
     assert main(["study", "show", str(files / "g.db")]) == 0
     shown = capsys.readouterr().out
-    assert "complete 3" in shown and "axial_crb [um] (min)" in shown
+    assert "complete 4" in shown and "axial_crb [um] (min)" in shown  # 3 steps and the last point
     (files / "best.json").unlink()
     assert _optimize(files, "--gradient", "psf", "--steps", "1") == 2  # the study exists
-    assert "gradient runs are not resumable" in capsys.readouterr().err
+    assert "already exists" in capsys.readouterr().err
+    code = _optimize(
+        files, "--gradient", "psf", "--objective", "axial_crb", "--steps", "5", "--lr", "0.05",
+        "--photons", "1000", "--catalogue", "10,16.8,20,26", "--resume",
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0, out
+    assert "resumed: 3 stored steps" in out and "step   4  axial_crb" in out
+    assert "the design written is the best point" in out
 
 
 def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, capsys):

@@ -62,15 +62,19 @@ def test_adam_lowers_the_axial_crb_and_every_step_respects_the_bounds(poor_start
     # float32 start gradient against float64, stated tolerance 1e-3 (measured about 1e-7)
     assert result.check is not None and result.check.passed, result.check
     assert result.check.relative_error < 1e-3
-    # the study reads back: one complete trial per step, with the design JSON and the seed
+    # the study reads back: one complete trial per step and one for the last point, with the
+    # design JSON and the seed
     study = load_study(str(tmp_path / "study.db"))
     rows = trial_rows(study)
-    assert len(rows) == 10 and all(r.state == "complete" for r in rows)
+    assert len(rows) == 11 and all(r.state == "complete" for r in rows)
+    last = record_of(study.trials[-1])["gradient"]
+    assert last["last"] is True and last["step"] == 10
+    assert study.trials[-1].values[0] == pytest.approx(result.last_value)
     assert study.user_attrs["sampler"] == "gradient-adam"
     assert study.user_attrs["gradient"]["final_value"] == pytest.approx(result.final_value)
     first = record_of(study.trials[0])
     assert first["seed"] == 3 and '"mla_to_camera_distance_mm": 15.0' in first["design_json"]
-    assert [t.values[0] for t in study.trials] == pytest.approx(values)
+    assert [t.values[0] for t in study.trials[:10]] == pytest.approx(values)
     assert first["gradient"]["step"] == 0 and first["timing"]["total_s"] > 0
 
 
