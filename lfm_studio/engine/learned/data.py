@@ -142,6 +142,11 @@ def make_sample(
     :func:`lfm_studio.engine.learned.mismatch.jittered_designs`). The phantom is resampled
     onto the imaging grid when its voxels differ (another magnification); the truth stays on
     ``setup``'s grid. Deterministic: the same spec, setups, split and index give the same sample.
+
+    Devices: the phantom is imaged on the projector's device, the noise drawn on the CPU (a seeded
+    CPU :class:`torch.Generator`), and the sample's ``image`` and ``truth`` are CPU tensors whatever
+    the projector's device; move them to it where they meet the projector again
+    (:func:`lfm_studio.engine.optimize.end_to_end.sample_loss` does).
     """
     seed = sample_seed(spec, split, index)
     generator = torch.Generator().manual_seed(seed)
@@ -169,7 +174,11 @@ def make_sample(
     projector = through.projector
     imaged = resample_to_grid(volume, voxel, tuple(through.volume_shape), tuple(through.voxel_size))
     with torch.no_grad():
-        expected = projector.forward(imaged.to(projector.dtype)).clamp_min(0.0).float()
+        expected = projector.forward(imaged.to(device=projector.device, dtype=projector.dtype))
+        # The noise is drawn on the CPU with the sample's CPU generator, whatever the projector's
+        # device (a CPU generator cannot draw on a CUDA tensor): the same draws everywhere, and
+        # on the CPU the numbers are those of the plain CPU path.
+        expected = expected.clamp_min(0.0).float().cpu()
     photons = float(spec.photons[int(torch.randint(len(spec.photons), (), generator=generator))])
     total = float(expected.double().sum())
     scale = photons / total if total > 0 else 0.0

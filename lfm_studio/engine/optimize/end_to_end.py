@@ -95,10 +95,11 @@ def sample_loss(
     high_pass_weight: float,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(loss, volume)`` of one phantom: imaged through ``projector`` with the sample's noise held
-    fixed (gradients reach the optics through the expected image), then reconstructed."""
-    truth = sample.truth.to(projector.dtype)
+    fixed (gradients reach the optics through the expected image), then reconstructed. The sample
+    (CPU tensors, :func:`~lfm_studio.engine.learned.data.make_sample`) is moved to the projector's device."""
+    truth = sample.truth.to(device=projector.device, dtype=projector.dtype)
     expected = projector.forward(truth)
-    image = expected + (sample.image.to(projector.dtype) - expected.detach())
+    image = expected + (sample.image.to(device=projector.device, dtype=projector.dtype) - expected.detach())
     volume = reconstruct(image, projector)
     return training_loss(volume, truth, high_pass_weight), volume
 

@@ -78,3 +78,17 @@ def test_trivial_outputs_are_named():
     assert trivial_reason(torch.tensor([0.0, 1.0])) is None
     with pytest.raises(ValueError, match="is all zero: a collapsed model"):
         require_not_trivial(torch.zeros(3), "the output")
+
+
+def test_samples_are_cpu_tensors_drawn_with_the_cpu_generator(fourier, conventional):
+    """The noise is drawn on the CPU (a seeded CPU generator cannot draw on a CUDA tensor) and the
+    sample comes back on the CPU whatever the projector's device; this machine has no GPU, so
+    the path is run with device "cpu" (the CUDA path differs only by the moves)."""
+    spec = TrainingDataSpec(seed=2, read_noise=1.0, phantoms="mix")
+    for system in (fourier, conventional):
+        assert system.setup.projector.device == torch.device("cpu")
+        sample = make_sample(spec, system.setup, "train", 1)
+        assert sample.image.device.type == "cpu" and sample.truth.device.type == "cpu"
+        assert sample.image.dtype == torch.float32 and bool(torch.isfinite(sample.image).all())
+        again = make_sample(spec, system.setup, "train", 1)
+        assert torch.equal(sample.image, again.image)
