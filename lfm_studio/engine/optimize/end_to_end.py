@@ -178,7 +178,7 @@ def optimize_end_to_end(
     if found is not None:
         raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
 
-    conventional = binding.kind == "conventional"
+    conventional = binding.kind is CONVENTIONAL
 
     def setup_of(stack: PSFStack) -> ImagingSetup:
         return CONVENTIONAL.imaging_setup(stack) if conventional else fixed_grid_setup(stack, lateral)

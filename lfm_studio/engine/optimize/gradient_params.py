@@ -60,7 +60,7 @@ from lfm_studio.engine.systems.from_design import (
     fourier_system_of,
     virtual_pixel_count,
 )
-from lfm_studio.engine.systems.kinds import CONVENTIONAL, kind_of
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, SystemKind, kind_of
 from lfm_studio.engine.systems.kinds_fourier import FOURIER
 
 DIFFERENTIABLE_PATHS: tuple[str, ...] = (
@@ -183,13 +183,13 @@ def _bind(param: Parameter, design: Design) -> Binding:
 @dataclass(frozen=True)
 class SpaceBinding:
     """A design space bound to the differentiable PSF of a design (see the module docstring);
-    ``kind``: ``"fourier"`` or ``"conventional"``."""
+    ``kind``: the design's system kind (:data:`FOURIER` or :data:`CONVENTIONAL`)."""
 
     space: DesignSpace
     bindings: tuple[Binding, ...]
     low: torch.Tensor  # (P,) float64, design units
     high: torch.Tensor
-    kind: str = "fourier"
+    kind: SystemKind = FOURIER
 
     @property
     def span(self) -> torch.Tensor:
@@ -281,7 +281,7 @@ class SpaceBinding:
             if settings.depths_um is not None
             else design_depths(design)
         )
-        if self.kind == "conventional":
+        if self.kind is CONVENTIONAL:
             return self._conventional_stack(design, values, settings, depths)
         refine = design.accuracy.volume_oversampling
         system = fourier_system_of(design, refine=refine)
@@ -382,4 +382,4 @@ def bind_space(space: DesignSpace, design: Design) -> SpaceBinding:
             seen[key] = b.parameter.path
     low = torch.tensor([float(b.parameter.low) for b in bindings], dtype=torch.float64)  # type: ignore[arg-type]
     high = torch.tensor([float(b.parameter.high) for b in bindings], dtype=torch.float64)  # type: ignore[arg-type]
-    return SpaceBinding(space, bindings, low, high, kind.name)
+    return SpaceBinding(space, bindings, low, high, kind)

@@ -16,6 +16,7 @@ from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.gradient import optimize_psf, psf_objective
 from lfm_studio.engine.optimize.gradient_params import NotDifferentiableError, bind_space
 from lfm_studio.engine.simulation import simulate_psf
+from lfm_studio.engine.systems.kinds import CONVENTIONAL
 
 from .conftest import tiny_conventional
 
@@ -41,7 +42,7 @@ def design():
 
 def test_every_conventional_parameter_binds_and_the_stack_equals_the_float_path(design):
     binding = bind_space(ALL, design)
-    assert binding.kind == "conventional"
+    assert binding.kind is CONVENTIONAL
     assert [b.field for b in binding.bindings] == [
         "lenslet_focal_length", "mla_to_camera", "numerical_aperture", "wavelength", "lenslet_aperture",
     ]  # fmt: skip

@@ -265,16 +265,17 @@ def test_regular_mla_parameters_pass_gradcheck(regular_row):
 
 def test_a_conventional_design_refuses_a_fourier_only_path_by_name():
     from lfm_studio.engine.design import list_presets, load_preset
-    from lfm_studio.engine.systems.kinds import kind_of
+    from lfm_studio.engine.systems.kinds import CONVENTIONAL, kind_of
     from lfm_studio.engine.systems.kinds_fourier import FOURIER
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DesignWarning)
         designs = [load_preset(name) for name in list_presets()]
     conventional = next(d for d in designs if kind_of(d) is not FOURIER)
-    assert bind_space(
-        DesignSpace((Parameter("objective.numerical_aperture", 0.3, 0.5),)), conventional
-    ).kind == ("conventional")
+    assert (
+        bind_space(DesignSpace((Parameter("objective.numerical_aperture", 0.3, 0.5),)), conventional).kind
+        is CONVENTIONAL
+    )
     space = DesignSpace((Parameter("mla.pitch_um", 140.0, 160.0),))
     with pytest.raises(NotDifferentiableError, match="conventional-LFM patterns have no tensor"):
         bind_space(space, conventional)
