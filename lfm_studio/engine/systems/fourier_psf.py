@@ -18,6 +18,7 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -33,17 +34,25 @@ from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
+from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf, prepare_lenslet
 from lfm_studio.engine.systems.fourier_parameters import (
     FourierParameters,
     LensletOptics,
     parameters_require_grad,
 )
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
-from lfm_studio.engine.systems.fourier_windows import LensletWindow, plan_window, windows_overlap
+from lfm_studio.engine.systems.fourier_windows import (
+    LensletWindow,
+    fast_samples,
+    plan_window,
+    shared_window,
+    windows_overlap,
+)
 from lfm_studio.engine.systems.lenslet_cache import LensletCache, spec_parts, stable_key
 
-_METHODS = ("auto", "per_lenslet", "full_field")
+_METHODS = ("auto", "per_lenslet", "per_lenslet_coherent", "full_field")
+EXACT_PROPAGATORS = ("asm", "bandlimited_asm")
+"""Propagators that make "auto" keep the full field where footprints overlap (:func:`resolve_method`)."""
 
 
 @dataclass(frozen=True)
@@ -59,7 +68,8 @@ class FourierAccuracy:
     model : objective model, ``"debye"`` (exact defocus phase) or ``"paraxial"``.
     antialias : area-weighted lenslet aperture edges.
     dtype : ``torch.float32`` or ``torch.float64`` (fields in the matching complex dtype).
-    method : ``"auto"``, ``"per_lenslet"`` or ``"full_field"``.
+    method : ``"auto"``, ``"per_lenslet"``, ``"per_lenslet_coherent"`` or ``"full_field"``
+        (:func:`resolve_method`; "auto" is per lenslet, coherent where footprints overlap).
     depth_chunk : depths per batch of the per-lenslet path (bounds memory; on CPU small chunks
         are also faster); the full-field path computes one depth at a time.
     propagator : propagation method of the full-field path (see :func:`propagate`; not
@@ -108,6 +118,8 @@ class FourierPSFReport:
     method: str = ""
     lenslets_computed: list[int] = field(default_factory=list)
     lenslets_cached: list[int] = field(default_factory=list)
+    coherent_groups: list[list[int]] = field(default_factory=list)
+    """Lenslets whose complex fields were summed on a shared canvas (overlapping footprints)."""
 
 
 # Accuracy fields that do not change a per-lenslet patch (tested by computing both): the
@@ -145,21 +157,42 @@ def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) ->
     target[:, rs:re, cs:ce] += patch[:, rs - r0 : re - r0, cs - c0 : ce - c0]
 
 
-def _any_overlap(system: FourierLFMSystem, windows: list[LensletWindow]) -> bool:
+def overlap_groups(system: FourierLFMSystem, windows: list[LensletWindow]) -> list[list[int]]:
+    """Lenslet indices grouped into connected sets of overlapping light footprints (singletons
+    for lenslets that overlap none), in index order."""
     lenslets = system.mla.lenslets
-    return any(
-        windows_overlap(windows[i], windows[j], lenslets[i].center, lenslets[j].center)
-        for i in range(len(windows))
-        for j in range(i + 1, len(windows))
-    )
+    parent = list(range(len(windows)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(len(windows)):
+        for j in range(i + 1, len(windows)):
+            if windows_overlap(windows[i], windows[j], lenslets[i].center, lenslets[j].center):
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(windows)):
+        groups.setdefault(root(i), []).append(i)
+    return sorted(groups.values())
 
 
 def resolve_method(
     system: FourierLFMSystem, depths: tuple[float, ...], accuracy: FourierAccuracy
 ) -> tuple[str, list[LensletWindow]]:
-    """The path :func:`fourier_psf_stack` takes (``"per_lenslet"`` or ``"full_field"``: "auto"
-    picks the full field when lenslet windows overlap, since their fields interfere) and the
-    lenslet windows planned for it."""
+    """The path :func:`fourier_psf_stack` takes and the lenslet windows planned for it.
+
+    "auto" gives ``"per_lenslet"`` when no two lenslet footprints overlap on the sensor, else
+    ``"per_lenslet_coherent"``: overlapping lenslets' complex fields are added on a shared
+    canvas before the modulus is taken (their sub-images interfere). The per-lenslet transform
+    is paraxial (Fresnel), and where footprints overlap the cross terms at wide angles carry
+    that error (Guo's FLFM: 0.6-0.7 % at +-40 um, as the full field with ``fresnel_tf``), so
+    when an exact propagator is asked for (``propagator`` ``"asm"`` or ``"bandlimited_asm"``,
+    as in the reference preset) "auto" keeps the full field there. ``"per_lenslet"`` asked for
+    explicitly adds intensities even where footprints overlap (interference lost).
+    """
     windows = [
         plan_window(
             system, lens, depths, oversampling=accuracy.oversampling, margin_airy=accuracy.margin_airy
@@ -168,8 +201,22 @@ def resolve_method(
     ]
     method = accuracy.method
     if method == "auto":
-        method = "full_field" if _any_overlap(system, windows) else "per_lenslet"
+        groups = overlap_groups(system, windows)
+        if not any(len(g) > 1 for g in groups):
+            method = "per_lenslet"
+        elif accuracy.propagator in EXACT_PROPAGATORS:
+            method = "full_field"
+        else:
+            method = "per_lenslet_coherent"
     return method, windows
+
+
+def footprints_overlap(
+    system: FourierLFMSystem, depths: tuple[float, ...], accuracy: FourierAccuracy
+) -> bool:
+    """Whether any two lenslets' light footprints overlap on the sensor (sub-images interfere)."""
+    _, windows = resolve_method(system, depths, dataclasses.replace(accuracy, method="full_field"))
+    return any(len(g) > 1 for g in overlap_groups(system, windows))
 
 
 def fourier_psf_stack(
@@ -220,21 +267,27 @@ def fourier_psf_stack(
     method, windows = resolve_method(system, depths, acc)
     report.method = method
     z = torch.tensor(depths, dtype=torch.float64, device=device)
-    if parameters is not None and method != "per_lenslet":
+    if parameters is not None and method == "full_field":
         raise ValueError(
-            f"parameters need the per-lenslet path; this design resolved to method {method!r} "
-            "(lenslet footprints overlap, or it was asked for). Fix: use FourierAccuracy(method="
-            "'per_lenslet') on a design whose sub-images do not overlap, or drop parameters."
+            "parameters need the per-lenslet path (coherent where lenslet footprints overlap); this "
+            "design resolved to method 'full_field' (asked for, or overlapping footprints with an exact "
+            "propagator). Fix: use FourierAccuracy(method='auto', propagator='auto'), or drop parameters."
         )
-    if method == "per_lenslet":
+    if method == "full_field":
+        data = _full_field(system, z, acc, device, progress, cancel, source_position)
+    else:
         if source_position != (0.0, 0.0) or parameters is not None or parameters_require_grad(None, system):
             cache = None
+        groups = (
+            overlap_groups(system, windows)
+            if method == "per_lenslet_coherent"
+            else [[i] for i in range(len(windows))]
+        )
+        report.coherent_groups = [g for g in groups if len(g) > 1]
         data = _per_lenslet(
-            system, windows, depths, z, acc, device, cache, progress, cancel, report, source_position,
-            parameters,
+            system, windows, groups, depths, z, acc, device, cache, progress, cancel, report,
+            source_position, parameters,
         )  # fmt: skip
-    else:
-        data = _full_field(system, z, acc, device, progress, cancel, source_position)
     return PSFStack(
         data,
         depths,
@@ -244,6 +297,7 @@ def fourier_psf_stack(
         design=design,
         metadata={
             "method": method,
+            "coherent_lenslets": sum(len(g) for g in report.coherent_groups),
             "oversampling": acc.oversampling,
             "model": acc.model,
             "pixel_integration": acc.pixel_integration,
@@ -251,25 +305,36 @@ def fourier_psf_stack(
     )
 
 
+def _optics(system, parameters, index):
+    lens = system.mla.lenslets[index]
+    return parameters.lenslet(system, index) if parameters is not None else LensletOptics.of(system, lens)
+
+
 def _per_lenslet(
-    system, windows, depths, z, acc, device, cache, progress, cancel, report, source, parameters
+    system, windows, groups, depths, z, acc, device, cache, progress, cancel, report, source, parameters
 ) -> torch.Tensor:
+    """Lone lenslets: power patches (cached); each group of overlapping lenslets: complex
+    fields summed on one canvas (:func:`_coherent_group`, never cached)."""
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
-    for index, (lens, window) in enumerate(zip(system.mla.lenslets, windows, strict=True)):
-        checkpoint(cancel, progress, index, total, f"lenslet {index + 1}/{total}")
+    done = 0
+    for group in groups:
+        if len(group) > 1:
+            _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel)
+            report.lenslets_computed.extend(group)
+            done += len(group)
+            checkpoint(cancel, progress, done, total, f"lenslets {done}/{total} (coherent group)")
+            continue
+        (index,) = group
+        lens, window = system.mla.lenslets[index], windows[index]
+        checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
         key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
         patch = cache.get(key) if cache is not None else None
         if patch is None:
-            optics = (
-                parameters.lenslet(system, index)
-                if parameters is not None
-                else LensletOptics.of(system, lens)
-            )
             patch = lenslet_psf(
                 system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
                 antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
-                pixel_integration=acc.pixel_integration, optics=optics,
+                pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
             )  # fmt: skip
             report.lenslets_computed.append(index)
             if cache is not None:
@@ -277,8 +342,50 @@ def _per_lenslet(
         else:
             report.lenslets_cached.append(index)
         _place(out, patch, window.first_pixel)
+        done += 1
     checkpoint(cancel, progress, total, total, "done")
     return out
+
+
+def _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel) -> None:
+    """Add the power of a group of overlapping lenslets into ``out``.
+
+    Every lenslet of the group is computed on one shared square canvas (:func:`shared_window`)
+    covering the bounding box of the group's own windows, so each field is known wherever
+    the others carry light (a field cut at its own window would drop the cross terms
+    ``2 Re(E_a* E_b)`` there, which fall off with the field, not the intensity). Per depth
+    chunk the complex fields (:func:`~lfm_studio.engine.systems.fourier_lenslet.lenslet_field`) are summed and ``|sum E_k|^2`` is
+    integrated on pixels once. Off-sensor parts of the canvas are cropped at placing.
+    """
+    s = acc.oversampling
+    lenslets = system.mla.lenslets
+    first = [windows[i].first_pixel for i in group]
+    size = [windows[i].pixels(s) for i in group]
+    r0, c0 = min(f[0] for f in first), min(f[1] for f in first)
+    rows = max(f[0] + n for f, n in zip(first, size, strict=True)) - r0
+    cols = max(f[1] + n for f, n in zip(first, size, strict=True)) - c0
+    samples = fast_samples(max(rows, cols), s)
+    pixels = samples // s
+    corner = (r0 - (pixels - rows) // 2, c0 - (pixels - cols) // 2)  # the box centred in the square
+    shared = {
+        i: shared_window(system, lenslets[i], windows[i], corner, samples, oversampling=s) for i in group
+    }
+    inputs = [
+        prepare_lenslet(
+            system, lenslets[i], shared[i], z, s, acc.model, acc.antialias, acc.dtype, source, optics
+        )
+        for i, optics in ((i, _optics(system, parameters, i)) for i in group)
+    ]
+    for start in range(0, z.numel(), acc.depth_chunk):
+        checkpoint(cancel, None, 0, 1, "")
+        zc = z[start : start + acc.depth_chunk]
+        total = None
+        for lenslet_input in inputs:
+            field = lenslet_input.field(zc)
+            total = field if total is None else total.add_(field)
+        assert total is not None
+        power = integrate_pixels(total.real**2 + total.imag**2, s, acc.pixel_integration)
+        _place(out[start : start + zc.numel()], power, corner)
 
 
 def _shifted_mla(mla: MicrolensArray, shift: tuple[float, float]) -> MicrolensArray:
