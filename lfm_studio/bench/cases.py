@@ -102,7 +102,7 @@ def bench_case(design: Design, name: str | None = None) -> BenchCase:
     cropped = evolve(design, "camera.pixel_count", (CROP_PIXELS, CROP_PIXELS))
     note = (
         f"sensor cropped to {CROP_PIXELS} x {CROP_PIXELS} of {ny} x {nx} pixels (sub-images overlap: "
-        "full-field path; the crop holds the whole array's footprint)"
+        "full-field reference; the crop holds the whole array's footprint)"
     )
     return BenchCase(name, cropped, depths, note)
 

@@ -3,14 +3,18 @@
 ``per_lenslet`` (default when the lenslets' light footprints do not overlap on the
 sensor): each lenslet on its own ``N x N`` grid (:mod:`fourier_lenslet`), results
 placed on the sensor and cached per lenslet, so editing one lenslet recomputes one.
-``full_field``: the relayed pupil on one MLA-plane grid covering the sensor, times the
-whole MLA transmission, propagated with :func:`propagate` and integrated on pixels:
-the straightforward reference, and the fallback when sub-images overlap (their fields
-interfere, which separate lenslets cannot represent).
+``per_lenslet_coherent`` (default where footprints overlap, e.g. Guo's touching
+lenslets): lone lenslets as above; each group of overlapping lenslets has its complex
+fields computed on one shared canvas, summed, and squared once (their sub-images
+interfere), never cached. ``full_field``: the relayed pupil on one MLA-plane grid
+covering the sensor, times the whole MLA transmission, propagated with :func:`propagate`
+and integrated on pixels: the straightforward reference, and what "auto" takes where
+footprints overlap when an exact propagator is asked for (the per-lenslet transform is
+paraxial).
 
 Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierParameters`
 (tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
-to the per-lenslet path; the cache is then bypassed. Cache keys are derived from the spec
+to a per-lenslet path (coherent groups included); the cache is then bypassed. Cache keys are derived from the spec
 objects' fields (:func:`lenslet_key`), never from a hand-written list.
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
@@ -250,7 +254,7 @@ def fourier_psf_stack(
         are for checks (every sub-image moves by ``magnification * x0``) and are not cached.
     parameters : tensor overrides of the optics (:class:`FourierParameters`) for gradients:
         the geometry is planned from their values, the physics evaluated from the tensors
-        (per-lenslet path only). The cache is bypassed whenever parameters are given or any
+        (per-lenslet paths only). The cache is bypassed whenever parameters are given or any
         input (a lenslet focal length, an objective field) requires grad.
 
     Returns
