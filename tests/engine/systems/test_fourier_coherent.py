@@ -51,9 +51,9 @@ def _error(a: torch.Tensor, b: torch.Tensor) -> float:
     return max(float((a[i] - b[i]).norm() / b[i].norm()) for i in range(b.shape[0]))
 
 
-def test_auto_sums_fields_coherently_and_matches_the_full_field():
-    standard = FourierAccuracy(oversampling=2)  # the standard preset's knobs (float32, Fourier pixels)
-    assert resolve_method(TOUCHING, DEPTHS, standard)[0] == "per_lenslet_coherent"
+def test_coherent_sum_matches_the_full_field():
+    # The standard preset's knobs (float32, Fourier pixels, 2 sub-samples).
+    standard = FourierAccuracy(oversampling=2, method="per_lenslet_coherent")
     report = FourierPSFReport()
     coherent = fourier_psf_stack(TOUCHING, DEPTHS, accuracy=standard, report=report)
     assert coherent.metadata["method"] == "per_lenslet_coherent"
@@ -71,6 +71,27 @@ def test_auto_sums_fields_coherently_and_matches_the_full_field():
     # Within the standard preset's Fourier bound (1 %); adding intensities is several times worse.
     assert error < 0.01, error
     assert lost > 3 * error, (lost, error)
+
+
+def test_auto_takes_the_cheaper_path_and_the_coherent_one_for_gradients():
+    # 2 x 2 lenslets filling the crop: the full field on the windows' crop costs fewer samples
+    # than four lenslets on the shared canvas; the crop is what it computes.
+    standard = FourierAccuracy(oversampling=2)
+    assert resolve_method(TOUCHING, DEPTHS, standard)[0] == "full_field"
+    auto = fourier_psf_stack(TOUCHING, DEPTHS, accuracy=standard)
+    assert auto.metadata["method"] == "full_field" and auto.metadata["full_field_pixels"][0] < 256
+    whole = fourier_psf_stack(TOUCHING, DEPTHS, accuracy=dataclasses.replace(standard, method="full_field"))
+    assert whole.metadata["full_field_pixels"] == [256, 256]
+    assert _error(auto.data, whole.data) < 1e-3  # only the light beyond the windows is left out
+    # Two touching lenslets in a wide array: the coherent pair is cheaper than the crop.
+    pair = _system(
+        ((-0.2 * mm, 0.0), (0.2 * mm, 0.0), (1.9 * mm, 1.9 * mm)), diameter=0.4 * mm, sensor=(640, 640)
+    )
+    assert resolve_method(pair, DEPTHS, standard)[0] == "per_lenslet_coherent"
+    report = FourierPSFReport()
+    parameters = FourierParameters(wavelength=torch.tensor(525 * nm, dtype=F64))
+    fourier_psf_stack(TOUCHING, DEPTHS[:1], accuracy=standard, parameters=parameters, report=report)
+    assert report.method == "per_lenslet_coherent" and report.coherent_groups == [[0, 1, 2, 3]]
 
 
 def test_an_exact_propagator_keeps_the_full_field_where_footprints_overlap():
@@ -109,7 +130,6 @@ def test_coherent_path_is_differentiable():
     )
     acc = FourierAccuracy(oversampling=2, margin_airy=8, dtype=F64)
     depths = (-5 * um, 5 * um)
-    assert resolve_method(system, depths, acc)[0] == "per_lenslet_coherent"
     weights = torch.rand(len(depths), 64, 64, generator=torch.Generator().manual_seed(0), dtype=F64)
 
     def loss(focal_mm: torch.Tensor, wavelength_um: torch.Tensor) -> torch.Tensor:
