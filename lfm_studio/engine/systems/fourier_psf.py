@@ -8,9 +8,10 @@ lenslets): lone lenslets as above; each group of overlapping lenslets has its co
 fields computed on one shared canvas, summed, and squared once (their sub-images
 interfere), never cached. ``full_field``: the relayed pupil on one MLA-plane grid
 covering the sensor, times the whole MLA transmission, propagated with :func:`propagate`
-and integrated on pixels: the straightforward reference, and what "auto" takes where
-footprints overlap when an exact propagator is asked for (the per-lenslet transform is
-paraxial).
+and integrated on pixels: the straightforward reference. Where footprints overlap "auto"
+takes the cheaper of the coherent path and the full field on the sensor crop holding every
+lenslet window, and always the latter when an exact propagator is asked for (the
+per-lenslet transform is paraxial): :func:`resolve_method`.
 
 Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierParameters`
 (tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
