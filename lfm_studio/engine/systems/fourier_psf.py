@@ -319,8 +319,12 @@ def fourier_psf_stack(
     if method == "full_field":
         # "auto" chose the full field for overlapping footprints: only the sensor region the
         # lenslet windows cover is computed (the same field there; the light beyond the windows
-        # is left out, as on the per-lenslet paths). Asked for explicitly: the whole sensor.
-        crop = _footprint_crop(system, windows, acc.oversampling) if acc.method == "auto" else None
+        # is left out, as on the per-lenslet paths). Asked for explicitly, or for an off-axis
+        # source (the windows are planned on axis): the whole sensor.
+        on_axis = source_position == (0.0, 0.0)
+        crop = (
+            _footprint_crop(system, windows, acc.oversampling) if acc.method == "auto" and on_axis else None
+        )
         data = _full_field_on(system, crop, z, acc, device, progress, cancel, source_position)
     else:
         if source_position != (0.0, 0.0) or parameters is not None or parameters_require_grad(None, system):
