@@ -61,11 +61,11 @@ def case_depths(design: Design) -> tuple[float, ...]:
 
 
 def _sub_images_overlap(design: Design, depths: tuple[float, ...]) -> bool:
-    """Whether the Fourier path's "auto" method falls back to the full field for ``design``."""
-    from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, resolve_method
+    """Whether lenslet footprints overlap on the sensor for ``design`` (the reference is then the full field)."""
+    from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, footprints_overlap
     from lfm_studio.engine.systems.from_design import fourier_system_of
 
-    return resolve_method(fourier_system_of(design), depths, FourierAccuracy())[0] == "full_field"
+    return footprints_overlap(fourier_system_of(design), depths, FourierAccuracy())
 
 
 def _array_reach_pixels(design: Design) -> float:
@@ -102,7 +102,7 @@ def bench_case(design: Design, name: str | None = None) -> BenchCase:
     cropped = evolve(design, "camera.pixel_count", (CROP_PIXELS, CROP_PIXELS))
     note = (
         f"sensor cropped to {CROP_PIXELS} x {CROP_PIXELS} of {ny} x {nx} pixels (sub-images overlap: "
-        "full-field path; the crop holds the whole array's footprint)"
+        "full-field reference; the crop holds the whole array's footprint)"
     )
     return BenchCase(name, cropped, depths, note)
 

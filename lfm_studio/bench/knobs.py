@@ -73,6 +73,15 @@ def uses_full_field(case: BenchCase, options: EngineOptions) -> bool:
     return resolve_method(fourier_system_of(case.design), case.depths, options)[0] == "full_field"
 
 
+def footprints_overlap_in(case: BenchCase) -> bool:
+    """Whether a Fourier case's lenslet footprints overlap (its reference is then the full field:
+    the independent computation, not the coherent per-lenslet sum it checks)."""
+    from lfm_studio.engine.systems.fourier_psf import footprints_overlap
+    from lfm_studio.engine.systems.from_design import fourier_system_of
+
+    return footprints_overlap(fourier_system_of(case.design), case.depths, FourierAccuracy())
+
+
 def _extrapolated(
     low: EngineOptions, high: EngineOptions, a: int, b: int
 ) -> list[tuple[EngineOptions, float]]:
@@ -94,7 +103,7 @@ def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[Engi
       grid x1.5 (x2), light margin 24 (32) diffraction lengths, the converged Debye quadrature.
     """
     if case.system_kind is FOURIER:
-        full = uses_full_field(case, FourierAccuracy())
+        full = footprints_overlap_in(case)
         s = REFERENCE_FOURIER_SAMPLING["full_field" if full else "per_lenslet"][int(refined)]
         options = FourierAccuracy(
             oversampling=s,
@@ -162,13 +171,20 @@ def fourier_settings(case: BenchCase, *, quick: bool = False) -> list[KnobSettin
         )
     settings += _vary(base, "dtype", (torch.float64,))
     settings += _vary(base, "objective_model", ("paraxial",), field="model")
-    if full:  # the per-lenslet path for a case whose sub-images overlap (interference is lost)
+    overlap = footprints_overlap_in(case)
+    if overlap:  # intensities added per lenslet where sub-images overlap (interference is lost)
         settings.append(KnobSetting("method", "per_lenslet", dataclasses.replace(base, method="per_lenslet")))
+    if overlap and not full:  # the full field at the standard sampling (the coherent path's baseline)
+        settings.append(KnobSetting("method", "full_field", dataclasses.replace(base, method="full_field")))
     # Propagator and padding act on the full-field path only; for a per-lenslet case they
     # are measured there at one sub-sample per pixel (labelled), to keep the cost sane
     # (the full XLFM field at s = 3 is a 16200^2 grid); "auto" there is the method=full_field row.
-    ff = base if full else dataclasses.replace(base, method="full_field", oversampling=1)
-    tag = "" if full else " (full field, s=1)"
+    if full or overlap:
+        ff = dataclasses.replace(base, method="full_field")
+        tag = "" if full else " (full field)"
+    else:
+        ff = dataclasses.replace(base, method="full_field", oversampling=1)
+        tag = " (full field, s=1)"
     props = ("bandlimited_asm",) if quick else ("asm", "bandlimited_asm", "fresnel_tf", "auto")
     for prop in props:
         if full and prop == base.propagator:

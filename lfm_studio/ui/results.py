@@ -48,7 +48,7 @@ class PSFResult:
     design : the design in force when the job started (the full one, also for a preview).
     stack : the stack (for a preview: of the reduced preview design).
     preview : True for the quick preview (few depths, reduced sensor and accuracy).
-    method : "per_lenslet", "full_field" or "conventional".
+    method : "per_lenslet", "per_lenslet_coherent", "full_field" or "conventional".
     lenslets_computed, lenslets_cached : per-lenslet cache use (Fourier per-lenslet path).
     profiles : for the plots.
     seconds : wall time of the computation.

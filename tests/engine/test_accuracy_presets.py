@@ -6,8 +6,9 @@ What is computed (the same cases as ``lfm-studio bench``, docs/benchmarks.md):
 
 - XLFM (per-lenslet path): the innermost and outermost lenslet of each focal length; the
   windows do not overlap, so the worst lenslet's error bounds the whole array's.
-- Guo FLFM (sub-images overlap, full-field path): a centred 512 x 512 sensor crop that
-  holds the whole array's footprint.
+- Guo FLFM (sub-images overlap: full-field reference; preview and standard take the coherent
+  per-lenslet path, reference the full field): a centred 512 x 512 sensor crop that holds the
+  whole array's footprint.
 - conventional designs: every voxel sub-position's pattern.
 
 Depths: the bench's three (both ends of the design's range and the focal plane); the error

@@ -86,8 +86,10 @@ class AccuracySpec(SpecModel):
     objective_model : "paraxial" or "debye"
         Paraxial 4f imaging (low NA) or the Debye integral (high NA).
     per_lenslet : bool
-        Fourier LFM: compute each lenslet's sub-image on its own small grid (exact
-        only when sub-images do not overlap).
+        Fourier LFM: compute each lenslet's sub-image on its own small grid; where
+        sub-images overlap, the cheaper of the lenslets' complex fields summed on a shared
+        grid and the full field on the sensor crop the lenslets' light covers (always the
+        latter with an exact propagator). False: always the full field on the whole sensor.
     depth_chunk : int
         Depths per FFT batch (>= 1; small on CPU to stay in cache, large on GPU).
     voxels_per_lenslet : int

@@ -87,6 +87,145 @@ def lenslet_psf(
     -------
     Tensor ``(Z, N/s, N/s)`` on ``depths.device``: power per pixel (W per W emitted).
     """
+    prepared = _prepare(
+        system, lens, window, depths, oversampling, model, antialias, dtype, source_position, optics
+    )
+    parts = []
+    for start in range(0, depths.numel(), depth_chunk):
+        parts.append(
+            integrate_pixels(
+                fft.centered_power(prepared.input_field(depths[start : start + depth_chunk])),
+                oversampling,
+                pixel_integration,
+            )
+        )
+    return torch.cat(parts, dim=0)
+
+
+def lenslet_field(
+    system: FourierLFMSystem,
+    lens: Lenslet,
+    window: LensletWindow,
+    depths: torch.Tensor,
+    *,
+    oversampling: int,
+    model: str = "debye",
+    antialias: bool = True,
+    dtype: torch.dtype = torch.float32,
+    source_position: tuple[float, float] = (0.0, 0.0),
+    optics: LensletOptics | None = None,
+) -> torch.Tensor:
+    """Complex field behind one lenslet on its window's sensor sub-pixel grid, ``(Z, N, N)``.
+
+    The same computation as :func:`lenslet_psf` (``|field|^2`` summed over ``s x s`` blocks
+    is its midpoint-rule result), with the phase kept up to a factor that depends only on the
+    output sample: the Fresnel output chirp about the lens centre ``c`` is
+    ``k |u - c|^2 / (2 d) = k |u|^2 / (2 d) - k u.c / d + k |c|^2 / (2 d)`` (``u`` the sample's
+    sensor position); the first term, the sign of the centred DFT, ``1 / (j lambda d)`` and
+    ``e^{j k d}`` are the same for every lenslet computed on the same sample grid and are
+    dropped; the rest is a separable phasor per lenslet. Fields of lenslets planned on one
+    shared window (:func:`~lfm_studio.engine.systems.fourier_windows.shared_window`) therefore
+    add coherently sample by sample ("per_lenslet_coherent" in :func:`fourier_psf_stack`).
+    ``|field|^2`` is power per sub-sample (W per W emitted).
+    """
+    return prepare_lenslet(
+        system, lens, window, depths, oversampling, model, antialias, dtype, source_position, optics
+    ).field(depths)
+
+
+class LensletInput:
+    """The depth-independent parts of one lenslet's input field (see :func:`lenslet_psf`)."""
+
+    def __init__(self, amplitude, static_phase, defocus, dtype, checker_phase, output_ramp) -> None:
+        self.amplitude, self.static_phase, self.defocus = amplitude, static_phase, defocus
+        self.dtype = dtype
+        self._checker_phase = checker_phase
+        self._output_ramp = output_ramp
+        self._centred_static: torch.Tensor | None = None
+        self._box: LensletInput | None = None
+
+    def input_field(self, depths: torch.Tensor, *, centred: bool = False) -> torch.Tensor:
+        """Input field ``(Z, N, N)`` (complex) for ``depths``; ``centred``: times ``(-1)^(i + j)``,
+        so that a plain ``fft2`` has its zero frequency at index ``N // 2``."""
+        if centred and self._centred_static is None:
+            self._centred_static = self.static_phase + self._checker_phase
+        static = self._centred_static if centred else self.static_phase
+        phase = depths[:, None, None] * self.defocus + static  # float64
+        if self.dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
+            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
+        return torch.polar(self.amplitude.expand_as(phase), phase)
+
+    def field(self, depths: torch.Tensor) -> torch.Tensor:
+        """The complex output field ``(Z, N, N)`` with its relative phase (:func:`lenslet_field`).
+
+        Only the box of input samples where the amplitude is non-zero (the aperture: a few per
+        cent of the patch) is evaluated and transformed, rows first, each axis zero-padded to
+        ``N``; the box's offset ``o`` becomes the output phase ``-2 pi o m / N`` (in the ramps).
+        """
+        (r0, _), (c0, _) = self._support
+        n = self.static_phase.shape[-1]
+        box = self._boxed()
+        phase = depths[:, None, None] * box.defocus + box.static_phase  # float64
+        if self.dtype == torch.float32:
+            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
+        spectrum = torch.fft.fft(torch.polar(box.amplitude.expand_as(phase), phase), n=n, dim=-1)
+        spectrum = torch.fft.fft(spectrum, n=n, dim=-2)
+        m = torch.arange(n, dtype=torch.float64, device=phase.device)
+        ramp_y = self._phasor(self._output_ramp[0] - (2.0 * math.pi / n) * r0 * m)
+        ramp_x = self._phasor(self._output_ramp[1] - (2.0 * math.pi / n) * c0 * m)
+        return spectrum * ramp_y[:, None] * ramp_x[None, :]
+
+    @property
+    def _support(self) -> tuple[tuple[int, int], tuple[int, int]]:
+        """Row and column ranges of the non-zero amplitude, 2 samples wider (clipped)."""
+        nonzero = self.amplitude.detach() != 0
+        n_y, n_x = nonzero.shape[-2:]
+        rows = torch.nonzero(nonzero.any(dim=-1)).flatten()
+        cols = torch.nonzero(nonzero.any(dim=-2)).flatten()
+        if rows.numel() == 0:
+            return (0, 1), (0, 1)
+        return (
+            (max(int(rows[0]) - 2, 0), min(int(rows[-1]) + 3, n_y)),
+            (max(int(cols[0]) - 2, 0), min(int(cols[-1]) + 3, n_x)),
+        )
+
+    def _boxed(self) -> LensletInput:
+        if self._box is None:
+            (r0, r1), (c0, c1) = self._support
+            static = self.static_phase + self._checker_phase  # centred DFT
+            self._box = LensletInput(
+                self.amplitude[..., r0:r1, c0:c1], static[..., r0:r1, c0:c1],
+                self.defocus[..., r0:r1, c0:c1], self.dtype, self._checker_phase, self._output_ramp,
+            )  # fmt: skip
+        return self._box
+
+    def _phasor(self, phase: torch.Tensor) -> torch.Tensor:
+        phase = torch.remainder(phase, 2.0 * math.pi).to(real_dtype(self.dtype))
+        return torch.polar(torch.ones_like(phase), phase)
+
+
+def prepare_lenslet(
+    system: FourierLFMSystem,
+    lens: Lenslet,
+    window: LensletWindow,
+    depths: torch.Tensor,
+    oversampling: int,
+    model: str = "debye",
+    antialias: bool = True,
+    dtype: torch.dtype = torch.float32,
+    source_position: tuple[float, float] = (0.0, 0.0),
+    optics: LensletOptics | None = None,
+) -> LensletInput:
+    """The depth-independent input of one lenslet (arguments as :func:`lenslet_psf`; ``depths``
+    only gives the device)."""
+    return _prepare(
+        system, lens, window, depths, oversampling, model, antialias, dtype, source_position, optics
+    )
+
+
+def _prepare(
+    system, lens, window, depths, oversampling, model, antialias, dtype, source_position, optics
+) -> LensletInput:
     v = optics if optics is not None else LensletOptics.of(system, lens)
     n, s, p = window.samples, oversampling, system.pixel_pitch
     lam, d, m_r = _f64(v.wavelength), _f64(v.mla_to_camera), _f64(v.relay_magnification)
@@ -121,19 +260,15 @@ def lenslet_psf(
     step = p / s
     scale = (dx * dx / (lam * d)) ** 2 * step * step / (m_r * m_r)
     amplitude = (amplitude * aperture * scale**0.5).to(real_dtype(dtype))
-    parts = []
-    for start in range(0, depths.numel(), depth_chunk):
-        phase = depths[start : start + depth_chunk, None, None] * defocus + static_phase  # float64
-        if dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
-            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
-        parts.append(
-            integrate_pixels(
-                fft.centered_power(torch.polar(amplitude.expand_as(phase), phase)),
-                oversampling,
-                pixel_integration,
-            )
-        )
-    return torch.cat(parts, dim=0)
+    # Centred DFT of an even N (origin at index N // 2 in both domains), per axis:
+    # (-1)^(N/2) (-1)^m fft((-1)^n g)[m] for array indices n, m; the (-1)^m and, the window
+    # being square, the (-1)^(N/2) are common to every lenslet on the grid (lenslet_field).
+    odd = torch.arange(n, device=device).remainder(2).to(torch.float64)
+    checker_phase = math.pi * (odd[:, None] + odd[None, :])
+    # Output sample m sits at u = c + (m - N//2) step + shift; keep k (|c|^2 / 2 - u.c) / d per axis.
+    ux, uy = index * step + shift[0] + cx, index * step + shift[1] + cy
+    ramp = ((0.5 * cy - uy) * cy * k / d, (0.5 * cx - ux) * cx * k / d)
+    return LensletInput(amplitude, static_phase, defocus, dtype, checker_phase, ramp)
 
 
 def _f64(value: float | torch.Tensor) -> float | torch.Tensor:

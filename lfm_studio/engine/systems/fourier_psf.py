@@ -3,14 +3,19 @@
 ``per_lenslet`` (default when the lenslets' light footprints do not overlap on the
 sensor): each lenslet on its own ``N x N`` grid (:mod:`fourier_lenslet`), results
 placed on the sensor and cached per lenslet, so editing one lenslet recomputes one.
-``full_field``: the relayed pupil on one MLA-plane grid covering the sensor, times the
-whole MLA transmission, propagated with :func:`propagate` and integrated on pixels:
-the straightforward reference, and the fallback when sub-images overlap (their fields
-interfere, which separate lenslets cannot represent).
+``per_lenslet_coherent`` (default where footprints overlap, e.g. Guo's touching
+lenslets): lone lenslets as above; each group of overlapping lenslets has its complex
+fields computed on one shared canvas, summed, and squared once (their sub-images
+interfere), never cached. ``full_field``: the relayed pupil on one MLA-plane grid
+covering the sensor, times the whole MLA transmission, propagated with :func:`propagate`
+and integrated on pixels: the straightforward reference. Where footprints overlap "auto"
+takes the cheaper of the coherent path and the full field on the sensor crop holding every
+lenslet window, and always the latter when an exact propagator is asked for (the
+per-lenslet transform is paraxial): :func:`resolve_method`.
 
 Gradients: pass :class:`~lfm_studio.engine.systems.fourier_parameters.FourierParameters`
 (tensor focal lengths, apertures, centres, wavelength, NA, distances, a pupil phase mask)
-to the per-lenslet path; the cache is then bypassed. Cache keys are derived from the spec
+to a per-lenslet path (coherent groups included); the cache is then bypassed. Cache keys are derived from the spec
 objects' fields (:func:`lenslet_key`), never from a hand-written list.
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
@@ -18,6 +23,7 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -33,17 +39,25 @@ from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import PSFStack
-from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
+from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf, prepare_lenslet
 from lfm_studio.engine.systems.fourier_parameters import (
     FourierParameters,
     LensletOptics,
     parameters_require_grad,
 )
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
-from lfm_studio.engine.systems.fourier_windows import LensletWindow, plan_window, windows_overlap
+from lfm_studio.engine.systems.fourier_windows import (
+    LensletWindow,
+    fast_samples,
+    plan_window,
+    shared_window,
+    windows_overlap,
+)
 from lfm_studio.engine.systems.lenslet_cache import LensletCache, spec_parts, stable_key
 
-_METHODS = ("auto", "per_lenslet", "full_field")
+_METHODS = ("auto", "per_lenslet", "per_lenslet_coherent", "full_field")
+EXACT_PROPAGATORS = ("asm", "bandlimited_asm")
+"""Propagators that make "auto" keep the full field where footprints overlap (:func:`resolve_method`)."""
 
 
 @dataclass(frozen=True)
@@ -59,7 +73,8 @@ class FourierAccuracy:
     model : objective model, ``"debye"`` (exact defocus phase) or ``"paraxial"``.
     antialias : area-weighted lenslet aperture edges.
     dtype : ``torch.float32`` or ``torch.float64`` (fields in the matching complex dtype).
-    method : ``"auto"``, ``"per_lenslet"`` or ``"full_field"``.
+    method : ``"auto"``, ``"per_lenslet"``, ``"per_lenslet_coherent"`` or ``"full_field"``
+        (:func:`resolve_method`; "auto" is per lenslet, coherent where footprints overlap).
     depth_chunk : depths per batch of the per-lenslet path (bounds memory; on CPU small chunks
         are also faster); the full-field path computes one depth at a time.
     propagator : propagation method of the full-field path (see :func:`propagate`; not
@@ -108,6 +123,8 @@ class FourierPSFReport:
     method: str = ""
     lenslets_computed: list[int] = field(default_factory=list)
     lenslets_cached: list[int] = field(default_factory=list)
+    coherent_groups: list[list[int]] = field(default_factory=list)
+    """Lenslets whose complex fields were summed on a shared canvas (overlapping footprints)."""
 
 
 # Accuracy fields that do not change a per-lenslet patch (tested by computing both): the
@@ -162,21 +179,49 @@ def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) ->
     target[:, rs:re, cs:ce] += patch[:, rs - r0 : re - r0, cs - c0 : ce - c0]
 
 
-def _any_overlap(system: FourierLFMSystem, windows: list[LensletWindow]) -> bool:
+def overlap_groups(system: FourierLFMSystem, windows: list[LensletWindow]) -> list[list[int]]:
+    """Lenslet indices grouped into connected sets of overlapping light footprints (singletons
+    for lenslets that overlap none), in index order."""
     lenslets = system.mla.lenslets
-    return any(
-        windows_overlap(windows[i], windows[j], lenslets[i].center, lenslets[j].center)
-        for i in range(len(windows))
-        for j in range(i + 1, len(windows))
-    )
+    parent = list(range(len(windows)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i in range(len(windows)):
+        for j in range(i + 1, len(windows)):
+            if windows_overlap(windows[i], windows[j], lenslets[i].center, lenslets[j].center):
+                parent[root(j)] = root(i)
+    groups: dict[int, list[int]] = {}
+    for i in range(len(windows)):
+        groups.setdefault(root(i), []).append(i)
+    return sorted(groups.values())
 
 
 def resolve_method(
     system: FourierLFMSystem, depths: tuple[float, ...], accuracy: FourierAccuracy
 ) -> tuple[str, list[LensletWindow]]:
-    """The path :func:`fourier_psf_stack` takes (``"per_lenslet"`` or ``"full_field"``: "auto"
-    picks the full field when lenslet windows overlap, since their fields interfere) and the
-    lenslet windows planned for it."""
+    """The path :func:`fourier_psf_stack` takes and the lenslet windows planned for it.
+
+    "auto" gives ``"per_lenslet"`` when no two lenslet footprints overlap on the sensor, else
+    ``"per_lenslet_coherent"``: overlapping lenslets' complex fields are added on a shared
+    canvas before the modulus is taken (their sub-images interfere). The per-lenslet transform
+    is paraxial (Fresnel), and where footprints overlap the cross terms at wide angles carry
+    that error (Guo's FLFM: 0.6-0.7 % at +-40 um, as the full field with ``fresnel_tf``), so
+    when an exact propagator is asked for (``propagator`` ``"asm"`` or ``"bandlimited_asm"``,
+    as in the reference preset) "auto" keeps the full field there. Otherwise "auto" takes the
+    cheaper of the coherent path and the full field on the sensor crop the windows cover
+    (:func:`_coherent_cost`, :func:`_full_field_cost`; the full field is exact in propagation,
+    so it wins ties): for Guo's 3 x 3 touching lenslets that is the cropped full field (both
+    about 35x faster than the whole 2048^2 field; docs/benchmarks.md), for a few overlapping
+    lenslets in a wide array the coherent groups. With ``parameters`` (gradients)
+    :func:`fourier_psf_stack` takes the coherent path instead of an "auto" full field.
+    ``"per_lenslet"`` asked for explicitly adds intensities even where footprints overlap
+    (interference lost).
+    """
     windows = [
         plan_window(
             system, lens, depths, oversampling=accuracy.oversampling, margin_airy=accuracy.margin_airy
@@ -185,8 +230,49 @@ def resolve_method(
     ]
     method = accuracy.method
     if method == "auto":
-        method = "full_field" if _any_overlap(system, windows) else "per_lenslet"
+        groups = overlap_groups(system, windows)
+        if not any(len(g) > 1 for g in groups):
+            method = "per_lenslet"
+        elif accuracy.propagator in EXACT_PROPAGATORS:
+            method = "full_field"
+        else:
+            coherent = _coherent_cost(system, windows, groups, accuracy.oversampling)
+            full = _full_field_cost(system, _footprint_crop(system, windows, accuracy.oversampling), accuracy)
+            method = "full_field" if full <= coherent else "per_lenslet_coherent"
     return method, windows
+
+
+def _coherent_cost(
+    system: FourierLFMSystem, windows: list[LensletWindow], groups: list[list[int]], oversampling: int
+) -> float:
+    """FFT samples of the per-lenslet paths: each lone lenslet's window, and per group, each
+    member on the group's canvas (:func:`_group_canvas`)."""
+    cost = 0.0
+    for group in groups:
+        if len(group) == 1:
+            cost += windows[group[0]].samples ** 2
+        else:
+            cost += len(group) * _group_canvas(windows, group, oversampling)[1] ** 2
+    return cost
+
+
+def _full_field_cost(system: FourierLFMSystem, crop: tuple[int, int] | None, acc: FourierAccuracy) -> float:
+    """Samples of the full field's padded propagation grid on ``crop`` (:func:`_full_field`).
+
+    Comparable with :func:`_coherent_cost` as it is: on Guo's FLFM (2048^2, s = 1-3) one sample
+    of either cost about the same time (coherent 9 x 810^2 samples: 0.33 s per depth; full
+    field on the 488^2 crop, 1952^2 padded samples: 0.25 s; 1 thread)."""
+    ny, nx = crop or system.sensor_shape
+    grid = _full_field_grid(system, (ny, nx))
+    return (grid[0] * acc.oversampling * acc.padding) * (grid[1] * acc.oversampling * acc.padding)
+
+
+def footprints_overlap(
+    system: FourierLFMSystem, depths: tuple[float, ...], accuracy: FourierAccuracy
+) -> bool:
+    """Whether any two lenslets' light footprints overlap on the sensor (sub-images interfere)."""
+    _, windows = resolve_method(system, depths, dataclasses.replace(accuracy, method="full_field"))
+    return any(len(g) > 1 for g in overlap_groups(system, windows))
 
 
 def fourier_psf_stack(
@@ -220,7 +306,7 @@ def fourier_psf_stack(
         are for checks (every sub-image moves by ``magnification * x0``) and are not cached.
     parameters : tensor overrides of the optics (:class:`FourierParameters`) for gradients:
         the geometry is planned from their values, the physics evaluated from the tensors
-        (per-lenslet path only). The cache is bypassed whenever parameters are given or any
+        (per-lenslet paths only). The cache is bypassed whenever parameters are given or any
         input (a lenslet focal length, an objective field) requires grad.
 
     Returns
@@ -235,23 +321,41 @@ def fourier_psf_stack(
     if parameters is not None:
         system = parameters.applied_to(system)  # geometry from the values
     method, windows = resolve_method(system, depths, acc)
+    gradients = parameters is not None or parameters_require_grad(None, system)
+    if method == "full_field" and acc.method == "auto" and gradients:
+        method = "per_lenslet_coherent"  # differentiable (paraxial; see resolve_method)
     report.method = method
     z = torch.tensor(depths, dtype=torch.float64, device=device)
-    if parameters is not None and method != "per_lenslet":
+    if parameters is not None and method == "full_field":
         raise ValueError(
-            f"parameters need the per-lenslet path; this design resolved to method {method!r} "
-            "(lenslet footprints overlap, or it was asked for). Fix: use FourierAccuracy(method="
-            "'per_lenslet') on a design whose sub-images do not overlap, or drop parameters."
+            "parameters need the per-lenslet path (coherent where lenslet footprints overlap); this "
+            "design was asked for method 'full_field'. Fix: use FourierAccuracy(method='auto'), or drop "
+            "parameters."
         )
-    if method == "per_lenslet":
+    crop = None
+    if method == "full_field":
+        # "auto" chose the full field for overlapping footprints: only the sensor region the
+        # lenslet windows cover is computed (the same field there; the light beyond the windows
+        # is left out, as on the per-lenslet paths). Asked for explicitly, or for an off-axis
+        # source (the windows are planned on axis): the whole sensor.
+        on_axis = source_position == (0.0, 0.0)
+        crop = (
+            _footprint_crop(system, windows, acc.oversampling) if acc.method == "auto" and on_axis else None
+        )
+        data = _full_field_on(system, crop, z, acc, device, progress, cancel, source_position)
+    else:
         if source_position != (0.0, 0.0) or parameters is not None or parameters_require_grad(None, system):
             cache = None
+        groups = (
+            overlap_groups(system, windows)
+            if method == "per_lenslet_coherent"
+            else [[i] for i in range(len(windows))]
+        )
+        report.coherent_groups = [g for g in groups if len(g) > 1]
         data = _per_lenslet(
-            system, windows, depths, z, acc, device, cache, progress, cancel, report, source_position,
-            parameters,
+            system, windows, groups, depths, z, acc, device, cache, progress, cancel, report,
+            source_position, parameters,
         )  # fmt: skip
-    else:
-        data = _full_field(system, z, acc, device, progress, cancel, source_position)
     return PSFStack(
         data,
         depths,
@@ -261,6 +365,8 @@ def fourier_psf_stack(
         design=design,
         metadata={
             "method": method,
+            "coherent_lenslets": sum(len(g) for g in report.coherent_groups),
+            "full_field_pixels": list(crop or system.sensor_shape) if method == "full_field" else None,
             "oversampling": acc.oversampling,
             "model": acc.model,
             "pixel_integration": acc.pixel_integration,
@@ -268,28 +374,39 @@ def fourier_psf_stack(
     )
 
 
+def _optics(system, parameters, index):
+    lens = system.mla.lenslets[index]
+    return parameters.lenslet(system, index) if parameters is not None else LensletOptics.of(system, lens)
+
+
 def _per_lenslet(
-    system, windows, depths, z, acc, device, cache, progress, cancel, report, source, parameters
+    system, windows, groups, depths, z, acc, device, cache, progress, cancel, report, source, parameters
 ) -> torch.Tensor:
+    """Lone lenslets: power patches (cached); each group of overlapping lenslets: complex
+    fields summed on one canvas (:func:`_coherent_group`, never cached)."""
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
     if cache is not None:
         cache.begin_round()
-    for index, (lens, window) in enumerate(zip(system.mla.lenslets, windows, strict=True)):
-        checkpoint(cancel, progress, index, total, f"lenslet {index + 1}/{total}")
+    done = 0
+    for group in groups:
+        if len(group) > 1:
+            _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel)
+            report.lenslets_computed.extend(group)
+            done += len(group)
+            checkpoint(cancel, progress, done, total, f"lenslets {done}/{total} (coherent group)")
+            continue
+        (index,) = group
+        lens, window = system.mla.lenslets[index], windows[index]
+        checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
         key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
         patch = cache.get(key) if cache is not None else None
         first = _origin_on_sensor(window.first_pixel, system.sensor_shape)
         if patch is None:
-            optics = (
-                parameters.lenslet(system, index)
-                if parameters is not None
-                else LensletOptics.of(system, lens)
-            )
             patch = lenslet_psf(
                 system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
                 antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
-                pixel_integration=acc.pixel_integration, optics=optics,
+                pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
             )  # fmt: skip
             report.lenslets_computed.append(index)
             # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
@@ -300,10 +417,61 @@ def _per_lenslet(
             report.lenslets_cached.append(index)
         assert isinstance(patch, torch.Tensor)
         _place(out, patch, first)
+        done += 1
     if cache is not None:
         cache.end_round()
     checkpoint(cancel, progress, total, total, "done")
     return out
+
+
+def _group_canvas(
+    windows: list[LensletWindow], group: list[int], oversampling: int
+) -> tuple[tuple[int, int], int]:
+    """Top-left sensor pixel and samples per side of a group's shared square canvas: the
+    bounding box of the members' windows, centred in a square of a fast FFT length."""
+    s = oversampling
+    first = [windows[i].first_pixel for i in group]
+    size = [windows[i].pixels(s) for i in group]
+    r0, c0 = min(f[0] for f in first), min(f[1] for f in first)
+    rows = max(f[0] + n for f, n in zip(first, size, strict=True)) - r0
+    cols = max(f[1] + n for f, n in zip(first, size, strict=True)) - c0
+    samples = fast_samples(max(rows, cols), s)
+    pixels = samples // s
+    return (r0 - (pixels - rows) // 2, c0 - (pixels - cols) // 2), samples
+
+
+def _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel) -> None:
+    """Add the power of a group of overlapping lenslets into ``out``.
+
+    Every lenslet of the group is computed on one shared square canvas (:func:`shared_window`)
+    covering the bounding box of the group's own windows, so each field is known wherever
+    the others carry light (a field cut at its own window would drop the cross terms
+    ``2 Re(E_a* E_b)`` there, which fall off with the field, not the intensity). Per depth
+    chunk the complex fields (:func:`~lfm_studio.engine.systems.fourier_lenslet.lenslet_field`) are summed and ``|sum E_k|^2`` is
+    integrated on pixels once. Off-sensor parts of the canvas are cropped at placing.
+    """
+    s = acc.oversampling
+    lenslets = system.mla.lenslets
+    corner, samples = _group_canvas(windows, group, s)
+    shared = {
+        i: shared_window(system, lenslets[i], windows[i], corner, samples, oversampling=s) for i in group
+    }
+    inputs = [
+        prepare_lenslet(
+            system, lenslets[i], shared[i], z, s, acc.model, acc.antialias, acc.dtype, source, optics
+        )
+        for i, optics in ((i, _optics(system, parameters, i)) for i in group)
+    ]
+    for start in range(0, z.numel(), acc.depth_chunk):
+        checkpoint(cancel, None, 0, 1, "")
+        zc = z[start : start + acc.depth_chunk]
+        total = None
+        for lenslet_input in inputs:
+            field = lenslet_input.field(zc)
+            total = field if total is None else total.add_(field)
+        assert total is not None
+        power = integrate_pixels(total.real**2 + total.imag**2, s, acc.pixel_integration)
+        _place(out[start : start + zc.numel()], power, corner)
 
 
 def _shifted_mla(mla: MicrolensArray, shift: tuple[float, float]) -> MicrolensArray:
@@ -327,6 +495,47 @@ def _mla_half_extent(mla: MicrolensArray) -> tuple[float, float]:
     return max(ys), max(xs)
 
 
+def _full_field_grid(system: FourierLFMSystem, shape: tuple[int, int]) -> tuple[int, int]:
+    """Pixels (y, x) of the full field's MLA-plane grid for a sensor of ``shape``: whole pixels
+    around it so the grid holds every lenslet too, with a 10 % margin (same parity as the
+    sensor, so the sensor stays centred in it)."""
+    ny, nx = shape
+    half_y, half_x = (1.1 * h for h in _mla_half_extent(system.mla))  # clear of the window edge
+    pad_y = max(0, math.ceil(half_y / system.pixel_pitch - ny / 2.0) + 1)
+    pad_x = max(0, math.ceil(half_x / system.pixel_pitch - nx / 2.0) + 1)
+    return ny + 2 * pad_y, nx + 2 * pad_x
+
+
+def _footprint_crop(
+    system: FourierLFMSystem, windows: list[LensletWindow], oversampling: int
+) -> tuple[int, int] | None:
+    """Smallest sensor crop centred on the axis (same parity as the sensor) holding every
+    lenslet window; ``None`` when that is the whole sensor."""
+    shape = []
+    for axis, n in enumerate(system.sensor_shape):
+        reach = max(
+            max(n // 2 - w.first_pixel[axis], w.first_pixel[axis] + w.pixels(oversampling) - n // 2)
+            for w in windows
+        )
+        shape.append(min(n, 2 * (reach + 1) + n % 2))
+    return None if tuple(shape) == system.sensor_shape else (shape[0], shape[1])
+
+
+def _full_field_on(system, crop, z, acc, device, progress, cancel, source) -> torch.Tensor:
+    """:func:`_full_field` on a centred ``crop`` of the sensor (``None``: all of it), pasted
+    into a zero sensor: pixel ``j`` of the crop is pixel ``j + n//2 - m//2`` of the sensor."""
+    if crop is None:
+        return _full_field(system, z, acc, device, progress, cancel, source)
+    part = _full_field(
+        dataclasses.replace(system, sensor_shape=crop), z, acc, device, progress, cancel, source
+    )
+    out = torch.zeros((z.numel(), *system.sensor_shape), dtype=part.dtype, device=device)
+    (ny, nx), (my, mx) = system.sensor_shape, crop
+    r0, c0 = ny // 2 - my // 2, nx // 2 - mx // 2
+    out[:, r0 : r0 + my, c0 : c0 + mx] = part
+    return out
+
+
 def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tensor:
     if acc.propagator == "fresnel_ir":
         raise ValueError(
@@ -337,12 +546,8 @@ def _full_field(system, z, acc, device, progress, cancel, source) -> torch.Tenso
     s = acc.oversampling
     step = system.pixel_pitch / s
     ny, nx = system.sensor_shape
-    # Whole pixels around the sensor so the MLA-plane grid holds every lenslet too, with a
-    # 10 % margin (same parity as the sensor, so the sensor stays centred in it).
-    half_y, half_x = (1.1 * h for h in _mla_half_extent(system.mla))  # clear of the window edge
-    pad_y = max(0, math.ceil(half_y / system.pixel_pitch - ny / 2.0) + 1)
-    pad_x = max(0, math.ceil(half_x / system.pixel_pitch - nx / 2.0) + 1)
-    big_y, big_x = ny + 2 * pad_y, nx + 2 * pad_x
+    big_y, big_x = _full_field_grid(system, (ny, nx))
+    pad_y, pad_x = (big_y - ny) // 2, (big_x - nx) // 2
     grid = Grid((big_y * s, big_x * s), step)
     # Evaluate at sub-pixel centres: grid sample q sits at (q - Q//2) step; pixel j's
     # sub-sample m must sit at (j - P//2) p - p/2 + (m + 1/2) step (q = j s + m).

@@ -96,9 +96,7 @@ def plan_window(
     p, s = system.pixel_pitch, oversampling
     # The window must hold the footprint wherever the sub-pixel shift (<= p/2) puts it.
     pixels = math.ceil((2.0 * radius + system.pixel_pitch) / p) + 1
-    samples = pixels * s
-    while samples % 2 or next_fast_length(samples) != samples:  # even: see fourier_lenslet
-        samples += s
+    samples = fast_samples(pixels, s)  # even: see fourier_lenslet
     spacing = system.wavelength * system.mla_to_camera * s / (samples * p)
     patch = samples * spacing
     if patch < 2.0 * rim_radius(lens):
@@ -111,6 +109,47 @@ def plan_window(
     (ry, cy) = _axis_placement(lens.center[1], samples, s, p, system.sensor_shape[0])
     (rx, cx) = _axis_placement(lens.center[0], samples, s, p, system.sensor_shape[1])
     return LensletWindow(samples, spacing, (ry, rx), (cy, cx), radius)
+
+
+def fast_samples(pixels: int, oversampling: int) -> int:
+    """Samples per side for ``pixels`` whole pixels or more: a multiple of ``oversampling``, even
+    (see :mod:`fourier_lenslet`) and a fast FFT length."""
+    samples = pixels * oversampling
+    while samples % 2 or next_fast_length(samples) != samples:
+        samples += oversampling
+    return samples
+
+
+def shared_window(
+    system: FourierLFMSystem,
+    lens: Lenslet,
+    window: LensletWindow,
+    first_pixel: tuple[int, int],
+    samples: int,
+    *,
+    oversampling: int,
+) -> LensletWindow:
+    """``window`` moved onto a canvas of ``samples`` per side starting at ``first_pixel``: the
+    same sensor sub-pixel grid for every lenslet of a group, so their fields add sample by sample.
+
+    The input patch keeps its width ``lambda d s / p`` (only its sampling changes), so it holds
+    the aperture whenever ``window`` does.
+    """
+    p, s = system.pixel_pitch, oversampling
+    step = p / s
+    ny, nx = system.sensor_shape
+
+    def shift(center: float, first: int, sensor: int) -> float:  # as in _axis_placement
+        return (first - sensor // 2) * p - p / 2.0 + (samples // 2 + 0.5) * step - center
+
+    spacing = system.wavelength * system.mla_to_camera * s / (samples * p)
+    return LensletWindow(
+        samples,
+        spacing,
+        first_pixel,
+        (shift(lens.center[1], first_pixel[0], ny), shift(lens.center[0], first_pixel[1], nx)),
+        window.footprint_radius,
+    )
 
 
 def windows_overlap(
