@@ -1,7 +1,7 @@
-"""A phase mask on the pupil of a Fourier LFM, as Zernike coefficients (the design's ``pupil_phase``).
+"""A phase mask on the pupil, as Zernike coefficients (the design's ``pupil_phase``).
 
-The mask sits on the MLA plane, where the relay images the objective's back pupil (the
-plane a phase plate or an SLM in the relay would occupy), and is written as Noll
+Fourier LFM: the mask sits on the MLA plane, where the relay images the objective's back
+pupil (the plane a phase plate or an SLM in the relay would occupy), and is written as Noll
 Zernike polynomials with unit RMS over the relayed pupil, radius ``NA f_relay / M``
 (:mod:`lfm_studio.engine.optics.zernike`), in MLA-plane coordinates (``x``, ``y`` as the
 lenslet centres and the sensor). The relay inverts the image, so in the objective's own
@@ -29,7 +29,8 @@ from lfm_studio.engine.design.errors import DesignError, fmt
 
 
 class PupilPhaseSpec(SpecModel):
-    """Zernike phase on the relayed pupil of a Fourier LFM.
+    """Zernike phase on the pupil: the relayed pupil of a Fourier LFM, the objective's back focal
+    plane of a conventional one (m = 0 terms only there).
 
     Attributes
     ----------
