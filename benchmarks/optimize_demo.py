@@ -11,7 +11,11 @@ Two starting designs, each searched on a stored SQLite study (grid sampler, :fun
   focal length over ``--lfm-focals`` (hand design 1.875 mm), or with ``--lfm-parameter
   pitch`` the MLA pitch over ``--lfm-pitches`` (hand 125 um; the lenslet count is kept), or
   with ``focal-refocused`` the focal length with the camera moved to the lenslets' back
-  focal plane (``mla_to_camera_distance_mm`` = f, as in the hand design).
+  focal plane (``mla_to_camera_distance_mm`` = f, as in the hand design); with ``spherical``
+  a rotationally symmetric phase mask on the objective's back focal plane (Cohen et al. 2014's
+  wavefront coding, restricted to what the radial Debye model carries): the Noll 11 (primary
+  spherical) coefficient over ``--lfm-mask-waves`` (hand design: no mask, 0 waves), or with
+  ``defocus-mask`` the Noll 4 (defocus) coefficient over the same values.
 
 Every candidate must keep the closed-form field of view and depth of field at least the
 hand design's (:class:`NoWorseFieldAndDepth`, plus the default checks). Cropped so one run
@@ -42,6 +46,7 @@ import torch
 
 from lfm_studio.engine.design import Design, load_preset
 from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.image_quality import peak_match
 from lfm_studio.engine.optimize import (
     DEFAULT_CONSTRAINTS,
     Candidate,
@@ -59,6 +64,7 @@ from lfm_studio.engine.threads import describe_threads
 
 CHECK_SEED0 = 3000  # held-out check phantoms: disjoint from the task score's seeds
 TASK_SEEDS = (1000, 1001)  # phantoms of a task_* objective while optimising
+MASK_TERMS = {"spherical": 11, "defocus-mask": 4}  # --lfm-parameter: Noll index of the pupil mask
 
 
 @dataclass(frozen=True)
@@ -107,6 +113,11 @@ def case(name: str, args: argparse.Namespace) -> tuple[Design, DesignSpace, floa
         path = f"mla.lenslets[{second}].focal_length_mm"  # the whole second group moves together
         return base, DesignSpace((Parameter(path, choices=tuple(args.xlfm_focals)),)), 28.5
     base = with_depths("lfm_10x_na03", args.depths)
+    if args.lfm_parameter in MASK_TERMS:  # the term listed at 0 waves: the hand design's PSF, bit for bit
+        noll = MASK_TERMS[args.lfm_parameter]
+        base = base.updated(pupil_phase={"zernike_waves": {str(noll): 0.0}})
+        path = f"pupil_phase.zernike_waves.{noll}"
+        return base, DesignSpace((Parameter(path, choices=tuple(args.lfm_mask_waves)),)), 0.0
     if args.lfm_parameter == "pitch":
         space = DesignSpace((Parameter("mla.pitch_um", choices=tuple(args.lfm_pitches)),))
         return base, space, base.mla.pitch_um
@@ -115,15 +126,27 @@ def case(name: str, args: argparse.Namespace) -> tuple[Design, DesignSpace, floa
     return base, kind((Parameter("mla.focal_length_mm", choices=tuple(args.lfm_focals)),)), hand
 
 
-def check(design: Design, settings: EvaluationSettings, args: argparse.Namespace) -> dict[str, list[float]]:
-    """Bead F1 and localisation error (um) per held-out seed (one reconstruction per seed, shared)."""
+def check(
+    design: Design, settings: EvaluationSettings, args: argparse.Namespace
+) -> tuple[dict[str, list[float]], dict[int, list[int]]]:
+    """Bead F1 and localisation error (um) per held-out seed (one reconstruction per seed, shared),
+    and per depth index ``[beads, matched]`` pooled over the seeds (where the beads are lost)."""
     candidate = Candidate(design, settings)
     out: dict[str, list[float]] = {"f1": [], "localisation": []}
+    by_depth: dict[int, list[int]] = {}
     for seed in range(CHECK_SEED0, CHECK_SEED0 + args.check_seeds):
         for metric in out:
             task = TaskScore(metric, iterations=args.iterations, photons=args.photons, seeds=(seed,))
             out[metric].append(task(candidate))
-    return out
+        truth, estimate, reference = task.trial(candidate, seed)  # the memoised reconstruction
+        match = peak_match(truth, estimate, reference=reference, voxel_size=candidate.setup.voxel_size,
+                           tolerance=task.tolerance)  # fmt: skip
+        found = set(match.pairs[:, 1].tolist())
+        for i, z in enumerate(reference[:, 0].tolist()):
+            counts = by_depth.setdefault(int(z), [0, 0])
+            counts[0] += 1
+            counts[1] += int(i in found)
+    return out, dict(sorted(by_depth.items()))
 
 
 def spread(values: list[float]) -> str:
@@ -159,6 +182,8 @@ def run_case(name: str, args: argparse.Namespace, folder: Path) -> None:
         study = run_study(evaluator, f"sqlite:///{folder / f'{name}.db'}")
     print(f"study: {len(study.trials)} trials in {time.perf_counter() - start:.1f} s")
     rows = sorted(study.trials, key=lambda t: t.params[parameter.path])
+    label = parameter.path.split(".")[-1]
+    label = f"Noll {label} (waves)" if label.isdigit() else label
     for t in rows:
         record = record_of(t)
         value = (
@@ -166,7 +191,7 @@ def run_case(name: str, args: argparse.Namespace, folder: Path) -> None:
             if t.state.name == "COMPLETE"
             else f"infeasible ({record['infeasible_reason']}: {record['infeasible_message']})"
         )
-        print(f"  {parameter.path.split('.')[-1]} {t.params[parameter.path]:g}: {objective.name} {value}")
+        print(f"  {label} {t.params[parameter.path]:g}: {objective.name} {value}")
     complete = [t for t in rows if t.state.name == "COMPLETE"]
     hand_trial = next((t for t in complete if abs(t.params[parameter.path] - hand_value) < 1e-9), None)
     if not complete or hand_trial is None:
@@ -187,11 +212,17 @@ def run_case(name: str, args: argparse.Namespace, folder: Path) -> None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", DesignWarning)
             design = space.apply(base, trial.params)
-            scores = found[label] = check(design, settings, args)
+            scores, by_depth = check(design, settings, args)
+            found[label] = scores
         m = closed_form_metrics(design)
         print(
             f"  {label:9s} {trial.params[parameter.path]:6g}: bead F1 {spread(scores['f1'])}, localisation "
             f"{spread(scores['localisation'])} um; FoV {m.field_of_view * 1e6:.0f} um, DoF {m.depth_of_field * 1e6:.1f} um"
+        )
+        depths_um = list(design.depths.values_um)
+        print(
+            "            beads matched per depth (all seeds): "
+            + ", ".join(f"{depths_um[z]:+.0f} um {n_ok}/{n}" for z, (n, n_ok) in by_depth.items())
         )
     for metric, better in (("f1", 1.0), ("localisation", -1.0)):  # paired: the same phantoms for both designs
         deltas = [o - h for o, h in zip(found["optimised"][metric], found["hand"][metric], strict=True)]
@@ -221,9 +252,13 @@ def main() -> None:
     )
     parser.add_argument(
         "--lfm-parameter",
-        choices=("focal", "focal-refocused", "pitch"),
+        choices=("focal", "focal-refocused", "pitch", *MASK_TERMS),
         default="focal",
-        help="the conventional MLA field searched (focal-refocused: the camera follows the focal plane)",
+        help="the conventional field searched (focal-refocused: the camera follows the focal plane; "
+        "spherical / defocus-mask: Noll 11 / 4 of a back-focal-plane phase mask)",
+    )
+    parser.add_argument(
+        "--lfm-mask-waves", type=float, nargs="+", default=[-0.6, -0.4, -0.2, 0.0, 0.2, 0.4, 0.6]
     )
     parser.add_argument("--lfm-focals", type=float, nargs="+", default=[1.5, 1.875, 2.25, 2.625])
     parser.add_argument("--lfm-pitches", type=float, nargs="+", default=[100.0, 112.5, 125.0, 137.5, 150.0])

@@ -4,7 +4,7 @@
 numeric fields (:data:`~lfm_studio.ui.parameter_fields.FIELDS`, single numbers of the
 design's kind), the MLA's (every lenslet's focal length together with ``*``, one
 lenslet's focal length or centre by index, or a regular array's numeric fields) and the
-Zernike coefficients a Fourier design's ``pupil_phase`` lists.
+Zernike coefficients a design's ``pupil_phase`` lists (Fourier: any term; conventional: m = 0).
 :class:`OptimiseRequest` is a whole run (free parameters with low/high/points, objective
 names from :func:`~lfm_studio.engine.optimize.objective_names`, sampler, budget, optional
 study file); :func:`run_optimisation` runs it through
@@ -93,7 +93,7 @@ def freeable_fields(design: Design) -> tuple[FreeableField, ...]:
     for key, label in _MLA_ARRAY_FIELDS:
         if _numeric(mla.get(key)):
             out.append(FreeableField(f"mla.{key}", label, unit_of(key).replace("um", "µm"), float(mla[key])))
-    if design.pupil_phase is not None:  # the Zernike terms the design lists (a Fourier pupil phase mask)
+    if design.pupil_phase is not None:  # the Zernike terms the design lists (its pupil phase mask)
         for j, waves in design.pupil_phase.terms:
             out.append(
                 FreeableField(f"pupil_phase.zernike_waves.{j}", f"Pupil phase: Zernike {j}", "waves", waves)

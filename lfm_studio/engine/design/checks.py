@@ -43,7 +43,7 @@ from lfm_studio.engine.design.errors import DesignError, fmt, warn_design
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
 from lfm_studio.engine.design.mla import AnyMLASpec, RegularMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
-from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec, noll_order
 
 
 class Design(Protocol):
@@ -93,14 +93,22 @@ def check_design(design: Design) -> None:
                 f"focal_length_mm {fmt(design.relay.focal_length_mm)}. Fix: set relay to None, or use kind 'fourier'."
             )
         if design.pupil_phase is not None:
-            raise DesignError(
-                "pupil_phase (a Zernike phase mask on the pupil) is modelled for kind 'fourier' only; got it on a "
-                "kind 'conventional' design. The conventional field at the native image plane is the radial Debye "
-                "integral, which assumes a rotationally symmetric pupil without phase, so a mask cannot enter it "
-                "(not even the rotationally symmetric m = 0 terms: not implemented). Fix: remove pupil_phase, or "
-                "use kind 'fourier'."
-            )
+            _check_conventional_pupil_phase(design.pupil_phase)
         _check_conventional_sub_images(design)
+
+
+def _check_conventional_pupil_phase(pupil_phase: PupilPhaseSpec) -> None:
+    """A conventional design's mask may hold rotationally symmetric (``m = 0``) terms only."""
+    for j, _ in pupil_phase.terms:
+        n, m = noll_order(j)
+        if m != 0:
+            raise DesignError(
+                f"pupil_phase.zernike_waves: Noll {j} (radial order n = {n}, azimuthal frequency m = {m}) is not "
+                "rotationally symmetric, and a kind 'conventional' design takes only m = 0 terms: its "
+                "native-image-plane field is the radial Debye integral, which assumes a rotationally symmetric "
+                "pupil, so only a phase of the pupil radius can enter it. Fix: keep only Noll 1 (piston), 4 "
+                "(defocus), 11 (primary spherical), 22 (secondary spherical), 37, ...; or use kind 'fourier'."
+            )
 
 
 def _check_pupil(design: Design) -> None:

@@ -61,8 +61,10 @@ class Design(SpecModel):
     relay : RelayLensSpec or None
         The Fourier lens; required for ``"fourier"``, must be None for ``"conventional"``.
     pupil_phase : PupilPhaseSpec or None
-        Fourier kind only: a Zernike phase mask on the relayed pupil (at the MLA plane),
-        ``{"zernike_waves": {"4": 0.1}}`` (:mod:`~lfm_studio.engine.design.pupil_phase`).
+        A Zernike phase mask on the pupil, ``{"zernike_waves": {"4": 0.1}}``
+        (:mod:`~lfm_studio.engine.design.pupil_phase`): any term on the relayed pupil (at the MLA
+        plane) for ``"fourier"``; rotationally symmetric (m = 0) terms on the objective's back focal
+        plane for ``"conventional"``.
         Left out of files and hashes when None, so designs without one keep theirs.
     mla : MLASpec or RegularMLASpec
     mla_to_camera_distance_mm : float

@@ -1,7 +1,7 @@
-"""A phase mask on the pupil of a Fourier LFM, as Zernike coefficients (the design's ``pupil_phase``).
+"""A phase mask on the pupil, as Zernike coefficients (the design's ``pupil_phase``).
 
-The mask sits on the MLA plane, where the relay images the objective's back pupil (the
-plane a phase plate or an SLM in the relay would occupy), and is written as Noll
+Fourier LFM: the mask sits on the MLA plane, where the relay images the objective's back
+pupil (the plane a phase plate or an SLM in the relay would occupy), and is written as Noll
 Zernike polynomials with unit RMS over the relayed pupil, radius ``NA f_relay / M``
 (:mod:`lfm_studio.engine.optics.zernike`), in MLA-plane coordinates (``x``, ``y`` as the
 lenslet centres and the sensor). The relay inverts the image, so in the objective's own
@@ -11,8 +11,11 @@ In a design file::
 
     "pupil_phase": {"zernike_waves": {"4": 0.1, "11": -0.05}}
 
-maps Noll index to coefficient in waves (phase ``2 pi c Z_j``). Conventional designs refuse
-the field (:func:`~lfm_studio.engine.design.checks.check_design`).
+maps Noll index to coefficient in waves (phase ``2 pi c Z_j``). Conventional designs take
+rotationally symmetric terms only (``m = 0``: Noll 1, 4, 11, 22, 37, ...; :func:`noll_order`),
+on the objective's back focal plane, normalised to its radius ``NA f_obj`` (the Debye
+integrand's ``rho = sin(theta) / sin(alpha)``); other terms are refused by name
+(:func:`~lfm_studio.engine.design.checks.check_design`).
 """
 
 from __future__ import annotations
@@ -26,7 +29,8 @@ from lfm_studio.engine.design.errors import DesignError, fmt
 
 
 class PupilPhaseSpec(SpecModel):
-    """Zernike phase on the relayed pupil of a Fourier LFM.
+    """Zernike phase on the pupil: the relayed pupil of a Fourier LFM, the objective's back focal
+    plane of a conventional one (m = 0 terms only there).
 
     Attributes
     ----------
@@ -57,3 +61,13 @@ class PupilPhaseSpec(SpecModel):
     def terms(self) -> tuple[tuple[int, float], ...]:
         """``((noll index, waves), ...)`` in ascending index order (hashable, for the engine)."""
         return tuple(self.zernike_waves.items())
+
+
+def noll_order(j: int) -> tuple[int, int]:
+    """Radial order ``n`` and azimuthal frequency ``m >= 0`` of Noll index ``j >= 1`` (pure Python, so
+    the design checks need no torch; equal to :func:`lfm_studio.engine.optics.zernike.noll_to_nm`, tested)."""
+    n = 0
+    while (n + 1) * (n + 2) // 2 < j:
+        n += 1
+    k = j - n * (n + 1) // 2 - 1  # position within order n, 0 .. n
+    return n, (2 * ((k + 1) // 2) if n % 2 == 0 else 2 * (k // 2) + 1)

@@ -2,7 +2,7 @@
 
 A :class:`Parameter` names one value of a design (``objective.numerical_aperture``,
 ``relay.focal_length_mm``, ``mla.pitch_um``, ``mla.lenslets[3].center_um[0]``,
-``mla.lattice``, ``pupil_phase.zernike_waves.4``: a Zernike coefficient of a Fourier design's
+``mla.lattice``, ``pupil_phase.zernike_waves.4``: a Zernike coefficient of a design's
 pupil phase mask, in waves) and the values it may take: ``low``/``high`` with an optional ``step``
 (a grid) or ``points`` (that many evenly spaced values), or a list of ``choices``.
 ``*`` as an index sets every item (``mla.lenslets[*].focal_length_mm``), a comma list sets

@@ -40,6 +40,10 @@ source position. A 0-d tensor wavelength enters only the continuous terms (``k n
 the phase and the Bessel argument, the ``n / lambda`` of ``C``); every discrete choice
 (quadrature order, radial-table step and length) is made from its float value, so the
 result equals the float path's at that value.
+Pupil phase: ``zernike_waves`` adds a rotationally symmetric (``m = 0``) Zernike phase
+``Phi(rho)``, ``rho = sin(theta) / sin(alpha)``, to the integrand's phase (the only place a mask
+enters; its coefficients may be tensors). Noll 4 defocus of ``c`` waves then equals, paraxially,
+a depth shift ``dz = -4 sqrt(3) c n lambda / NA^2`` (exact in ``model="paraxial"``; tested).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
@@ -48,6 +52,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from collections.abc import Mapping
 from typing import Literal, overload
 
 import torch
@@ -59,6 +64,7 @@ from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import Apodization, ObjectiveLens, _value, resolve_apodization
 from lfm_studio.engine.optics.quadrature import gauss_legendre
+from lfm_studio.engine.optics.zernike import check_rotationally_symmetric, max_abs_phase, radial_zernike_phase
 
 Device = torch.device | str | None
 Scalar = float | torch.Tensor
@@ -113,6 +119,7 @@ def debye_integral(
     n_quadrature: int | None = ...,
     derivative: Literal[False] = ...,
     model: str = ...,
+    zernike_waves: Mapping[int, Scalar] | None = ...,
 ) -> torch.Tensor: ...
 
 
@@ -127,6 +134,7 @@ def debye_integral(
     n_quadrature: int | None = ...,
     derivative: Literal[True],
     model: str = ...,
+    zernike_waves: Mapping[int, Scalar] | None = ...,
 ) -> tuple[torch.Tensor, torch.Tensor]: ...
 
 
@@ -140,6 +148,7 @@ def debye_integral(
     n_quadrature: int | None = None,
     derivative: bool = False,
     model: str = "debye",
+    zernike_waves: Mapping[int, Scalar] | None = None,
 ) -> torch.Tensor | tuple[torch.Tensor, torch.Tensor]:
     """Object-side Debye field ``U(r, z)`` at radii ``radius`` and depths ``z``.
 
@@ -163,6 +172,14 @@ def debye_integral(
     model : ``"debye"`` (default) or ``"paraxial"``: the Fourier transform of the paraxial
         pupil field of :func:`pupil_field` (uniform pupil amplitude, i.e. ``P = cos(theta)``
         here, and the quadratic defocus ``-n k z sin^2(theta) / 2``); ``apodization`` is ignored.
+    zernike_waves : optional pupil phase mask ``{noll index: waves}`` of rotationally symmetric
+        (``m = 0``) terms only (others raise ``ValueError``): the phase
+        ``2 pi sum_j c_j Z_j(rho)`` at the normalised pupil radius ``rho = sin(theta) / sin(alpha)``
+        (the aplanatic objective's sine condition puts the ray of angle ``theta`` at pupil height
+        ``f n sin(theta)``, the rim at ``f NA``) is added to the integrand's phase (both models).
+        Coefficients may be 0-d tensors (gradients reach them); the quadrature order is planned
+        with the mask's largest phase (:func:`~lfm_studio.engine.optics.zernike.max_abs_phase`)
+        added to the excursion. ``None`` or empty: exactly the unmasked computation.
 
     Returns
     -------
@@ -179,6 +196,9 @@ def debye_integral(
     r_max = float(r.detach().abs().max()) if r.numel() else 0.0
     z_max = float(zt.detach().abs().max()) if zt.numel() else 0.0
     phi = phase_excursion(objective, _value(wavelength), r_max, z_max)
+    if zernike_waves:
+        check_rotationally_symmetric(zernike_waves, "zernike_waves (Debye integral)")
+        phi += max_abs_phase(zernike_waves)
     needed = minimum_quadrature_order(phi)
     if n_quadrature is not None and (isinstance(n_quadrature, bool) or not isinstance(n_quadrature, int)):
         raise ValueError(f"n_quadrature must be an integer number of nodes or None; got {n_quadrature!r}.")
@@ -207,6 +227,8 @@ def debye_integral(
         phase = -0.5 * kn * zt[:, None] * sin_theta[None, :] ** 2  # (Z, Q)
     else:
         phase = -2.0 * kn * zt[:, None] * torch.sin(theta / 2.0)[None, :] ** 2  # (Z, Q)
+    if zernike_waves:  # the pupil mask at rho = sin(theta) / sin(alpha), sin(alpha) = NA / n
+        phase = phase + radial_zernike_phase(zernike_waves, sin_theta * (n / na))[None, :]
     e_re = amplitude * torch.cos(phase)
     e_im = amplitude * torch.sin(phase)
     if isinstance(wavelength, torch.Tensor):
@@ -247,6 +269,7 @@ def debye_psf(
     model: str = "debye",
     dtype: torch.dtype = torch.complex64,
     device: Device = None,
+    zernike_waves: Mapping[int, Scalar] | None = None,
 ) -> Field:
     """Scalar Debye PSF field of a point source, sampled on ``grid``.
 
@@ -266,7 +289,8 @@ def debye_psf(
     position : (x0, y0)
         Lateral source position in metres in the sample (the image is centred on
         ``(-M x0, -M y0)`` when ``image_side``).
-    apodization, n_quadrature, model : see :func:`debye_integral`.
+    apodization, n_quadrature, model, zernike_waves : see :func:`debye_integral` (the mask changes
+        no band limit: the pupil's support is the same, so the radial table's error bound holds).
     radial_sampling : ``"auto"`` (default), ``"exact"`` or an integer ``s``
         Where the radial integral is evaluated. ``"exact"``: at every distinct distance
         of a grid sample from the source. An integer ``s``: on a radial table of step
@@ -313,7 +337,7 @@ def debye_psf(
     if step is None or (radial_sampling == "auto" and radii_sq.numel() <= count):
         radial = debye_integral(
             objective, wavelength, torch.sqrt(radii_sq), z,
-            apodization=apodization, n_quadrature=n_quadrature, model=model,
+            apodization=apodization, n_quadrature=n_quadrature, model=model, zernike_waves=zernike_waves,
         )  # fmt: skip
         data = radial[..., inverse].reshape(*radial.shape[:-1], *grid.shape)
     else:
@@ -321,6 +345,7 @@ def debye_psf(
         values, slopes = debye_integral(
             objective, wavelength, table_r, z,
             apodization=apodization, n_quadrature=n_quadrature, model=model, derivative=True,
+            zernike_waves=zernike_waves,
         )  # fmt: skip
         data = _hermite(values, slopes * step, r / step).reshape(*values.shape[:-1], *grid.shape)
     if image_side:

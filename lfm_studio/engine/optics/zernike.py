@@ -17,7 +17,10 @@ so ``(1 / pi) integral_disk Z_i Z_j = delta_ij`` (unit RMS, orthonormal; tested)
 disk radius, as a polynomial in ``x`` and ``y`` (``rho^m cos(m theta)`` is the real part
 of ``(x + j y)^m``): no ``atan2``, smooth at the centre, and every input may be a tensor
 that keeps its graph. :func:`zernike_phase` sums ``2 pi c_j Z_j`` for coefficients in
-waves: the one function every pupil-phase user calls (one code path).
+waves: the one function every pupil-phase user calls (one code path);
+:func:`radial_zernike_phase` is its form on the normalised pupil radius alone, for the
+rotationally symmetric (``m = 0``) terms that a radial integral such as the Debye
+integral can carry (:func:`check_rotationally_symmetric` refuses the others by name).
 """
 
 from __future__ import annotations
@@ -108,3 +111,59 @@ def zernike_phase(
         c = c.to(dtype=torch.float64, device=phase.device) if isinstance(c, torch.Tensor) else float(c)
         phase = phase + c * zernike(j, u.to(torch.float64), v.to(torch.float64))
     return 2.0 * math.pi * phase
+
+
+def check_rotationally_symmetric(terms: Iterable[int], where: str = "zernike_waves") -> None:
+    """Raise ``ValueError`` naming the first term of ``terms`` with ``m != 0`` (and the Noll indices
+    that are allowed): a radial (rotationally symmetric) integral cannot carry it."""
+    check_zernike_terms(terms, where)
+    for j in terms:
+        n, m = noll_to_nm(j)
+        if m != 0:
+            raise ValueError(
+                f"{where}: Noll {j} (radial order n = {n}, azimuthal frequency m = {m}) is not rotationally "
+                "symmetric; the radial Debye integral of a conventional LFM's native-image-plane field "
+                "assumes a rotationally symmetric pupil, so only m = 0 terms can enter it (Noll 1 piston, "
+                "4 defocus, 11 primary spherical, 22 secondary spherical, 37, ...). Fix: remove the term, "
+                "or use kind 'fourier'."
+            )
+
+
+def radial_zernike_phase(waves: Mapping[int, Scalar], rho: torch.Tensor) -> torch.Tensor:
+    """Phase in radians ``2 pi sum_j c_j Z_j(rho)`` of rotationally symmetric terms at normalised
+    pupil radii ``rho`` (``rho = 1`` the pupil rim); a term with ``m != 0`` raises ``ValueError``
+    (:func:`check_rotationally_symmetric`). Same polynomials and graph as :func:`zernike_phase`."""
+    check_rotationally_symmetric(waves)
+    return zernike_phase(waves, rho, torch.zeros_like(rho), 1.0)
+
+
+def max_abs_phase(waves: Mapping[int, Scalar]) -> float:
+    """Upper bound (rad) of ``|2 pi sum_j c_j Z_j|`` on the unit disk: ``2 pi sum |c_j| max|Z_j|``,
+    ``max|Z_j| = sqrt(n + 1)`` (``m = 0``) or ``sqrt(2 (n + 1))`` (``|R_n^m| <= 1``). Floats of the values."""
+    bound = 0.0
+    for j, c in waves.items():
+        n, m = noll_to_nm(j)
+        value = float(c.detach()) if isinstance(c, torch.Tensor) else float(c)
+        bound += abs(value) * math.sqrt((n + 1) * (1 if m == 0 else 2))
+    return 2.0 * math.pi * bound
+
+
+def radial_slope_bound(waves: Mapping[int, Scalar], samples: int = 2001) -> float:
+    """``max over 0 <= rho <= 1`` of ``|d/drho sum_j c_j Z_j(rho)|`` (waves per pupil radius) for
+    rotationally symmetric terms (others raise ``ValueError``), on ``samples`` evenly spaced radii
+    (a polynomial of low order: the grid maximum is within ~1e-5 of the true one). Floats of the
+    values. Times ``lambda / NA`` it is the largest transverse ray aberration the mask causes in
+    the focal plane (the geometric blur it adds)."""
+    check_rotationally_symmetric(waves)
+    best = 0.0
+    for i in range(samples):
+        rho = i / (samples - 1)
+        slope = 0.0
+        for j, c in waves.items():
+            n, _ = noll_to_nm(j)
+            value = float(c.detach()) if isinstance(c, torch.Tensor) else float(c)
+            # d/drho of rho^(2p) is 2p rho^(2p - 1)
+            d = sum(coef * 2 * p * rho ** (2 * p - 1) for coef, p in _radial_coefficients(n, 0) if p > 0)
+            slope += value * math.sqrt(n + 1) * d
+        best = max(best, abs(slope))
+    return best

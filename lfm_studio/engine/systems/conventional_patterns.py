@@ -22,6 +22,8 @@ may be given as 0-d tensors that override the system's floats in the physics (th
 Fresnel phases, the Debye integrand, the aperture coverage) while every discrete choice
 (sample counts, grids, reach, lit lenslets) stays planned from the system's floats; a tensor
 NA travels in ``system.objective``. At the system's values the result equals the float path's.
+``zernike_waves`` (``{noll index: waves}``, floats or 0-d tensors, ``m = 0`` terms) overrides or adds
+terms of the system's pupil phase (``system.pupil_zernike_waves``) in the Debye integrand.
 
 The square lattice is symmetric under x and y mirrors and the transpose, so of the
 ``S x S`` sub-positions only those with ``0 <= a <= b`` are simulated and the rest are
@@ -33,6 +35,7 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 
 import torch
 
@@ -104,6 +107,7 @@ def nip_fields(
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
     wavelength: Scalar | None = None,
+    zernike_waves: Mapping[int, Scalar] | None = None,
 ) -> torch.Tensor:
     """Image-side Debye fields ``(Z, N, N)`` of an on-axis point at each depth on the NIP grid.
 
@@ -112,6 +116,7 @@ def nip_fields(
     quadrants = nip_quadrants(
         system, depths, reach=reach, dtype=dtype, device=device, radial_sampling=radial_sampling,
         model=model, n_quadrature=n_quadrature, oversampling=oversampling, wavelength=wavelength,
+        zernike_waves=zernike_waves,
     )  # fmt: skip
     return mirrored(quadrants, nip_field_size(system, reach, oversampling))
 
@@ -128,6 +133,7 @@ def nip_quadrants(
     n_quadrature: int | None = None,
     oversampling: float = 1.0,
     wavelength: Scalar | None = None,
+    zernike_waves: Mapping[int, Scalar] | None = None,
 ) -> torch.Tensor:
     """One quadrant ``(Z, h + 1, h + 1)`` of the on-axis NIP fields, ``h = N // 2`` (:func:`mirrored`
     expands it): a quarter of the memory of the fields, kept for all depths during a build.
@@ -138,7 +144,8 @@ def nip_quadrants(
     ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
     grid factor of :func:`samples_per_pitch`. ``wavelength`` (a float or 0-d tensor, metres)
     overrides the system's in the Debye integrand (gradients flow to it); the grid stays
-    planned from ``system.wavelength``.
+    planned from ``system.wavelength``. The pupil phase is ``system.pupil_zernike_waves`` with
+    ``zernike_waves`` (floats or 0-d tensors, waves) overriding or adding terms (:func:`pupil_waves`).
     """
     n = nip_field_size(system, reach, oversampling)
     dx = system.pitch / samples_per_pitch(system, oversampling)
@@ -151,6 +158,7 @@ def nip_quadrants(
     quadrant = Grid(h + 1, dx)
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
     lam = system.wavelength if wavelength is None else wavelength
+    waves = pupil_waves(system, zernike_waves)
     out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
     # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
     # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
@@ -160,10 +168,20 @@ def nip_quadrants(
         field = debye_psf(
             system.objective, quadrant, lam, z[part], position=(offset, offset),
             image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
-            dtype=cdtype, device=device,
+            dtype=cdtype, device=device, zernike_waves=waves,
         )  # fmt: skip
         out[part] = field.data.reshape(-1, h + 1, h + 1)
     return out
+
+
+def pupil_waves(
+    system: ConventionalLFMSystem, zernike_waves: Mapping[int, Scalar] | None = None
+) -> dict[int, Scalar] | None:
+    """The pupil phase ``{noll index: waves}`` of ``system`` with ``zernike_waves`` overriding or
+    adding terms; ``None`` when there is none (the unmasked Debye computation, unchanged)."""
+    waves: dict[int, Scalar] = dict(system.pupil_zernike_waves)
+    waves.update(zernike_waves or {})
+    return waves or None
 
 
 def mirrored(quadrants: torch.Tensor, n: int) -> torch.Tensor:
@@ -254,6 +272,7 @@ def conventional_patterns(
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
     lenslet_aperture: Scalar | None = None,
+    zernike_waves: Mapping[int, Scalar] | None = None,
 ) -> torch.Tensor:
     """Sensor patterns for ``depths`` sharing one lenslet reach.
 
@@ -283,6 +302,9 @@ def conventional_patterns(
         the grid stays planned from the pitch. The NA reaches
         the patterns through the NIP field (a tensor NA in ``system.objective``, or a
         ``nip_field`` that carries a graph: :func:`debye_psf` is differentiable in it).
+    zernike_waves : optional ``{noll index: waves}`` (floats or 0-d tensors, ``m = 0`` terms)
+        overriding or adding terms of ``system.pupil_zernike_waves`` in the Debye integrand of the
+        NIP field (when computed here; a given ``nip_field`` carries its own mask).
 
     Returns
     -------
@@ -295,7 +317,7 @@ def conventional_patterns(
     if nip_field is None:
         nip_field = nip_fields(
             system, depths, reach=reach, dtype=dtype, device=device, oversampling=nip_oversampling,
-            wavelength=wavelength,
+            wavelength=wavelength, zernike_waves=zernike_waves,
         )  # fmt: skip
     cut = (nip_field.shape[-1] - field_n) // 2
     if cut < 0:

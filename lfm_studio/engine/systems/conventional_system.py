@@ -18,9 +18,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 from lfm_studio.engine.errors import require_positive
 from lfm_studio.engine.optics.objective import ObjectiveLens, _value
+from lfm_studio.engine.optics.zernike import check_rotationally_symmetric, radial_slope_bound
 
 
 @dataclass(frozen=True)
@@ -42,6 +44,11 @@ class ConventionalLFMSystem:
         ``0 < lenslet_aperture <= pitch``, centred on the lenslet; ``None`` (default) means the
         pitch (a square array then has fill factor 1). The sampling grid is planned from the
         pitch either way; light outside the aperture is blocked.
+    pupil_zernike_waves : phase mask on the objective's back focal plane, ``((noll index, waves), ...)``,
+        rotationally symmetric (``m = 0``) terms only (Noll 1, 4, 11, 22, 37, ...; others raise
+        ``ValueError``): the phase ``2 pi sum_j c_j Z_j(rho)`` enters the Debye integrand of the
+        native-image-plane field at ``rho = sin(theta) / sin(alpha)`` (:func:`debye_integral`).
+        Sorted by index; ``()`` (default) is no mask. Part of the system's identity (hash, equality).
     """
 
     objective: ObjectiveLens
@@ -54,6 +61,7 @@ class ConventionalLFMSystem:
     voxels_per_lenslet: int
     wavelength: float
     lenslet_aperture: float | None = None
+    pupil_zernike_waves: tuple[tuple[int, float], ...] = ()
 
     def __post_init__(self) -> None:
         require_positive("pitch", self.pitch, "m", "e.g. 125 * um.")
@@ -77,6 +85,11 @@ class ConventionalLFMSystem:
         if int(ny) != ny or int(nx) != nx or ny < 1 or nx < 1:
             raise ValueError(f"lenslets must be two positive integers (ny, nx); got {self.lenslets!r}.")
         object.__setattr__(self, "lenslets", (int(ny), int(nx)))
+        terms = tuple((j, float(c)) for j, c in self.pupil_zernike_waves)
+        check_rotationally_symmetric([j for j, _ in terms], "pupil_zernike_waves")
+        if len({j for j, _ in terms}) != len(terms):
+            raise ValueError(f"pupil_zernike_waves lists a Noll index twice: {terms}.")
+        object.__setattr__(self, "pupil_zernike_waves", tuple(sorted(terms)))
 
     @property
     def magnification(self) -> float:
@@ -102,13 +115,24 @@ class ConventionalLFMSystem:
         """Geometric radius on the NIP of the defocused image of a point at ``depth``, m.
 
         Image-side defocus ``M^2 z / n`` times the image-side aperture slope
-        ``tan(asin(NA / M))``.
+        ``tan(asin(NA / M))``, plus (with a pupil phase) the mask's largest transverse ray
+        aberration ``lambda M / NA max |dW/drho|`` (``W`` in waves, :func:`radial_slope_bound`):
+        an upper bound of the two together. Without a mask, exactly the defocus blur.
         """
         m = self.magnification
         n = float(_value(self.objective.immersion_index))
         na = float(_value(self.objective.numerical_aperture))
-        return abs(depth) * m * m / n * math.tan(math.asin(min(na / m, 0.999)))
+        blur = abs(depth) * m * m / n * math.tan(math.asin(min(na / m, 0.999)))
+        if self.pupil_zernike_waves:
+            blur += self.wavelength * m / na * _mask_slope(self.pupil_zernike_waves)
+        return blur
 
     def support(self, depth: float) -> int:
         """Lenslets on each side of the source's lenslet that receive its light at ``depth``."""
         return math.ceil(self.blur_radius(depth) / self.pitch + 0.5) + 1
+
+
+@lru_cache(maxsize=256)
+def _mask_slope(terms: tuple[tuple[int, float], ...]) -> float:
+    """:func:`radial_slope_bound` of a system's (hashable) pupil terms, computed once per mask."""
+    return radial_slope_bound(dict(terms))

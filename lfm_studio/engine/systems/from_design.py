@@ -154,7 +154,8 @@ def conventional_system_of(
     voxels_per_lenslet : lateral super-sampling of the volume (odd); default:
         ``design.accuracy.voxels_per_lenslet`` (5 unless the design sets it).
 
-    The lenslets' clear aperture is ``mla.lenslet_aperture_diameter_um`` (``None``: the pitch).
+    The lenslets' clear aperture is ``mla.lenslet_aperture_diameter_um`` (``None``: the pitch);
+    ``pupil_phase`` (rotationally symmetric terms only) becomes ``pupil_zernike_waves``.
     """
     if design.kind != "conventional":
         raise ValueError(f"design kind must be 'conventional' for a conventional LFM; got {design.kind!r}.")
@@ -187,4 +188,5 @@ def conventional_system_of(
         voxels_per_lenslet=voxels_per_lenslet,
         wavelength=design.wavelength,
         lenslet_aperture=None if mla.lenslet_aperture_diameter_um is None else mla.lenslet_aperture_um * 1e-6,
+        pupil_zernike_waves=design.pupil_phase.terms if design.pupil_phase is not None else (),
     )

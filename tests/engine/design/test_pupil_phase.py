@@ -1,4 +1,5 @@
-"""A design's pupil_phase: a Zernike mask on a Fourier design's pupil, in files, hashes and checks."""
+"""A design's pupil_phase: a Zernike mask on the pupil (any term on Fourier designs, m = 0 terms on
+conventional ones), in files, hashes and checks."""
 
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ from lfm_studio.engine.design import (
     optics_hash,
     save_design,
 )
-from lfm_studio.engine.systems.from_design import fourier_system_of
+from lfm_studio.engine.design.pupil_phase import noll_order
+from lfm_studio.engine.optics.zernike import noll_to_nm
+from lfm_studio.engine.systems.from_design import conventional_system_of, fourier_system_of
 
 
 def test_a_pupil_phase_round_trips_through_a_file(tmp_path, fourier):
@@ -43,15 +46,28 @@ def test_no_pupil_phase_leaves_files_and_hashes_as_before(fourier):
     assert fourier_system_of(fourier).pupil_zernike_waves == ()
 
 
-def test_conventional_designs_refuse_a_pupil_phase(conventional):
-    with pytest.raises(
-        ValueError,
-        match=r"pupil_phase .* is modelled for kind 'fourier' only.*radial Debye integral, which assumes a "
-        r"rotationally symmetric pupil",
-    ):
-        conventional.updated(pupil_phase={"zernike_waves": {"4": 0.1}})
-    with pytest.raises(ValueError, match=r"pupil_phase .*kind 'fourier' only"):  # m = 0 terms too
-        conventional.updated(pupil_phase={"zernike_waves": {"11": 0.1}})
+def test_conventional_designs_take_rotationally_symmetric_terms_only(conventional):
+    """m = 0 terms (defocus, spherical) enter the radial Debye integral; any other is refused by name."""
+    masked = conventional.updated(pupil_phase={"zernike_waves": {"11": -0.2, "4": 0.1, "22": 0.0}})
+    system = conventional_system_of(masked)
+    assert system.pupil_zernike_waves == ((4, 0.1), (11, -0.2), (22, 0.0))
+    assert conventional_system_of(conventional).pupil_zernike_waves == ()
+    assert optics_hash(masked) != optics_hash(conventional)
+    assert system != conventional_system_of(conventional) and hash(system) != hash(
+        conventional_system_of(conventional)
+    )
+    for j, n, m in ((2, 1, 1), (5, 2, 2), (8, 3, 1), (12, 4, 2)):
+        with pytest.raises(
+            ValueError,
+            match=rf"pupil_phase.zernike_waves: Noll {j} \(radial order n = {n}, azimuthal frequency m = {m}\) "
+            r"is not rotationally symmetric.*kind 'conventional'.*radial Debye integral",
+        ):
+            conventional.updated(pupil_phase={"zernike_waves": {"4": 0.1, str(j): 0.1}})
+
+
+def test_noll_order_agrees_with_the_engine_zernike_indexing():
+    for j in range(1, 200):
+        assert noll_order(j) == noll_to_nm(j)
 
 
 def test_bad_terms_are_named(fourier):
