@@ -106,7 +106,7 @@ def _stack(
     cache: LensletCache | None,
     ctx: Context,
     label: str,
-) -> tuple[PSFStack, str, tuple[int, ...], tuple[int, ...]]:
+) -> tuple[PSFStack, str, tuple[tuple[int, ...], tuple[int, ...], tuple[int, ...]]]:
     def progress(done: int, total: int, message: str) -> None:
         ctx.progress(done, total, f"{label}: {message}")
 
@@ -114,7 +114,12 @@ def _stack(
     stack = simulate_psf(
         design, depths=depths, device=device, progress=progress, cancel=ctx.cancel, cache=cache, report=report
     )
-    return stack, report.method, tuple(report.lenslets_computed), tuple(report.lenslets_cached)
+    lenslets = (
+        tuple(report.lenslets_computed),
+        tuple(report.lenslets_cached),
+        tuple(report.lenslets_off_sensor),
+    )
+    return stack, report.method, lenslets
 
 
 def _psf_result(
@@ -122,12 +127,12 @@ def _psf_result(
 ) -> PSFResult:
     start = time.perf_counter()
     label = f"PSF preview ({len(depths)} depths)" if preview else f"PSF stack ({len(depths)} depths)"
-    stack, method, computed, cached = _stack(run, depths, device, cache, ctx, label)
+    stack, method, (computed, cached, off_sensor) = _stack(run, depths, device, cache, ctx, label)
     stack = stack.with_data(stack.data.detach().cpu())
     ctx.check()
     return PSFResult(
-        design, stack, preview, method, computed, cached, psf_profiles(stack), time.perf_counter() - start,
-        display=psf_display(stack, "PSF"),
+        design, stack, preview, method, computed, cached, off_sensor, psf_profiles(stack),
+        time.perf_counter() - start, display=psf_display(stack, "PSF"),
     )  # fmt: skip
 
 

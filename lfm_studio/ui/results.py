@@ -50,6 +50,8 @@ class PSFResult:
     preview : True for the quick preview (few depths, reduced sensor and accuracy).
     method : "per_lenslet", "per_lenslet_coherent", "full_field" or "conventional".
     lenslets_computed, lenslets_cached : per-lenslet cache use (Fourier per-lenslet path).
+    lenslets_off_sensor : lenslets skipped because their light misses the sensor (computed
+        neither fresh nor from the cache).
     profiles : for the plots.
     seconds : wall time of the computation.
     display : the stack prepared for the viewer on the worker thread (``psf_display``), or None.
@@ -61,6 +63,7 @@ class PSFResult:
     method: str
     lenslets_computed: tuple[int, ...] = ()
     lenslets_cached: tuple[int, ...] = ()
+    lenslets_off_sensor: tuple[int, ...] = ()
     profiles: PSFProfiles | None = None
     seconds: float = 0.0
     display: Any = None

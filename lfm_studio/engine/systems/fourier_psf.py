@@ -25,11 +25,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass, field
 
 import torch
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.dtypes import complex_dtype
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
@@ -123,6 +125,9 @@ class FourierPSFReport:
     method: str = ""
     lenslets_computed: list[int] = field(default_factory=list)
     lenslets_cached: list[int] = field(default_factory=list)
+    lenslets_off_sensor: list[int] = field(default_factory=list)
+    """Lenslets whose window (for a coherent group: the group's canvas) lies wholly off the
+    sensor: nothing computed, nothing cached (their light never reaches a pixel)."""
     coherent_groups: list[list[int]] = field(default_factory=list)
     """Lenslets whose complex fields were summed on a shared canvas (overlapping footprints)."""
 
@@ -165,6 +170,12 @@ def _on_sensor(patch: torch.Tensor, first: tuple[int, int], sensor: tuple[int, i
     if (re - rs, ce - cs) == (h, w):
         return patch
     return patch[:, rs - r0 : re - r0, cs - c0 : ce - c0].clone(memory_format=torch.contiguous_format)
+
+
+def _window_on_sensor(first: tuple[int, int], pixels: int, sensor: tuple[int, int]) -> bool:
+    """Whether a square window of ``pixels`` per side placed at pixel ``first`` overlaps a
+    ``sensor`` (rows, cols) at all: exactly when :func:`_place` would add something."""
+    return all(f < n and f + pixels > 0 for f, n in zip(first, sensor, strict=True))
 
 
 def _place(target: torch.Tensor, patch: torch.Tensor, first: tuple[int, int]) -> None:
@@ -383,14 +394,25 @@ def _per_lenslet(
     system, windows, groups, depths, z, acc, device, cache, progress, cancel, report, source, parameters
 ) -> torch.Tensor:
     """Lone lenslets: power patches (cached); each group of overlapping lenslets: complex
-    fields summed on one canvas (:func:`_coherent_group`, never cached)."""
+    fields summed on one canvas (:func:`_coherent_group`, never cached). A lenslet whose window
+    (a group whose canvas) misses the sensor is skipped: its on-sensor part is empty, so the
+    result is the same (gradients too: none reaches it), and it is listed in
+    ``report.lenslets_off_sensor``; when every lenslet misses, a :class:`DesignWarning` says the
+    PSF is zero."""
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
     if cache is not None:
         cache.begin_round()
-    done = 0
+    done = skipped = 0
+    s, sensor = acc.oversampling, system.sensor_shape
     for group in groups:
         if len(group) > 1:
+            corner, samples = _group_canvas(windows, group, s)
+            if not _window_on_sensor(corner, samples // s, sensor):
+                report.lenslets_off_sensor.extend(group)
+                done += len(group)
+                skipped += len(group)
+                continue
             _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel)
             report.lenslets_computed.extend(group)
             done += len(group)
@@ -398,6 +420,11 @@ def _per_lenslet(
             continue
         (index,) = group
         lens, window = system.mla.lenslets[index], windows[index]
+        if not _window_on_sensor(window.first_pixel, window.pixels(s), sensor):
+            report.lenslets_off_sensor.append(index)
+            done += 1
+            skipped += 1
+            continue
         checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
         key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
         patch = cache.get(key) if cache is not None else None
@@ -420,6 +447,13 @@ def _per_lenslet(
         done += 1
     if cache is not None:
         cache.end_round()
+    if total and skipped == total:
+        warnings.warn(
+            f"no lenslet's light reaches the {sensor[0]} x {sensor[1]} px sensor (crop); the PSF is "
+            "zero. Fix: a larger sensor crop, or lenslets closer to the axis.",
+            DesignWarning,
+            stacklevel=3,
+        )
     checkpoint(cancel, progress, total, total, "done")
     return out
 

@@ -3,7 +3,8 @@
 Keys hash the spec objects a lenslet's PSF depends on (:func:`spec_key`: every field of
 the dataclasses, recursively, never a hand-written list, so a field added later is in
 the key automatically); values are the binned power patches cut to the sensor (a
-lenslet whose light misses a cropped sensor costs nothing to hold). Past a byte budget
+lenslet whose light misses a cropped sensor is skipped before the cache is asked, and
+never stored). Past a byte budget
 (default: a quarter of free memory, :func:`default_cache_bytes`) least recently used
 entries go first, but never those of the PSF stack being computed (:class:`LensletCache`).
 """

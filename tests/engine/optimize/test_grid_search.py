@@ -55,18 +55,21 @@ def _total_power(stack) -> torch.Tensor:
 
 
 def test_moving_one_lenslet_recomputes_one_lenslet(xlfm):
-    """XLFM: 27 lenslets on the per-lenslet path. The first candidate computes all 27; changing
-    lenslet 0's focal length computes only lenslet 0 and reuses 26 from the cache."""
+    """XLFM: 27 lenslets on the per-lenslet path; on a 256 px crop the light of 3 of them
+    (lenslet 0 among them) reaches the sensor, the other 24 are skipped (not computed, not cached).
+    The first candidate computes the 3; changing lenslet 0's focal length computes only lenslet 0
+    and reuses 2 from the cache."""
     space = DesignSpace((Parameter("mla.lenslets[0].focal_length_mm", choices=(26.0, 26.5)),))
-    settings = EvaluationSettings(crop=128)
+    settings = EvaluationSettings(crop=256)
     evaluator = Evaluator(xlfm, space, [PSFLoss("total_power", _total_power)], settings=settings)
     first, second = grid_search(evaluator).records
-    assert first.cache == {"hits": 0, "misses": 27}
-    assert second.cache == {"hits": 26, "misses": 1}
+    assert first.cache == {"hits": 0, "misses": 3}
+    assert second.cache == {"hits": 2, "misses": 1}
     assert first.timing["psf_s"] > 0 and second.timing["psf_s"] > 0
+    assert second.values is not None and second.values["total_power"] > 0
     # The cached result equals a fresh, uncached simulation of the second design.
     design = space.apply(xlfm, second.params)
-    fresh = simulate_psf(design, depths=Candidate(design, settings).depths, crop=128)
+    fresh = simulate_psf(design, depths=Candidate(design, settings).depths, crop=256)
     assert second.values["total_power"] == pytest.approx(float(fresh.data.double().sum()), rel=1e-6)
     cached = Candidate(design, settings, cache=evaluator.cache).stack
     assert torch.allclose(cached.data, fresh.data, rtol=1e-5, atol=1e-12)

@@ -9,6 +9,7 @@ import warnings
 import pytest
 import torch
 
+from lfm_studio.engine.design.errors import DesignWarning
 from lfm_studio.engine.optics.kernel_cache import KernelCache
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
@@ -58,11 +59,13 @@ def test_an_entry_holds_only_the_part_of_its_window_on_the_sensor():
     assert all(e.dtype == torch.float32 and e.is_contiguous() for e in entries)
     assert cache.nbytes == 3 * (15 * 15 + 6 * 7) * 4 == sum(e.untyped_storage().nbytes() for e in entries)
     assert torch.equal(data, _stack(system))  # the same as without a cache
-    # A lenslet whose light misses the sensor holds nothing.
+    # A lenslet whose light misses the sensor is neither computed nor stored.
     tiny = dataclasses.replace(SYSTEM, sensor_shape=(8, 8))
-    cache = LensletCache(2**20)
-    assert torch.equal(_stack(tiny, cache), _stack(tiny))
-    assert cache.nbytes == 0 and len(cache) == 2
+    cache, report = LensletCache(2**20), FourierPSFReport()
+    with pytest.warns(DesignWarning, match="PSF is zero"):
+        assert not _stack(tiny, cache, report).any()
+    assert cache.nbytes == 0 and len(cache) == 0 and cache.counters() == (0, 0, 0)
+    assert report.lenslets_off_sensor == [0, 1] and not report.lenslets_computed
 
 
 def test_a_cache_smaller_than_one_design_still_hits_on_a_repeat_and_says_so_once():
