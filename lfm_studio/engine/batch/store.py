@@ -113,11 +113,13 @@ def _is_chunk_record(value: object) -> TypeGuard[ChunkRecord]:
 
 
 def _read_record(path: Path) -> ChunkRecord:
-    record = json.loads(path.read_text())
+    fix = "Fix: delete it (that chunk is then computed again)."
+    try:
+        record = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{path} is not a readable chunk record of lfm_studio ({error}). {fix}") from None
     if not _is_chunk_record(record):
-        raise ValueError(
-            f"{path} is not a chunk record of lfm_studio. Fix: delete it (that chunk is then computed again)."
-        )
+        raise ValueError(f"{path} is not a chunk record of lfm_studio. {fix}")
     return record
 
 

@@ -201,9 +201,11 @@ def resample_to_grid(
     shape: Sequence[int],
     target_voxel: Sequence[float],
 ) -> torch.Tensor:
-    """``volume`` (on a grid of ``voxel`` (dz, dy, dx) m) sampled at the voxel centres of a grid of
-    ``shape`` and ``target_voxel``, both centred on the optical axis (bilinear in y and x, zero
-    outside). Depths must match. The same grid returns ``volume`` itself."""
+    """``volume`` (photons per voxel on a grid of ``voxel`` (dz, dy, dx) m) on a grid of ``shape``
+    and ``target_voxel``, both centred on the optical axis: the density is sampled bilinearly (in y
+    and x, zero outside) at the target voxel centres and multiplied by the ratio of voxel areas, so
+    the photons are conserved (to the interpolation error). Depths must match. The same grid
+    returns ``volume`` itself."""
     if tuple(shape) == tuple(volume.shape) and all(
         math.isclose(a, b, rel_tol=1e-9) for a, b in zip(voxel, target_voxel, strict=True)
     ):
@@ -227,4 +229,5 @@ def resample_to_grid(
     out = torch.nn.functional.grid_sample(
         volume[:, None], grid, mode="bilinear", padding_mode="zeros", align_corners=True
     )
-    return out[:, 0]
+    area_ratio = (target_voxel[1] * target_voxel[2]) / (voxel[1] * voxel[2])
+    return out[:, 0] * area_ratio

@@ -193,7 +193,7 @@ def optimize_end_to_end(
     net: nn.Module | None = None
     if reconstruction == "unrolled-rl":
         net = model if model is not None else UnrolledRL(start_setup.projector, iterations=iterations)
-        net = net.to(start_setup.projector.dtype)
+        net = net.to(device=start_setup.projector.device, dtype=start_setup.projector.dtype)
         net.requires_grad_(not freeze_reconstruction)
 
     def reconstructor(network: nn.Module | None) -> Callable[[torch.Tensor, Projector], torch.Tensor]:

@@ -196,8 +196,11 @@ class SpaceBinding:
         return self.high - self.low
 
     def values(self, u: torch.Tensor) -> torch.Tensor:
-        """Design values ``low + (high - low) u`` (differentiable in ``u``)."""
-        return self.low.to(u.dtype) + self.span.to(u.dtype) * u
+        """Design values ``low + (high - low) u`` (differentiable in ``u``), clamped to
+        ``[low, high]``: at ``u = 1`` rounding could otherwise land one ulp past a bound that a
+        design check enforces (an aperture freed up to the pitch)."""
+        low, high = self.low.to(u.dtype), self.high.to(u.dtype)
+        return torch.clamp(low + (high - low) * u, min=low, max=high)
 
     def normalised(self, values: torch.Tensor) -> torch.Tensor:
         """``u`` of design values (0 where a parameter has ``low == high``)."""
@@ -270,8 +273,9 @@ class SpaceBinding:
     def psf_stack(self, design: Design, values: torch.Tensor, settings: EvaluationSettings) -> PSFStack:
         """The PSF stack of ``design`` with ``values`` written in as tensors (gradients reach them).
 
-        Fourier LFM: the per-lenslet path is forced (footprint interference between sub-images is
-        left out, as the per-lenslet PSF always does). Conventional LFM: the pattern stack
+        Fourier LFM: the differentiable per-lenslet path, with overlapping lenslet footprints
+        summed coherently (``per_lenslet_coherent``, the path the design's "auto" evaluates with
+        gradients), never the full field. Conventional LFM: the pattern stack
         ``(S, S, Z, H, H)`` (one PSF per voxel sub-position; the PSF losses average over them),
         planned from the design with the values written in. ``settings`` gives the depths, crop
         (for a conventional LFM: the lenslets that fit in ``crop`` pixels), device and dtype.
@@ -290,7 +294,9 @@ class SpaceBinding:
             crop = settings.crop
             shape = (virtual_pixel_count(min(crop, ny), refine), virtual_pixel_count(min(crop, nx), refine))
             system = dataclasses.replace(system, sensor_shape=shape)
-        accuracy = dataclasses.replace(fourier_accuracy_of(design), method="per_lenslet")
+        # "auto": per lenslet, coherent groups where lenslet footprints overlap (with parameters
+        # fourier_psf_stack never takes the full field), i.e. the PSF grid search evaluates.
+        accuracy = dataclasses.replace(fourier_accuracy_of(design), method="auto")
         if settings.dtype is not None:
             accuracy = dataclasses.replace(accuracy, dtype=real_dtype_named(settings.dtype))
         stack = fourier_psf_stack(

@@ -502,10 +502,21 @@ def _coherent_group(system, windows, group, z, acc, device, source, parameters, 
         total = None
         for lenslet_input in inputs:
             field = lenslet_input.field(zc)
-            total = field if total is None else total.add_(field)
+            if total is None:
+                total = field
+            elif total.requires_grad or field.requires_grad:
+                total = total + field  # out of place: the first field may be a leaf of the graph
+            else:
+                total = total.add_(field)
         assert total is not None
         power = integrate_pixels(total.real**2 + total.imag**2, s, acc.pixel_integration)
-        _place(out[start : start + zc.numel()], power, corner)
+        if power.requires_grad:
+            # Autograd refuses an in-place add through a view of a view of ``out`` here: place a
+            # full-depth patch (zeros outside this chunk) instead.
+            after = out.shape[0] - start - zc.numel()
+            _place(out, torch.nn.functional.pad(power, (0, 0, 0, 0, start, after)), corner)
+        else:
+            _place(out[start : start + zc.numel()], power, corner)
 
 
 def _shifted_mla(mla: MicrolensArray, shift: tuple[float, float]) -> MicrolensArray:

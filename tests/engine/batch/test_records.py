@@ -50,3 +50,14 @@ def test_a_malformed_chunk_record_is_refused_by_name(store, broken):
         store.record(1)
     with pytest.raises(ValueError, match="not a chunk record"):
         store.records()
+
+
+def test_a_truncated_chunk_record_is_refused_by_name(store):
+    """A truncated file (not JSON at all) names the file and the fix, not a bare JSONDecodeError."""
+    store.record_path(1).write_text('{"chunk": 1, "sta')
+    with pytest.raises(
+        ValueError, match=r"chunk_000001\.json is not a readable chunk record .*Fix: delete it"
+    ):
+        store.record(1)
+    with pytest.raises(ValueError, match="not a readable chunk record"):
+        store.records()
