@@ -389,6 +389,7 @@ def descend(
             optimizer.step()
         backtracks, reason = 0, None
         with torch.no_grad():
+            projected = bool(((u < 0.0) | (u > 1.0)).any())
             u.clamp_(0.0, 1.0)  # projection onto the bounds
             if not setup.freeze_optics:
                 target = u.detach().clone()
@@ -403,6 +404,10 @@ def descend(
                         break
                     u.copy_(last_good + (target - last_good) * 0.5**backtracks)
                 last_good = u.detach().clone()
+            if setup.optimizer == "lbfgs" and (projected or backtracks):
+                # L-BFGS' curvature pairs describe the step it proposed, not the projected or
+                # backtracked one that was taken: forget them rather than mislead the next steps.
+                optimizer.state.clear()
         values = setup.binding.values(seen["u"].to(torch.float64))
         point = setup.binding.point(values)
         loss_value = seen["loss"]
