@@ -134,3 +134,31 @@ def test_resume_after_killing_the_whole_run_computes_only_the_missing_frames(vid
     assert result.skipped == tuple(done)
     assert result.computed == tuple(t for t in range(FRAMES) if t not in done)
     assert np.array_equal(_level0(out), video.reference)
+
+
+def test_a_video_and_a_design_study_run_on_one_client(video, client, tmp_path):
+    """The scale-out promise: one Dask cluster reconstructs a video and evaluates a design study
+    (the study database the only shared state); the study's values equal an in-process run."""
+    pytest.importorskip("optuna")
+    from lfm_studio.engine.optimize import DesignSpace, Evaluator, Parameter, objective_named
+    from lfm_studio.engine.optimize.study import run_study
+
+    result = reconstruct_video(
+        video.tiff, video.design, method=METHOD, iterations=ITERATIONS, crop=CROP,
+        output=tmp_path / "run.ome.zarr", chunk_frames=2, client=client,
+    )  # fmt: skip
+    assert result.computed == tuple(range(FRAMES)) and result.failed == {}
+    na = video.design.objective.numerical_aperture
+    space = DesignSpace((Parameter("objective.numerical_aperture", choices=(round(0.9 * na, 3), na)),))
+
+    def evaluator() -> Evaluator:
+        return Evaluator(video.design, space, [objective_named("lateral_resolution")])
+
+    def values(study) -> dict[str, tuple[float, ...]]:
+        done = [t for t in study.get_trials(deepcopy=False) if t.state.name == "COMPLETE"]
+        return {json.dumps(t.params, sort_keys=True): tuple(t.values) for t in done}
+
+    shared = run_study(evaluator(), f"sqlite:///{tmp_path / 'shared.db'}", client=client)
+    alone = run_study(evaluator(), f"sqlite:///{tmp_path / 'alone.db'}")
+    assert len(values(shared)) == 2 and values(shared) == values(alone)
+    assert np.array_equal(_level0(result.path), video.reference)  # the video is untouched by the study
