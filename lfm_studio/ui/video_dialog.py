@@ -180,14 +180,14 @@ class VideoDialog(QDialog):
             return
         super().accept()
 
-    def request(self, design: Any, settings: WorkflowSettings, *, overwrite: bool = False) -> VideoRequest:
+    def request(self, design: Any, settings: WorkflowSettings) -> VideoRequest:
         """The run the dialog describes, with ``design`` and the workflow ``settings``."""
         frames, output = self.frames(), self.output()
         if frames is None or output is None:
             raise ValueError("Frames and Output store: choose both.")
         workers = int(self.workers.value())
         return VideoRequest(
-            frames, output, design, settings, resume=self.resume.isChecked(), overwrite=overwrite,
+            frames, output, design, settings, resume=self.resume.isChecked(),
             chunk_frames=int(self.chunk_frames.value()), workers=None if workers == 1 else workers,
             counts=self.counts.isChecked(),
         )  # fmt: skip

@@ -43,7 +43,8 @@ from lfm_studio.engine.design.errors import DesignError, fmt, warn_design
 from lfm_studio.engine.design.geometry import disc_overlaps, list_pairs
 from lfm_studio.engine.design.mla import AnyMLASpec, RegularMLASpec
 from lfm_studio.engine.design.objective import ObjectiveSpec, RelayLensSpec
-from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec, noll_order
+from lfm_studio.engine.design.pupil_phase import PupilPhaseSpec
+from lfm_studio.engine.optics.zernike import noll_to_nm
 
 
 class Design(Protocol):
@@ -100,7 +101,7 @@ def check_design(design: Design) -> None:
 def _check_conventional_pupil_phase(pupil_phase: PupilPhaseSpec) -> None:
     """A conventional design's mask may hold rotationally symmetric (``m = 0``) terms only."""
     for j, _ in pupil_phase.terms:
-        n, m = noll_order(j)
+        n, m = noll_to_nm(j)
         if m != 0:
             raise DesignError(
                 f"pupil_phase.zernike_waves: Noll {j} (radial order n = {n}, azimuthal frequency m = {m}) is not "

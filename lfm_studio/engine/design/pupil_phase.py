@@ -12,7 +12,7 @@ In a design file::
     "pupil_phase": {"zernike_waves": {"4": 0.1, "11": -0.05}}
 
 maps Noll index to coefficient in waves (phase ``2 pi c Z_j``). Conventional designs take
-rotationally symmetric terms only (``m = 0``: Noll 1, 4, 11, 22, 37, ...; :func:`noll_order`),
+rotationally symmetric terms only (``m = 0``: Noll 1, 4, 11, 22, 37, ...; :func:`~lfm_studio.engine.optics.zernike.noll_to_nm`),
 on the objective's back focal plane, normalised to its radius ``NA f_obj`` (the Debye
 integrand's ``rho = sin(theta) / sin(alpha)``); other terms are refused by name
 (:func:`~lfm_studio.engine.design.checks.check_design`).
@@ -61,13 +61,3 @@ class PupilPhaseSpec(SpecModel):
     def terms(self) -> tuple[tuple[int, float], ...]:
         """``((noll index, waves), ...)`` in ascending index order (hashable, for the engine)."""
         return tuple(self.zernike_waves.items())
-
-
-def noll_order(j: int) -> tuple[int, int]:
-    """Radial order ``n`` and azimuthal frequency ``m >= 0`` of Noll index ``j >= 1`` (pure Python, so
-    the design checks need no torch; equal to :func:`lfm_studio.engine.optics.zernike.noll_to_nm`, tested)."""
-    n = 0
-    while (n + 1) * (n + 2) // 2 < j:
-        n += 1
-    k = j - n * (n + 1) // 2 - 1  # position within order n, 0 .. n
-    return n, (2 * ((k + 1) // 2) if n % 2 == 0 else 2 * (k // 2) + 1)

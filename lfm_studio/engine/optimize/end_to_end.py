@@ -46,6 +46,7 @@ from torch import nn
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.space import DesignSpace
+from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.learned.data import Sample, Split, TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss, trivial_reason
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
@@ -229,7 +230,11 @@ def optimize_end_to_end(
 
         def fresh(precision: str) -> tuple[torch.Tensor, list[torch.Tensor]]:
             leaf = u0.clone().requires_grad_(True)
-            network = None if net is None else copy.deepcopy(net).to(_dtype(precision)).requires_grad_(True)
+            network = (
+                None
+                if net is None
+                else copy.deepcopy(net).to(real_dtype_named(precision)).requires_grad_(True)
+            )
             setup = setup_at(binding.values(leaf), design, precision)
             loss, _ = batch_loss(setup, check_samples, network)
             weights = [] if network is None else list(network.parameters())
@@ -316,10 +321,6 @@ def optimize_end_to_end(
         recorder.finish(result.summary())
         result.study = recorder.study
     return result
-
-
-def _dtype(name: str) -> torch.dtype:
-    return torch.float64 if name == "float64" else torch.float32
 
 
 def shift_invariant_lateral(stack: PSFStack) -> int:

@@ -100,7 +100,9 @@ def optimizer_hint(name: str) -> str:
 
 @dataclass(frozen=True)
 class PrecisionCheck:
-    """Start gradient in float32 against float64: ``relative_error = |g32 - g64| / |g64|`` (L2)."""
+    """Start gradient in float32 against float64: ``relative_error = |g32 - g64| / |g64|`` (L2).
+    An all-zero float64 gradient fails (``relative_error`` inf): a flat objective says nothing
+    about precision, and a descent from there cannot move."""
 
     relative_error: float
     tolerance: float
@@ -133,7 +135,8 @@ def precision_check(
         flat = [torch.zeros_like(x) if g is None else g for x, g in zip(leaves, found, strict=True)]
         grads.append(torch.cat([g.detach().reshape(-1).to(torch.float64) for g in flat]))
     g32, g64 = grads
-    error = float((g32 - g64).norm() / g64.norm().clamp_min(1e-300))
+    scale = float(g64.norm())
+    error = float((g32 - g64).norm()) / scale if scale > 0 else math.inf
     return PrecisionCheck(error, tolerance, tuple(g32.tolist()), tuple(g64.tolist()))
 
 

@@ -18,7 +18,7 @@ from collections.abc import Hashable, Mapping
 
 import torch
 
-from lfm_studio.engine.memory import available_bytes
+from lfm_studio.engine.memory import available_bytes, format_bytes
 from lfm_studio.engine.optics.kernel_cache import Kernel, KernelCache, kernel_nbytes
 
 
@@ -131,10 +131,10 @@ class LensletCache(KernelCache):
         if self._round_not_stored and not self.warned:
             self.warned = True
             warnings.warn(
-                f"The lenslet cache ({format_mib(self.budget_bytes)}) is smaller than one design's "
-                f"lenslet patches ({format_mib(self.round_bytes)}): {self._round_not_stored} lenslet(s) "
+                f"The lenslet cache ({format_bytes(self.budget_bytes)}) is smaller than one design's "
+                f"lenslet patches ({format_bytes(self.round_bytes)}): {self._round_not_stored} lenslet(s) "
                 "were not stored and are recomputed for every candidate (the stored ones still hit). "
-                f"Fix: give the cache at least {format_mib(self.round_bytes)} (e.g. Evaluator(cache_bytes=...)), "
+                f"Fix: give the cache at least {format_bytes(self.round_bytes)} (e.g. Evaluator(cache_bytes=...)), "
                 "crop the sensor or simulate fewer depths.",
                 LensletCacheWarning,
                 stacklevel=3,
@@ -204,8 +204,3 @@ class LensletCache(KernelCache):
 
     def _evictable(self, key: Hashable) -> bool:
         return self._last_used.get(key) != self._round
-
-
-def format_mib(count: int) -> str:
-    """``count`` bytes in MiB, e.g. ``"702.1 MiB"``."""
-    return f"{count / 2**20:.1f} MiB"

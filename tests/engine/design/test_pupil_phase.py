@@ -15,8 +15,6 @@ from lfm_studio.engine.design import (
     optics_hash,
     save_design,
 )
-from lfm_studio.engine.design.pupil_phase import noll_order
-from lfm_studio.engine.optics.zernike import noll_to_nm
 from lfm_studio.engine.systems.from_design import conventional_system_of, fourier_system_of
 
 
@@ -63,11 +61,6 @@ def test_conventional_designs_take_rotationally_symmetric_terms_only(conventiona
             r"is not rotationally symmetric.*kind 'conventional'.*radial Debye integral",
         ):
             conventional.updated(pupil_phase={"zernike_waves": {"4": 0.1, str(j): 0.1}})
-
-
-def test_noll_order_agrees_with_the_engine_zernike_indexing():
-    for j in range(1, 200):
-        assert noll_order(j) == noll_to_nm(j)
 
 
 def test_bad_terms_are_named(fourier):
