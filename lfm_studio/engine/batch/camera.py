@@ -9,7 +9,6 @@ else the baseline is estimated from the first frame and the gain taken as 1, eac
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import tifffile
@@ -18,6 +17,7 @@ import torch
 from lfm_studio.engine.batch.frames import TIFF_SUFFIXES, FrameSource
 from lfm_studio.engine.io import CameraCalibration, resolve_calibration
 from lfm_studio.engine.io.camera_counts import calibration_from_metadata
+from lfm_studio.engine.io.metadata import decode_header
 
 
 def tiff_metadata(path: str | Path) -> dict[str, object]:
@@ -28,11 +28,8 @@ def tiff_metadata(path: str | Path) -> dict[str, object]:
         return {}
     with tifffile.TiffFile(path) as tif:
         info = (tif.imagej_metadata or {}).get("Info") if tif.is_imagej else None
-    try:
-        header = json.loads(info) if isinstance(info, str) else {}
-    except json.JSONDecodeError:
-        return {}
-    metadata = header.get("metadata") if isinstance(header, dict) else None
+    header = decode_header(info if isinstance(info, str) else None, str(path), {})
+    metadata = header.get("metadata") if header is not None else None
     return metadata if isinstance(metadata, dict) else {}
 
 
