@@ -148,8 +148,9 @@ def test_the_field_commits_valid_text_only_and_keeps_refused_text(qtbot, locale)
 
 
 def test_a_photon_field_steps_by_decades(qtbot):
-    field = NumericField(NumberRule("Photon budget", 1.0, 1e15, "photons"), 2e5, log_step=True)
+    field = NumericField(NumberRule("Photon budget", 1.0, 1e15, "photons"), 2e5, log_step=True, tip="x10")
     qtbot.addWidget(field)
+    assert field.toolTip() == "x10" and field.property("invalid") is False  # the tip from the start
     field.stepBy(1)
     assert field.value() == 1e6
     field.stepBy(-7)
