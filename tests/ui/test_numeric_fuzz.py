@@ -31,8 +31,8 @@ MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": N
 LOCALES = ("C", "de_DE")
 # Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
 # (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 3 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
-# MLA editor, Train dock (minutes, max steps, seed), Optimise dock (budget)
+EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
+# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (budget)
 # Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
 # are shown disabled and cannot be typed into.
 DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
@@ -204,6 +204,7 @@ def _hosts(window):
         "minutes",
         "max_steps",
         "seed",
+        "jitter",
     ):  # read when Train is pressed: the field holds the value in force
         field = getattr(train, name)
         hosts[field] = (name, field.value, lambda: _shown(train.message))
