@@ -1,6 +1,7 @@
 """The studio's "Train" dock: train a learned reconstructor from the current design, watch it, compare.
 
-Top: model, time budget (minutes), max steps, photon budgets, phantoms, seed; "Train" runs
+Top: model, time budget (minutes), max steps, photon budgets, phantoms, seed, optics jitter
+(optics-mismatch augmentation, %; off by default); "Train" runs
 :func:`lfm_studio.ui.training.train_model` as job "train" on the studio's job runner on the
 current full PSF stack (the status bar shows its progress and a Cancel button; the dock has its
 own Cancel). A live pyqtgraph curve shows the training loss per step (thin line), its running mean
@@ -37,6 +38,8 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from lfm_studio.engine.learned.data import TrainingDataSpec
+from lfm_studio.engine.learned.mismatch import JITTER_LIMIT
 from lfm_studio.engine.learned.models import DEFAULT_MODEL, MODELS
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.training import (
@@ -46,18 +49,25 @@ from lfm_studio.ui.training import (
     TrainSettings,
     compare_with_rl,
     comparison_rows,
+    jitter_refusal,
     parse_photons,
     running_mean,
     save_trained,
     train_model,
 )
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
-from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
 TABLE_HEADER = ("score", "RL", "learned", "all-zero")
 MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
+JITTER_TIP = (
+    "Optics-mismatch augmentation: train on images of slightly wrong instruments. The MLA and "
+    "Fourier-lens focal lengths, the NA and the wavelength of a pool of designs are each jittered "
+    "by up to ± this percentage; the model keeps the nominal design. Costs one PSF simulation per "
+    f"jittered design ({TrainingDataSpec().jitter_designs}) before training starts. Off (0) by default."
+)
 
 
 class TrainDock(QWidget):
@@ -93,10 +103,15 @@ class TrainDock(QWidget):
         self.phantoms = QComboBox()
         self.phantoms.addItems(PHANTOM_KINDS)
         self.seed = NumericField(NumberRule("Seed", 0, 2**31 - 1, integer=True), 0, step=1)
+        self.jitter = NumericField(
+            NumberRule("Optics jitter", 0.0, 100.0 * JITTER_LIMIT, unit="%", special_text="off", example=3.0),
+            0.0, step=0.5, tip=JITTER_TIP,
+        )  # fmt: skip
         self._refusal: str | None = None  # a number field's refusal on show (cleared by its next commit)
         form = QFormLayout()
         for label, field in (("Model", self.model), ("Time budget", self.minutes), ("Max steps", self.max_steps),
-                             ("Photon budgets", self.photons), ("Phantoms", self.phantoms), ("Seed", self.seed)):  # fmt: skip
+                             ("Photon budgets", self.photons), ("Phantoms", self.phantoms), ("Seed", self.seed),
+                             ("Optics jitter", self.jitter)):  # fmt: skip
             form.addRow(label, field)
 
         self.train_button, self.cancel_button = QPushButton("Train"), QPushButton("Cancel")
@@ -140,7 +155,7 @@ class TrainDock(QWidget):
         left.addLayout(form)
         left.addLayout(buttons)
         left.addWidget(self.message)
-        for field in (self.minutes, self.max_steps, self.seed):
+        for field in self._numbers():
             field.refused.connect(self._on_refused)
             field.committed.connect(self._on_committed)
         left.addWidget(self.table, 1)
@@ -159,8 +174,11 @@ class TrainDock(QWidget):
         return TrainSettings(
             model=self.model.currentText(), minutes=float(self.minutes.value()), max_steps=steps or None,
             photons=parse_photons(self.photons.text()), phantoms=self.phantoms.currentText(),
-            seed=int(self.seed.value()),
+            seed=int(self.seed.value()), optics_jitter=float(self.jitter.value()) / 100.0,
         )  # fmt: skip
+
+    def _numbers(self) -> tuple[NumericField, ...]:
+        return (self.minutes, self.max_steps, self.seed, self.jitter)
 
     def start_training(self) -> bool:
         """Start job "train" on the current full PSF stack; False (with a message) when it cannot start."""
@@ -168,14 +186,28 @@ class TrainDock(QWidget):
         if psf is None or psf.preview:
             self._say("No full PSF stack yet: wait for it (status bar) before training.", error=True)
             return False
+        if not commit_all(self._numbers()):  # a refused text stops the run instead of the value before
+            self._say(next(str(f.reason()) for f in self._numbers() if f.reason()), error=True)
+            return False
         try:
             settings = self.settings()
         except ValueError as error:
             self._say(str(error), error=True)
             return False
+        refusal = jitter_refusal(settings, psf.design)
+        if refusal is not None:
+            self._say(refusal, error=True)
+            return False
         self.live = []
         self._draw(self.live)
-        self._say(f"training {settings.model} on '{psf.design.name}' ({len(psf.stack.depths)} depths)…")
+        jitter = (
+            f", optics jitter ±{100 * settings.optics_jitter:g} %: simulating the jittered designs first"
+            if settings.optics_jitter > 0
+            else ""
+        )
+        self._say(
+            f"training {settings.model} on '{psf.design.name}' ({len(psf.stack.depths)} depths{jitter})…"
+        )
         self.runner.submit(TRAIN_JOB, train_model, psf.design, psf.stack, settings, on_partial=self._on_step,
                            on_result=self._on_trained)  # fmt: skip
         self._update_buttons()

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from lfm_studio.engine.learned.mismatch import check_jitter
 from lfm_studio.engine.learned.models import DEFAULT_MODEL, MODELS
 from lfm_studio.ui.pipeline import Context, reconstruct
 from lfm_studio.ui.results import ImageResult, ReconstructionResult, WorkflowSettings
@@ -41,6 +42,10 @@ class TrainSettings:
     photons : expected photons per training image, one drawn per sample (each > 0).
     phantoms : "mix", "beads" or "cells".
     seed : seed of the training data and the initial weights.
+    optics_jitter : optics-mismatch augmentation as a fraction (0.03 = +-3 %; 0 = off, at most
+        0.2): the training images are formed through a pool of jittered designs
+        (:attr:`lfm_studio.engine.learned.TrainingDataSpec.optics_jitter`, one PSF simulation
+        each before training starts); needs the design.
     threads : torch threads for the training (1: small convolutions run fastest on one).
     """
 
@@ -50,6 +55,7 @@ class TrainSettings:
     photons: tuple[float, ...] = (1e4, 1e5, 1e6)
     phantoms: str = "mix"
     seed: int = 0
+    optics_jitter: float = 0.0
     threads: int = 1
 
     def __post_init__(self) -> None:
@@ -67,6 +73,24 @@ class TrainSettings:
             )
         if self.phantoms not in PHANTOM_KINDS:
             raise ValueError(f"phantoms must be one of {PHANTOM_KINDS}; got {self.phantoms!r}.")
+        check_jitter(self.optics_jitter, "optics jitter")
+
+
+def jitter_refusal(settings: TrainSettings, design: Any) -> str | None:
+    """Why ``settings`` cannot train on a PSF stack of ``design`` (None: it can).
+
+    The studio's wording of the engine's rule (:func:`~lfm_studio.engine.learned.mismatch.require_design_for_jitter`):
+    optics jitter simulates its jittered PSFs from the design, so a PSF stack without a
+    :class:`~lfm_studio.engine.design.Design` (e.g. a measured one) is refused.
+    """
+    from lfm_studio.engine.design import Design
+
+    if settings.optics_jitter <= 0 or isinstance(design, Design):
+        return None
+    return (
+        f"Optics jitter {100 * settings.optics_jitter:g} % needs the design: the jittered PSFs are simulated "
+        "from it, and this PSF stack has none. Fix: set Optics jitter to off, or load the design."
+    )
 
 
 def parse_photons(text: str) -> tuple[float, ...]:
@@ -97,11 +121,17 @@ class TrainedModel:
 
     @property
     def summary(self) -> str:
-        """One line: model, parameters, steps, time, stop reason, validation loss against the zero floor."""
+        """One line: model (and optics jitter), parameters, steps, time, stop reason, validation loss against the zero floor."""
         training = self.result.header.training
         ncc = self.result.header.metrics.get("validation_ncc", math.nan)
+        jitter = self.settings.optics_jitter
+        model = (
+            f"{self.settings.model} (optics jitter ±{100 * jitter:g} %)"
+            if jitter > 0
+            else self.settings.model
+        )
         return (
-            f"{self.settings.model}: {training['parameters']} parameters, {training['steps']} steps in "
+            f"{model}: {training['parameters']} parameters, {training['steps']} steps in "
             f"{training['seconds']:.1f} s (stopped: {self.result.stop_reason}); validation loss "
             f"{training['best_validation']:.4f} (all-zero volume {training['zero_floor']:.1f}), "
             f"validation NCC {ncc:.3f}"
@@ -109,14 +139,20 @@ class TrainedModel:
 
 
 def train_model(ctx: Context, design: Any, stack: Any, settings: TrainSettings) -> TrainedModel:
-    """Train ``settings.model`` on ``stack`` (the studio's full PSF stack of ``design``), on this thread."""
+    """Train ``settings.model`` on ``stack`` (the studio's full PSF stack of ``design``), on this thread.
+
+    With ``settings.optics_jitter`` > 0 the jittered designs are drawn from ``design`` (their PSF
+    stacks are simulated first); a ``design`` that is not a
+    :class:`~lfm_studio.engine.design.Design` is the engine's ValueError naming the option.
+    """
     from lfm_studio.engine.learned import TrainingDataSpec, stack_identity, train
     from lfm_studio.engine.simulation import imaging_setup
 
     ctx.progress(0, 1, "training: building the projector")
     setup = imaging_setup(stack)
     design_hash, depths = stack_identity(stack)
-    data = TrainingDataSpec(phantoms=settings.phantoms, photons=settings.photons, seed=settings.seed)  # type: ignore[arg-type]
+    data = TrainingDataSpec(phantoms=settings.phantoms, photons=settings.photons, seed=settings.seed,  # type: ignore[arg-type]
+                            optics_jitter=settings.optics_jitter)  # fmt: skip
 
     def on_step(step: int, loss: float, validation: float) -> None:
         ctx.partial((step, loss, validation))
@@ -126,7 +162,7 @@ def train_model(ctx: Context, design: Any, stack: Any, settings: TrainSettings) 
 
     result = train(
         setup, model=settings.model, data=data, budget_minutes=settings.minutes, max_steps=settings.max_steps,
-        seed=settings.seed, design_hash=design_hash, depths=depths, threads=settings.threads,
+        seed=settings.seed, design_hash=design_hash, depths=depths, design=design, threads=settings.threads,
         progress=progress, cancel=ctx.cancel, on_step=on_step,
     )  # fmt: skip
     return TrainedModel(result, design, settings)

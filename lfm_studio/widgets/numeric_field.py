@@ -69,6 +69,7 @@ class NumericField(QLineEdit):
         self.setAccessibleName(rule.name)
         self.setAlignment(Qt.AlignmentFlag.AlignRight | Qt.AlignmentFlag.AlignVCenter)
         self._show(self._value)
+        self._restyle()  # the tooltip is ``tip`` from the start, not only after the first commit
         self.editingFinished.connect(self.commit)
 
     # ----- the value -----

@@ -31,8 +31,8 @@ MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": N
 LOCALES = ("C", "de_DE")
 # Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
 # (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 3 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
-# MLA editor, Train dock (minutes, max steps, seed), Optimise dock (budget)
+EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
+# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (budget)
 # Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
 # are shown disabled and cannot be typed into.
 DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
@@ -148,8 +148,9 @@ def test_the_field_commits_valid_text_only_and_keeps_refused_text(qtbot, locale)
 
 
 def test_a_photon_field_steps_by_decades(qtbot):
-    field = NumericField(NumberRule("Photon budget", 1.0, 1e15, "photons"), 2e5, log_step=True)
+    field = NumericField(NumberRule("Photon budget", 1.0, 1e15, "photons"), 2e5, log_step=True, tip="x10")
     qtbot.addWidget(field)
+    assert field.toolTip() == "x10" and field.property("invalid") is False  # the tip from the start
     field.stepBy(1)
     assert field.value() == 1e6
     field.stepBy(-7)
@@ -203,6 +204,7 @@ def _hosts(window):
         "minutes",
         "max_steps",
         "seed",
+        "jitter",
     ):  # read when Train is pressed: the field holds the value in force
         field = getattr(train, name)
         hosts[field] = (name, field.value, lambda: _shown(train.message))

@@ -6,14 +6,16 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from types import SimpleNamespace
 
 import pytest
 import torch
 from qtpy.QtCore import QSettings
 from qtpy.QtWidgets import QDockWidget
 
+from lfm_studio.engine.learned.checkpoint import read_checkpoint
 from lfm_studio.ui.app import build_studio
-from lfm_studio.ui.training import TrainSettings, parse_photons, running_mean
+from lfm_studio.ui.training import TrainSettings, jitter_refusal, parse_photons, running_mean
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
 
 TIMEOUT_MS = 600_000  # generous: the machine is shared; never a statement about speed
@@ -53,6 +55,10 @@ def test_settings_refuse_bad_input_naming_the_field():
         TrainSettings(model="resnet")
     with pytest.raises(ValueError, match="minutes must be a positive"):
         TrainSettings(minutes=0.0)
+    with pytest.raises(ValueError, match=r"optics jitter must be a relative jitter between 0 and 0\.2"):
+        TrainSettings(optics_jitter=3.0)  # a percentage where a fraction belongs
+    assert jitter_refusal(TrainSettings(), None) is None  # off: no design needed
+    assert "needs the design" in jitter_refusal(TrainSettings(optics_jitter=0.03), {"name": "a bare stack"})
     assert running_mean([1.0, 3.0, 5.0, 7.0], 2) == pytest.approx([1.0, 2.0, 4.0, 6.0])
 
 
@@ -124,3 +130,49 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     assert comparison.learned.scores.score("ncc").value > 0.0  # a real volume, not the trivial answer
     shown = [(name, shape) for call, name, shape in window.viewer.calls if call == "show_volume"]
     assert ("RL", tuple(truth.shape)) in shown and ("learned", tuple(truth.shape)) in shown
+
+
+def test_optics_jitter_field_trains_with_the_augmentation_and_records_it(
+    qtbot, window, tmp_path, monkeypatch
+):
+    dock = window.train_dock
+    assert dock.jitter.text() == "off" and dock.settings().optics_jitter == 0.0
+    assert "one PSF simulation per jittered design" in dock.jitter.toolTip()
+    dock.max_steps.setValue(2)
+    dock.photons.setText("1e5, 1e6")
+
+    # A value beyond 20 % is refused, naming the field and the fix; Train does not start with the old value.
+    dock.jitter.setText("50 %")
+    assert not dock.start_training()
+    assert (
+        "Optics jitter 50 is out of range" in dock.message.text() and "from 0 to 20 %" in dock.message.text()
+    )
+    assert not dock.runner.is_running("train") and dock.trained is None
+
+    # 3 %: the training spec and the checkpoint header record a jitter of 0.03.
+    dock.jitter.setText("3 %")
+    assert dock.start_training()
+    assert "optics jitter ±3 %" in dock.message.text()
+    qtbot.waitUntil(lambda: dock.trained is not None, timeout=TIMEOUT_MS)
+    trained = dock.trained
+    assert trained.settings.optics_jitter == pytest.approx(0.03)
+    data = trained.result.header.data
+    assert data["optics_jitter"] == pytest.approx(0.03) and data["jitter_designs"] >= 1
+    assert data["jitter_validation"] is False
+    assert [step for step, _, _ in trained.result.history] == [1, 2]
+    assert "unrolled-rl (optics jitter ±3 %): " in dock.message.text()
+    monkeypatch.setattr(dock, "_ask_path", lambda: str(tmp_path / "jittered"))
+    saved = dock.save()
+    assert read_checkpoint(saved)[0].data["optics_jitter"] == pytest.approx(0.03)
+
+    # A PSF stack without its design (e.g. a measured one) cannot be jittered: a message, no job.
+    psf = window.state.psf
+    monkeypatch.setattr(
+        dock, "state", SimpleNamespace(psf=replace(psf, design=SimpleNamespace(name="measured")))
+    )
+    assert not dock.start_training()
+    assert (
+        "Optics jitter 3 % needs the design" in dock.message.text()
+        and "Fix: set Optics jitter to off" in (dock.message.text())
+    )
+    assert not dock.runner.is_running("train") and dock.trained is trained
