@@ -50,8 +50,6 @@ from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.learned.data import Sample, Split, TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss, trivial_reason
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
-from lfm_studio.engine.operators.binned import BinnedProjector
-from lfm_studio.engine.operators.shift_invariant import ShiftInvariantProjector
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.constraints import Constraint, FocalLengthCatalogue, default_constraints
 from lfm_studio.engine.optimize.gradient import (
@@ -72,21 +70,13 @@ from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 from lfm_studio.engine.simulation import ImagingSetup
-from lfm_studio.engine.systems.kinds_base import Projector, depth_step
+from lfm_studio.engine.systems.kinds_base import Projector
 from lfm_studio.engine.systems.kinds_conventional import CONVENTIONAL
+from lfm_studio.engine.systems.kinds_fourier import shift_invariant_lateral, shift_invariant_setup
 
 RECONSTRUCTIONS: tuple[str, ...] = ("unrolled-rl", "rl")
 DEFAULT_DATA = TrainingDataSpec(phantoms="beads", objects=(4, 10), photons=(2e4,), read_noise=1.0)
 """Training phantoms when none are given: 4-10 beads per volume, 2e4 photons per image."""
-
-
-def fixed_grid_setup(stack: PSFStack, lateral: int) -> ImagingSetup:
-    """The shift-invariant setup of ``stack`` on a ``(Z, lateral, lateral)`` volume (differentiable in the PSF)."""
-    voxel = stack.object_pixel_size
-    projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
-    if stack.volume_oversampling > 1:
-        projector = BinnedProjector(projector, stack.volume_oversampling)
-    return ImagingSetup(projector, (len(stack.depths), lateral, lateral), (depth_step(stack), voxel, voxel))
 
 
 def sample_loss(
@@ -182,7 +172,11 @@ def optimize_end_to_end(
     conventional = binding.kind is CONVENTIONAL
 
     def setup_of(stack: PSFStack) -> ImagingSetup:
-        return CONVENTIONAL.imaging_setup(stack) if conventional else fixed_grid_setup(stack, lateral)
+        return (
+            CONVENTIONAL.imaging_setup(stack)
+            if conventional
+            else shift_invariant_setup(stack, lateral=lateral)
+        )
 
     def setup_at(values: torch.Tensor, at: Design, precision: str) -> ImagingSetup:
         return setup_of(binding.psf_stack(at, values, replace(base, dtype=precision)))
@@ -321,15 +315,3 @@ def optimize_end_to_end(
         recorder.finish(result.summary())
         result.study = recorder.study
     return result
-
-
-def shift_invariant_lateral(stack: PSFStack) -> int:
-    """The lateral voxel count :func:`~lfm_studio.engine.systems.kinds_fourier.shift_invariant_setup`
-    gives ``stack`` (odd; the design's field of view over the voxel, else a quarter of the sensor)."""
-    voxel = stack.object_pixel_size
-    field_of_view = (
-        getattr(stack.design, "field_of_view_diameter", None) if stack.design is not None else None
-    )
-    ny, nx = stack.data.shape[-2:]
-    lateral = min(ny, nx) // 4 if not field_of_view else max(1, math.ceil(field_of_view / voxel))
-    return lateral + 1 - lateral % 2
