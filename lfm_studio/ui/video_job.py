@@ -183,7 +183,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     from lfm_studio.engine.batch import open_frames, reconstruct_video
     from lfm_studio.engine.batch.camera import video_camera
     from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
-    from lfm_studio.ui.pipeline import design_camera
+    from lfm_studio.engine.io.camera_counts import design_camera
     from lfm_studio.widgets.viewer.display_data import volume_display
 
     design = request.design
@@ -199,7 +199,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     camera, notes = None, []
     if request.counts:
         camera, notes = video_camera(
-            source, fallback=design_camera(design, f"the design's camera ({design.name})")
+            source, fallback=design_camera(design.camera, f"the design's camera ({design.name})")
         )
 
     def progress(done: int, total: int, message: str = "") -> None:
