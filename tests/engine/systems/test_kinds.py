@@ -227,7 +227,6 @@ def test_fourier_projector_images_an_axial_point_as_the_psf(fourier_stack):
         assert float((image - psf).norm() / psf.norm()) < 1e-9
 
 
-
 def test_a_fixed_lateral_count_keeps_the_grid_and_the_default_is_the_odd_field_of_view_count(fourier_stack):
     """``shift_invariant_setup(lateral=n)`` (the end-to-end optimiser's fixed grid) differs from the
     default only in the lateral count; the default is :func:`shift_invariant_lateral`."""
