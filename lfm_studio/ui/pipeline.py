@@ -246,29 +246,14 @@ def reconstruction_available() -> bool:
     )
 
 
-def design_camera(design: Design, source: str = "the design's camera"):
-    """The engine's :class:`~lfm_studio.engine.io.CameraCalibration` of ``design``'s camera
-    (baseline, gain, quantum efficiency, read noise); ``source`` names it in messages."""
-    from lfm_studio.engine.io import CameraCalibration
-
-    camera = design.camera
-    return CameraCalibration(
-        camera.baseline_adu,
-        camera.gain_adu_per_e,
-        camera.quantum_efficiency,
-        source=source,
-        read_noise_e=camera.read_noise_e,
-    )
-
-
 def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, float]:
     """Camera counts (ADU) back to photons and the noise floor they carry (the background to model):
     the engine's :func:`~lfm_studio.engine.io.counts_to_photons`, as in ``lfm-studio reconstruct``."""
-    from lfm_studio.engine.io import counts_to_photons
+    from lfm_studio.engine.io.camera_counts import counts_to_photons, design_camera
 
     if image.info.get("photons") is None:  # noise-free, or a calibrated raw frame: already photons
         return image.counts.clamp_min(0.0), float(image.info.get("noise_floor_photons", 0.0))
-    return counts_to_photons(image.counts, design_camera(design), name="the simulated image")
+    return counts_to_photons(image.counts, design_camera(design.camera), name="the simulated image")
 
 
 def peak_mode(settings: WorkflowSettings) -> bool | None:

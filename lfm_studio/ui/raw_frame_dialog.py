@@ -16,7 +16,6 @@ image goes: "Reconstruct" then reconstructs the raw frame (no ground truth to sc
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from qtpy.QtCore import QObject
@@ -24,20 +23,16 @@ from qtpy.QtGui import QAction
 from qtpy.QtWidgets import (
     QCheckBox,
     QDialog,
-    QDialogButtonBox,
     QFileDialog,
     QFormLayout,
-    QHBoxLayout,
-    QLabel,
     QLineEdit,
     QMessageBox,
-    QPushButton,
     QRadioButton,
-    QVBoxLayout,
     QWidget,
 )
 
 from lfm_studio.ui.failure_notices import show_failure
+from lfm_studio.ui.path_form import PathFormDialog, path_of, start_folder
 from lfm_studio.ui.raw_frames import RawFrame, RawFrameRequest, load_raw_frame, raw_image_result
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
@@ -47,13 +42,11 @@ TIFF_FILTER = "TIFF frames (*.tif *.tiff)"
 CALIBRATION_FILTER = "Calibration files (*.json)"
 
 
-class RawFrameDialog(QDialog):
+class RawFrameDialog(PathFormDialog):
     """The raw frame and its calibration (a file, or a radiometry + dark frame to make one)."""
 
     def __init__(self, parent: QWidget | None = None, *, folder: str = "") -> None:
-        super().__init__(parent)
-        self.setWindowTitle("Open raw light field")
-        self.folder = folder
+        super().__init__(parent, title="Open raw light field", folder=folder)
         self.raw_edit = QLineEdit(self)
         self.use_file = QRadioButton("Calibration file", self)
         self.make_new = QRadioButton("Make a calibration against the current design", self)
@@ -66,9 +59,6 @@ class RawFrameDialog(QDialog):
         self.save_edit.setPlaceholderText("optional: keep the calibration for next time")
         self.use_fitted = QCheckBox("Use the calibration's design (its PSF images the rectified frame)", self)
         self.use_fitted.setChecked(True)
-        self.error_label = QLabel(self)
-        self.error_label.setStyleSheet("QLabel { color: #ff6b6b; }")
-        self.error_label.setWordWrap(True)
         form = QFormLayout()
         form.addRow("Raw camera frame", self._row(self.raw_edit, "Raw camera frame", TIFF_FILTER))
         form.addRow(self.use_file)
@@ -77,38 +67,19 @@ class RawFrameDialog(QDialog):
         form.addRow("Radiometry frame", self._row(self.radiometry_edit, "Radiometry frame", TIFF_FILTER))
         form.addRow("Dark frame", self._row(self.dark_edit, "Dark frame", TIFF_FILTER))
         form.addRow("Save calibration as", self._row(self.save_edit, "Save calibration as", None))
-        buttons = QDialogButtonBox(
-            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
-        )
-        buttons.accepted.connect(self.accept)
-        buttons.rejected.connect(self.reject)
-        self.ok_button = buttons.button(QDialogButtonBox.StandardButton.Ok)
-        layout = QVBoxLayout(self)
-        layout.addLayout(form)
-        layout.addWidget(self.use_fitted)
-        layout.addWidget(self.error_label)
-        layout.addWidget(buttons)
+        self.lay_out(form, self.use_fitted)
         self.use_file.toggled.connect(self._update)
         self._update()
 
     def _row(self, edit: QLineEdit, title: str, filter_: str | None) -> QWidget:
-        row = QWidget(self)
-        layout = QHBoxLayout(row)
-        layout.setContentsMargins(0, 0, 0, 0)
-        button = QPushButton("Browse…", row)
-        button.clicked.connect(lambda: self._browse(edit, title, filter_))
-        layout.addWidget(edit, 1)
-        layout.addWidget(button)
-        return row
+        return self.path_row(edit, ("Browse…", lambda: self._browse(edit, title, filter_)))
 
     def _browse(self, edit: QLineEdit, title: str, filter_: str | None) -> None:
         if filter_ is None:  # the calibration to write: the dialog asks before replacing a file
             path, _ = QFileDialog.getSaveFileName(self, title, self.folder, CALIBRATION_FILTER)
         else:
             path, _ = QFileDialog.getOpenFileName(self, title, self.folder, filter_)
-        if path:
-            edit.setText(path)
-            self.folder = str(Path(path).parent)
+        self.chosen(edit, path)
 
     def _update(self, *_: Any) -> None:
         from_file = self.use_file.isChecked()
@@ -116,20 +87,15 @@ class RawFrameDialog(QDialog):
         for edit in (self.radiometry_edit, self.dark_edit, self.save_edit):
             edit.setEnabled(not from_file)
 
-    @staticmethod
-    def _path(edit: QLineEdit) -> Path | None:
-        text = edit.text().strip()
-        return Path(text).expanduser() if text else None
-
     def problem(self) -> str | None:
         """What is missing or wrong (a file that does not exist, named with its field), or None."""
-        raw = self._path(self.raw_edit)
+        raw = path_of(self.raw_edit)
         needed = [("Raw camera frame", raw)]
         if self.use_file.isChecked():
-            needed.append(("Calibration", self._path(self.calibration_edit)))
+            needed.append(("Calibration", path_of(self.calibration_edit)))
         else:
-            needed.append(("Radiometry frame", self._path(self.radiometry_edit)))
-            dark = self._path(self.dark_edit)
+            needed.append(("Radiometry frame", path_of(self.radiometry_edit)))
+            dark = path_of(self.dark_edit)
             if dark is not None:
                 needed.append(("Dark frame", dark))
         for label, path in needed:
@@ -139,27 +105,19 @@ class RawFrameDialog(QDialog):
                 return f"{label}: {path} does not exist. Fix: choose an existing file."
         return None
 
-    def accept(self) -> None:
-        """Close only when every file is there; otherwise say which is not."""
-        problem = self.problem()
-        if problem is not None:
-            self.error_label.setText(problem)
-            return
-        super().accept()
-
     def request(self, design: Any) -> RawFrameRequest:
         """The load the dialog describes, against ``design``."""
-        raw = self._path(self.raw_edit)
+        raw = path_of(self.raw_edit)
         if raw is None:
             raise ValueError("Raw camera frame: choose a file.")
         if self.use_file.isChecked():
-            return RawFrameRequest(raw=raw, design=design, calibration=self._path(self.calibration_edit))
+            return RawFrameRequest(raw=raw, design=design, calibration=path_of(self.calibration_edit))
         return RawFrameRequest(
             raw=raw,
             design=design,
-            radiometry=self._path(self.radiometry_edit),
-            dark=self._path(self.dark_edit),
-            save_calibration=self._path(self.save_edit),
+            radiometry=path_of(self.radiometry_edit),
+            dark=path_of(self.dark_edit),
+            save_calibration=path_of(self.save_edit),
         )
 
 
@@ -182,8 +140,7 @@ class RawFrameActions(QObject):
 
     def open(self, *_: Any) -> bool:
         """Ask for the raw frame and its calibration, then load it on a worker."""
-        folder = str(self.state.file_path.parent) if self.state.file_path is not None else str(Path.home())
-        self.dialog = RawFrameDialog(self.window, folder=folder)
+        self.dialog = RawFrameDialog(self.window, folder=start_folder(self.state))
         try:
             if self.dialog.exec() != QDialog.DialogCode.Accepted:
                 return False

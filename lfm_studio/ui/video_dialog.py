@@ -25,19 +25,16 @@ from qtpy.QtGui import QAction
 from qtpy.QtWidgets import (
     QCheckBox,
     QDialog,
-    QDialogButtonBox,
     QFileDialog,
     QFormLayout,
-    QHBoxLayout,
     QLabel,
     QLineEdit,
     QMessageBox,
-    QPushButton,
-    QVBoxLayout,
     QWidget,
 )
 
 from lfm_studio.ui.failure_notices import show_failure
+from lfm_studio.ui.path_form import PathFormDialog, path_of, start_folder
 from lfm_studio.ui.results import JobStatus, WorkflowSettings
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.video_job import DEFAULT_CHUNK_FRAMES, LAYER, VideoRequest, VideoRun, reconstruct_video_job
@@ -58,13 +55,11 @@ def _store_path(text: str) -> Path:
     return path if path.name.lower().endswith(".zarr") else path.with_name(path.name + ".ome.zarr")
 
 
-class VideoDialog(QDialog):
+class VideoDialog(PathFormDialog):
     """The frames, the output store and how to run (resume, chunk size, workers, counts)."""
 
     def __init__(self, parent: QWidget | None = None, *, folder: str = "", method_text: str = "") -> None:
-        super().__init__(parent)
-        self.setWindowTitle(TITLE)
-        self.folder = folder
+        super().__init__(parent, title=TITLE, folder=folder)
         self.frames_edit = QLineEdit(self)
         self.frames_edit.setPlaceholderText("a multi-page TIFF, or a folder of one-frame TIFFs")
         self.output_edit = QLineEdit(self)
@@ -89,54 +84,26 @@ class VideoDialog(QDialog):
         self.counts.setChecked(True)
         self.method_label = QLabel(method_text, self)
         self.method_label.setWordWrap(True)
-        self.error_label = QLabel(self)
-        self.error_label.setStyleSheet("QLabel { color: #ff6b6b; }")
-        self.error_label.setWordWrap(True)
         form = QFormLayout()
         form.addRow(
             "Frames",
-            self._row(self.frames_edit, ("File…", self._browse_file), ("Folder…", self._browse_folder)),
+            self.path_row(self.frames_edit, ("File…", self._browse_file), ("Folder…", self._browse_folder)),
         )
-        form.addRow("Output store", self._row(self.output_edit, ("Browse…", self._browse_output)))
+        form.addRow("Output store", self.path_row(self.output_edit, ("Browse…", self._browse_output)))
         form.addRow(self.resume)
         form.addRow("Frames per chunk", self.chunk_frames)
         form.addRow("Worker processes", self.workers)
         form.addRow(self.counts)
-        buttons = QDialogButtonBox(
-            QDialogButtonBox.StandardButton.Ok | QDialogButtonBox.StandardButton.Cancel
-        )
-        buttons.accepted.connect(self.accept)
-        buttons.rejected.connect(self.reject)
-        self.ok_button = buttons.button(QDialogButtonBox.StandardButton.Ok)
+        self.lay_out(form, self.method_label)
+        assert self.ok_button is not None
         self.ok_button.setText("Reconstruct")
-        layout = QVBoxLayout(self)
-        layout.addLayout(form)
-        layout.addWidget(self.method_label)
-        layout.addWidget(self.error_label)
-        layout.addWidget(buttons)
-
-    def _row(self, edit: QLineEdit, *buttons: tuple[str, Any]) -> QWidget:
-        row = QWidget(self)
-        layout = QHBoxLayout(row)
-        layout.setContentsMargins(0, 0, 0, 0)
-        layout.addWidget(edit, 1)
-        for text, slot in buttons:
-            button = QPushButton(text, row)
-            button.clicked.connect(slot)
-            layout.addWidget(button)
-        return row
-
-    def _chosen(self, edit: QLineEdit, path: str) -> None:
-        if path:
-            edit.setText(path)
-            self.folder = str(Path(path).parent)
 
     def _browse_file(self) -> None:
         path, _ = QFileDialog.getOpenFileName(self, "Frames (multi-page TIFF)", self.folder, TIFF_FILTER)
-        self._chosen(self.frames_edit, path)
+        self.chosen(self.frames_edit, path)
 
     def _browse_folder(self) -> None:
-        self._chosen(
+        self.chosen(
             self.frames_edit, QFileDialog.getExistingDirectory(self, "Folder of TIFF frames", self.folder)
         )
 
@@ -145,11 +112,10 @@ class VideoDialog(QDialog):
             self, "Output store", self.folder, ZARR_FILTER, options=QFileDialog.Option.DontConfirmOverwrite
         )  # the studio asks before replacing a store
         if path:
-            self._chosen(self.output_edit, str(_store_path(path)))
+            self.chosen(self.output_edit, str(_store_path(path)))
 
     def frames(self) -> Path | None:
-        text = self.frames_edit.text().strip()
-        return Path(text).expanduser() if text else None
+        return path_of(self.frames_edit)
 
     def output(self) -> Path | None:
         text = self.output_edit.text().strip()
@@ -171,14 +137,6 @@ class VideoDialog(QDialog):
         if not commit_all((self.chunk_frames, self.workers)):
             return next(str(f.error()) for f in (self.chunk_frames, self.workers) if f.error() is not None)
         return None
-
-    def accept(self) -> None:
-        """Close only when the request is complete; otherwise say what is missing."""
-        problem = self.problem()
-        if problem is not None:
-            self.error_label.setText(problem)
-            return
-        super().accept()
 
     def request(self, design: Any, settings: WorkflowSettings) -> VideoRequest:
         """The run the dialog describes, with ``design`` and the workflow ``settings``."""
@@ -230,9 +188,6 @@ class VideoActions(QObject):
         if status.name == JOB:  # a second run would supersede (cancel) the running one
             self.action.setEnabled(not status.active)
 
-    def _folder(self) -> str:
-        return str(self.state.file_path.parent) if self.state.file_path is not None else str(Path.home())
-
     def open(self, *_: Any) -> bool:
         """Ask for the frames and the store, confirm replacing an existing store, then start the job."""
         from lfm_studio.ui.video_job import scale_missing
@@ -243,7 +198,7 @@ class VideoActions(QObject):
             return False
         settings = self.state.workflow
         self.dialog = VideoDialog(
-            self.window, folder=self._folder(), method_text=method_text(settings, self.state.design)
+            self.window, folder=start_folder(self.state), method_text=method_text(settings, self.state.design)
         )
         try:
             if self.dialog.exec() != QDialog.DialogCode.Accepted:

@@ -2,11 +2,12 @@
 
 :func:`reconstruct_video_job` runs on a worker thread (:mod:`lfm_studio.widgets.jobs`): it opens
 the frames (a multi-page TIFF or a folder of TIFFs), builds the projector of the studio's
-design, refuses frames of another shape (naming the file, both shapes and the fix), resolves
-the camera conversion (:func:`lfm_studio.engine.batch.camera.video_camera`, as the command
-line does: the file's camera metadata, else the design's camera) and calls
+design, resolves the camera conversion (:func:`lfm_studio.engine.batch.camera.video_camera`, as
+the command line does: the file's camera metadata, else the design's camera) and calls
 :func:`lfm_studio.engine.batch.reconstruct_video` with the workflow panel's method and options,
-its frame progress relayed to ``ctx.progress`` and ``cancel=ctx.cancel``. A cancelled run stops between chunks and
+its frame progress relayed to ``ctx.progress`` and ``cancel=ctx.cancel``. The engine refuses
+frames of another shape (naming the file and both shapes) with the studio's fix
+(:func:`frame_shape_fix`). A cancelled run stops between chunks and
 leaves a store that a resumed run completes (only the missing frames are computed). The result
 carries the last reconstructed frame's volume for the viewer and the failed frames (recorded
 by the engine) for the message.
@@ -149,17 +150,12 @@ def video_options(settings: WorkflowSettings) -> tuple[str, dict[str, Any]]:
     return method.name, reconstruction_options(method, settings, 0.0)
 
 
-def check_frame_shape(
-    frames: Path, shape: tuple[int, ...], count: int, design: Design, sensor: tuple[int, ...]
-) -> None:
-    """Refuse frames of ``shape`` that the design's projector (imaging ``sensor`` pixels) cannot take."""
-    if tuple(shape) == tuple(sensor):
-        return
-    raise ValueError(
-        f"{frames}: the frames are {tuple(shape)} pixels ({count} frames), but the design “{design.name}” "
-        f"images {tuple(sensor)} pixels (camera.pixel_count {tuple(design.camera.pixel_count)}). Fix: open "
-        "the design of the camera that recorded these frames (File > Open…), or crop the frames to "
-        f"{tuple(sensor)} pixels."
+def frame_shape_fix(design: Design) -> str:
+    """The studio's fix for frames that are not the pixels the design's projector images (the end
+    of the engine's refusal, :func:`lfm_studio.engine.batch.video.check_frame_shape`)."""
+    return (
+        f"open the design of the camera that recorded these frames (File > Open…; “{design.name}” has "
+        f"camera.pixel_count {tuple(design.camera.pixel_count)}), or crop the frames to the pixels it images."
     )
 
 
@@ -183,7 +179,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     from lfm_studio.engine.batch import open_frames, reconstruct_video
     from lfm_studio.engine.batch.camera import video_camera
     from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
-    from lfm_studio.ui.pipeline import design_camera
+    from lfm_studio.engine.io.camera_counts import design_camera
     from lfm_studio.widgets.viewer.display_data import volume_display
 
     design = request.design
@@ -193,13 +189,11 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     ctx.check()
     ctx.progress(0, source.count, f"building the projector of “{design.name}”")
     built = cached_projector(projector_spec(design))  # reconstruct_video reuses it in this process
-    sensor = tuple(built.setup.projector.image_shape)
-    check_frame_shape(request.frames, source.shape[1:], source.count, design, sensor)
     ctx.check()
     camera, notes = None, []
     if request.counts:
         camera, notes = video_camera(
-            source, fallback=design_camera(design, f"the design's camera ({design.name})")
+            source, fallback=design_camera(design.camera, f"the design's camera ({design.name})")
         )
 
     def progress(done: int, total: int, message: str = "") -> None:
@@ -208,7 +202,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     result = reconstruct_video(
         source, design, method=method, options=options, output=request.output, resume=request.resume,
         overwrite=request.overwrite, workers=request.workers, chunk_frames=request.chunk_frames,
-        camera=camera, progress=progress, cancel=ctx.cancel,
+        camera=camera, progress=progress, cancel=ctx.cancel, shape_fix=frame_shape_fix(design),
     )  # fmt: skip
     ctx.progress(source.count, source.count, "reading the last frame for the viewer")
     frame, volume = _last_volume(result)

@@ -29,11 +29,11 @@ import zarr
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.io import counts_to_photons
+from lfm_studio.engine.io.camera_counts import design_camera
 from lfm_studio.engine.progress import CancelledError
 from lfm_studio.engine.reconstruct.dispatch import reconstruct_frame
 from lfm_studio.engine.simulation import camera_of, imaging_setup, light_field_image, simulate_psf
 from lfm_studio.engine.threads import torch_threads
-from lfm_studio.ui.pipeline import design_camera
 from lfm_studio.ui.results import WorkflowSettings
 from lfm_studio.ui.video_job import VideoRequest, reconstruct_video_job, scale_missing
 from tests.ui.standins import small_fourier_design
@@ -92,7 +92,7 @@ def video(tmp_path_factory) -> Video:
         reference = []
         for frame in frames:
             photons, floor = counts_to_photons(
-                torch.from_numpy(frame.astype(np.float32)), design_camera(design), name="frame"
+                torch.from_numpy(frame.astype(np.float32)), design_camera(design.camera), name="frame"
             )
             volume = reconstruct_frame(
                 setup.projector, photons, method="rl-accelerated", iterations=ITERATIONS, background=floor

@@ -33,6 +33,18 @@ from lfm_studio.engine.types import JSONValue, OptionValue
 
 DEFAULT_CHUNK_FRAMES = 4
 UM = 1e-6
+FRAME_SHAPE_FIX = "use the design/PSF of this camera (or crop= matching the frames)."
+"""What to do about frames of another shape (the end of :func:`check_frame_shape`'s refusal)."""
+
+
+def check_frame_shape(source: FrameSource, sensor: tuple[int, ...], fix: str = FRAME_SHAPE_FIX) -> None:
+    """Refuse frames whose ``(Y, X)`` pixels are not ``sensor``, the pixels the projector images:
+    a ``ValueError`` naming the file, both shapes and ``Fix: <fix>``."""
+    if tuple(source.shape[1:]) != tuple(sensor):
+        raise ValueError(
+            f"frames {source.path} are {tuple(source.shape[1:])} pixels but the projector images "
+            f"{tuple(sensor)} pixels. Fix: {fix}"
+        )
 
 
 @dataclass(frozen=True)
@@ -142,6 +154,7 @@ def reconstruct_video(
     dtype: str = "float32",
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
+    shape_fix: str = FRAME_SHAPE_FIX,
     **method_options: OptionValue,
 ) -> VideoResult:
     """Reconstruct every frame ``(T, Y, X)`` of ``frames`` into the OME-Zarr store ``output``.
@@ -166,6 +179,8 @@ def reconstruct_video(
     frame_interval_s : time between frames (s); None records 1 s and notes it was assumed.
     progress, cancel : ``progress(frames_done, frame_count, message)`` per finished chunk; a set
         ``cancel`` stops between chunks with :class:`CancelledError` (the store stays resumable).
+    shape_fix : the fix named when the frames are not the pixels the projector images
+        (:func:`check_frame_shape`; a front end says it in its own words).
     """
     reconstruction = ReconstructionOptions.of(method, {**(options or {}), **method_options})
     check_placement(client, workers, scheduler)
@@ -174,12 +189,7 @@ def reconstruct_video(
     source = frames if isinstance(frames, FrameSource) else open_frames(frames)
     spec = projector_spec(design_or_psf, crop=crop, field_of_view=field_of_view, dtype=dtype)
     built = cached_projector(spec)
-    sensor = tuple(built.setup.projector.image_shape)
-    if tuple(source.shape[1:]) != sensor:
-        raise ValueError(
-            f"frames {source.path} are {tuple(source.shape[1:])} pixels but the projector images {sensor} "
-            "pixels. Fix: use the design/PSF of this camera (or crop= matching the frames)."
-        )
+    check_frame_shape(source, tuple(built.setup.projector.image_shape), shape_fix)
     nz, ny, nx = (int(n) for n in built.setup.volume_shape)
     shape = (int(source.count), nz, ny, nx)
     levels = level_count((ny, nx))

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Protocol
 
 import torch
 
@@ -103,6 +103,32 @@ class CameraCalibration:
             "read_noise_e": self.read_noise_e,
             "noise_floor_e": self.noise_floor_e,
         }
+
+
+class CameraSettings(Protocol):
+    """What undoing a camera needs of a design's camera (``Design.camera``, a ``CameraSpec``)."""
+
+    @property
+    def baseline_adu(self) -> float: ...
+    @property
+    def gain_adu_per_e(self) -> float: ...
+    @property
+    def quantum_efficiency(self) -> float: ...
+    @property
+    def read_noise_e(self) -> float: ...
+
+
+def design_camera(camera: CameraSettings, source: str = "the design's camera") -> CameraCalibration:
+    """The :class:`CameraCalibration` that undoes a design's camera (``design.camera``): its
+    baseline (ADU), gain (ADU per electron), quantum efficiency and read noise (electrons rms), as
+    they are; ``source`` names it in messages."""
+    return CameraCalibration(
+        baseline_adu=camera.baseline_adu,
+        gain_adu_per_e=camera.gain_adu_per_e,
+        quantum_efficiency=camera.quantum_efficiency,
+        source=source,
+        read_noise_e=camera.read_noise_e,
+    )
 
 
 def camera_metadata(camera: Any, *, photons: float | None, seed: int) -> dict[str, Any]:

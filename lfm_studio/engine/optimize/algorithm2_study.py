@@ -46,9 +46,11 @@ from lfm_studio.engine.optimize.objectives import Objective
 from lfm_studio.engine.optimize.study import (
     DEFAULT_STUDY_NAME,
     RECORD,
+    objective_attrs,
     open_stored,
     record_of,
     require_optuna,
+    study_description,
 )
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
@@ -153,21 +155,17 @@ def run_algorithm2_study(
     if constraints is None:
         constraints = default_constraints(design)
     order = None if sizes is None else list(sizes)
-    attrs = {
-        "base_design": design_to_json(design),
-        "space": {
-            "algorithm2": {
-                "min_lenslet_um": float(min_lenslet_um),
-                "cells": plane.cells,
-                "symmetry": symmetry,
-                "sizes": order,
-            }
-        },
-        "objectives": [{"name": objective.name, "unit": objective.unit, "direction": objective.direction}],
-        "settings": settings.to_dict(),
-        "sampler": "algorithm2",
-        "seed": seed,
+    space = {
+        "algorithm2": {
+            "min_lenslet_um": float(min_lenslet_um),
+            "cells": plane.cells,
+            "symmetry": symmetry,
+            "sizes": order,
+        }
     }
+    attrs = study_description(
+        design, space, [objective_attrs(objective)], settings.to_dict(), "algorithm2", seed
+    )
     study = open_stored(attrs, [objective.direction], storage, study_name=study_name, resume=resume)
     stored_steps: set[int] = set()
     by_layout: dict[str, tuple[float | None, str]] = {}

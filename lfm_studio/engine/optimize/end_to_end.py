@@ -50,43 +50,32 @@ from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.learned.data import Sample, Split, TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss, trivial_reason
 from lfm_studio.engine.learned.models.unrolled_rl import UnrolledRL
-from lfm_studio.engine.operators.binned import BinnedProjector
-from lfm_studio.engine.operators.shift_invariant import ShiftInvariantProjector
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
-from lfm_studio.engine.optimize.constraints import Constraint, FocalLengthCatalogue, default_constraints
+from lfm_studio.engine.optimize.constraints import Constraint, FocalLengthCatalogue
 from lfm_studio.engine.optimize.gradient import (
     GRADIENT_TOLERANCE,
     DescentSetup,
     GradientResult,
-    _feasible,
+    StartGradientCheck,
+    check_dtype,
     descend,
-    precision_check,
-    quietly,
-    snap_design,
-    start_point,
-    study_settings,
+    design_at,
+    finish_study,
+    open_recorder,
+    prepare_start,
+    snap_result,
 )
-from lfm_studio.engine.optimize.gradient_params import bind_space
-from lfm_studio.engine.optimize.gradient_study import GradientStudy
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 from lfm_studio.engine.simulation import ImagingSetup
-from lfm_studio.engine.systems.kinds_base import Projector, depth_step
+from lfm_studio.engine.systems.kinds_base import Projector
 from lfm_studio.engine.systems.kinds_conventional import CONVENTIONAL
+from lfm_studio.engine.systems.kinds_fourier import shift_invariant_lateral, shift_invariant_setup
 
 RECONSTRUCTIONS: tuple[str, ...] = ("unrolled-rl", "rl")
 DEFAULT_DATA = TrainingDataSpec(phantoms="beads", objects=(4, 10), photons=(2e4,), read_noise=1.0)
 """Training phantoms when none are given: 4-10 beads per volume, 2e4 photons per image."""
-
-
-def fixed_grid_setup(stack: PSFStack, lateral: int) -> ImagingSetup:
-    """The shift-invariant setup of ``stack`` on a ``(Z, lateral, lateral)`` volume (differentiable in the PSF)."""
-    voxel = stack.object_pixel_size
-    projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
-    if stack.volume_oversampling > 1:
-        projector = BinnedProjector(projector, stack.volume_oversampling)
-    return ImagingSetup(projector, (len(stack.depths), lateral, lateral), (depth_step(stack), voxel, voxel))
 
 
 def sample_loss(
@@ -159,8 +148,7 @@ def optimize_end_to_end(
     """
     if reconstruction not in RECONSTRUCTIONS:
         raise ValueError(f"reconstruction must be one of {RECONSTRUCTIONS}; got {reconstruction!r}.")
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    check_dtype(dtype)
     if reconstruction == "rl":
         freeze_reconstruction = True
     if freeze_optics and freeze_reconstruction:
@@ -171,18 +159,17 @@ def optimize_end_to_end(
     if not (isinstance(batch, int) and batch >= 1 and isinstance(held_out, int) and held_out >= 1):
         raise ValueError(f"batch and held_out must be integers >= 1; got {batch!r}, {held_out!r}.")
     spec = data or replace(DEFAULT_DATA, seed=seed)
-    binding = bind_space(space, design)
+    start = prepare_start(design, space, constraints)
+    binding, u0 = start.binding, start.u
     base = settings or EvaluationSettings()
-    constraints = default_constraints(design) if constraints is None else tuple(constraints)
-    u0, start_design = start_point(binding, design)
-    _, found = _feasible(binding, design, u0, constraints)
-    if found is not None:
-        raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
-
     conventional = binding.kind is CONVENTIONAL
 
     def setup_of(stack: PSFStack) -> ImagingSetup:
-        return CONVENTIONAL.imaging_setup(stack) if conventional else fixed_grid_setup(stack, lateral)
+        return (
+            CONVENTIONAL.imaging_setup(stack)
+            if conventional
+            else shift_invariant_setup(stack, lateral=lateral)
+        )
 
     def setup_at(values: torch.Tensor, at: Design, precision: str) -> ImagingSetup:
         return setup_of(binding.psf_stack(at, values, replace(base, dtype=precision)))
@@ -217,13 +204,16 @@ def optimize_end_to_end(
     def samples_of(setup: ImagingSetup, split: Split, start: int, count: int) -> list[Sample]:
         return [make_sample(spec, setup, split, start + i) for i in range(count)]
 
-    def held_out_loss(values: torch.Tensor, at: Design) -> tuple[float, torch.Tensor]:
+    def held_out_of(setup: ImagingSetup) -> tuple[float, torch.Tensor]:
         with torch.no_grad():
-            setup = setup_at(values, at, dtype)
             loss, volume = batch_loss(setup, samples_of(setup, "test", 0, held_out), net)
         return float(loss), volume
 
-    start_held_out, _ = held_out_loss(binding.values(u0), design)
+    def held_out_loss(values: torch.Tensor, at: Design) -> tuple[float, torch.Tensor]:
+        with torch.no_grad():
+            return held_out_of(setup_at(values, at, dtype))
+
+    start_held_out, _ = held_out_of(start_setup)  # the start PSF is computed once
     check = None
     if check_float64:
         check_samples = samples_of(start_setup, "train", 0, batch)
@@ -240,7 +230,11 @@ def optimize_end_to_end(
             weights = [] if network is None else list(network.parameters())
             return loss.to(torch.float64), [leaf, *weights]
 
-        check = precision_check(fresh, tolerance)
+        # Step 0 evaluates the start gradient in ``dtype`` on the same batch (train samples 0..batch-1):
+        # reused when it differentiates the same leaves (the optics and every reconstruction weight).
+        check = StartGradientCheck(
+            fresh, dtype, tolerance, reuse=not freeze_optics and (net is None or not freeze_reconstruction)
+        )
 
     def loss_at(u: torch.Tensor, step: int) -> torch.Tensor:
         setup = setup_at(binding.values(u), design, dtype)
@@ -264,18 +258,11 @@ def optimize_end_to_end(
         "high_pass_weight": high_pass_weight,
         "data": spec.to_dict(),
     }
-    recorder = None
-    if study is not None:
-        recorder = GradientStudy(
-            study,
-            design=design,
-            space=space,
-            objective={"name": "task_loss", "unit": "", "direction": "minimize"},
-            settings=study_settings(replace(base, dtype=dtype), **options),
-            sampler=f"gradient-{optimizer}",
-            seed=seed,
-            study_name=study_name,
-        )
+    recorder = open_recorder(
+        study, study_name, design=design, space=space,
+        objective={"name": "task_loss", "unit": "", "direction": "minimize"},
+        run_settings=replace(base, dtype=dtype), options=options, seed=seed,
+    )  # fmt: skip
     u = u0.clone().requires_grad_(not freeze_optics)
     extra_groups = (
         []
@@ -283,8 +270,8 @@ def optimize_end_to_end(
         else [{"params": list(net.parameters()), "lr": lr_reconstruction}]
     )
     setup = DescentSetup(
-        binding, design, steps, optimizer, lr, schedule, constraints, freeze_optics, extra_groups,
-        recorder, progress, cancel, "minimize",
+        binding, design, steps, optimizer, lr, schedule, start.constraints, freeze_optics, extra_groups,
+        recorder, progress, cancel, "minimize", on_first_gradient=None if check is None else check.take,
     )  # fmt: skip
     initial = [] if net is None else [p.detach().clone() for p in net.parameters()]
     history = descend(setup, u, loss_at)
@@ -293,13 +280,13 @@ def optimize_end_to_end(
         if net is None
         else sum(float((p.detach() - q).pow(2).sum()) for p, q in zip(net.parameters(), initial, strict=True))
     )
-    final_values = binding.values(u.detach().to(torch.float64))
-    final, notes = quietly(lambda: space.apply(design, binding.point(final_values)))
+    final_values, last_point = binding.values_and_point(u)
+    final, notes = design_at(binding, design, last_point)
     final_held_out, volume = held_out_loss(final_values, design)
-    last_point = binding.point(final_values)
     result = GradientResult(
-        final, start_design, history, history[0].value, history[-1].value, check=check, final="last",
-        final_point=last_point, last_point=last_point,
+        final, start.design, history, history[0].value, history[-1].value,
+        check=None if check is None else check.result(), final="last", final_point=last_point,
+        last_point=last_point,
     )  # fmt: skip
     result.extra = {
         "held_out_start": start_held_out,
@@ -311,25 +298,7 @@ def optimize_end_to_end(
     }
     result.model = net
     result.warnings = notes
+    snap_result(result, binding, catalogue, lambda values, snapped: held_out_loss(values, snapped)[0])
     if catalogue is not None:
-        snapped, snapped_values = snap_design(binding, final, catalogue)
-        result.snapped_value, _ = held_out_loss(snapped_values, snapped)
         result.extra["held_out_snapped"] = result.snapped_value
-        result.unsnapped_design, result.design = final, snapped
-        result.warnings = quietly(lambda: catalogue.snap(final))[1]
-    if recorder is not None:
-        recorder.finish(result.summary())
-        result.study = recorder.study
-    return result
-
-
-def shift_invariant_lateral(stack: PSFStack) -> int:
-    """The lateral voxel count :func:`~lfm_studio.engine.systems.kinds_fourier.shift_invariant_setup`
-    gives ``stack`` (odd; the design's field of view over the voxel, else a quarter of the sensor)."""
-    voxel = stack.object_pixel_size
-    field_of_view = (
-        getattr(stack.design, "field_of_view_diameter", None) if stack.design is not None else None
-    )
-    ny, nx = stack.data.shape[-2:]
-    lateral = min(ny, nx) // 4 if not field_of_view else max(1, math.ceil(field_of_view / voxel))
-    return lateral + 1 - lateral % 2
+    return finish_study(result, recorder)

@@ -36,7 +36,6 @@ import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-from functools import partial
 from typing import Any
 
 import torch
@@ -123,18 +122,43 @@ class PrecisionCheck:
         }
 
 
+DTYPES: tuple[str, ...] = ("float32", "float64")
+"""The precisions a gradient run computes in (``dtype``)."""
+
+PrecisionLoss = Callable[[str], tuple[torch.Tensor, Sequence[torch.Tensor]]]
+"""``loss(dtype_name) -> (loss, leaves)``: the start loss in that precision and the leaf tensors
+whose gradients the precision check compares (fresh leaves per call)."""
+
+
+def check_dtype(dtype: str) -> None:
+    """Refuse a ``dtype`` that is not one of :data:`DTYPES`."""
+    if dtype not in DTYPES:
+        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+
+
+def flat_gradient(leaves: Sequence[torch.Tensor], grads: Sequence[torch.Tensor | None]) -> torch.Tensor:
+    """The gradients of ``leaves`` as one flat float64 vector (zeros for a leaf without one)."""
+    flat = [torch.zeros_like(x) if g is None else g for x, g in zip(leaves, grads, strict=True)]
+    return torch.cat([g.detach().reshape(-1).to(torch.float64) for g in flat])
+
+
+def gradient_in(loss: PrecisionLoss, dtype: str) -> torch.Tensor:
+    """The flat float64 gradient (:func:`flat_gradient`) of ``loss(dtype)`` over its leaves."""
+    value, leaves = loss(dtype)
+    return flat_gradient(leaves, torch.autograd.grad(value, list(leaves), allow_unused=True))
+
+
 def precision_check(
-    loss: Callable[[str], tuple[torch.Tensor, Sequence[torch.Tensor]]], tolerance: float = GRADIENT_TOLERANCE
+    loss: PrecisionLoss,
+    tolerance: float = GRADIENT_TOLERANCE,
+    *,
+    known: Mapping[str, torch.Tensor] | None = None,
 ) -> PrecisionCheck:
     """Compare the gradient in float32 with float64. ``loss(dtype_name)`` returns the loss and the
-    leaf tensors whose gradients are compared (fresh leaves per call)."""
-    grads = []
-    for dtype in ("float32", "float64"):
-        value, leaves = loss(dtype)
-        found = torch.autograd.grad(value, list(leaves), allow_unused=True)
-        flat = [torch.zeros_like(x) if g is None else g for x, g in zip(leaves, found, strict=True)]
-        grads.append(torch.cat([g.detach().reshape(-1).to(torch.float64) for g in flat]))
-    g32, g64 = grads
+    leaf tensors whose gradients are compared (fresh leaves per call); ``known`` maps a dtype name
+    to its flat gradient when it was computed already (that precision is then not evaluated)."""
+    known = known or {}
+    g32, g64 = (known[d] if d in known else gradient_in(loss, d) for d in DTYPES)
     scale = float(g64.norm())
     error = float((g32 - g64).norm()) / scale if scale > 0 else math.inf
     return PrecisionCheck(error, tolerance, tuple(g32.tolist()), tuple(g64.tolist()))
@@ -292,9 +316,9 @@ def quietly(build: Callable[[], Design]) -> tuple[Design, list[str]]:
 def _feasible(
     binding: SpaceBinding, design: Design, u: torch.Tensor, constraints: Sequence[Constraint]
 ) -> tuple[Design | None, Infeasible | None]:
-    point = binding.point(binding.values(u.detach().to(torch.float64)))
+    _, point = binding.values_and_point(u)
     try:
-        candidate, _ = quietly(lambda: binding.space.apply(design, point))
+        candidate, _ = design_at(binding, design, point)
     except ValueError as error:
         return None, infeasible_from_error(error)
     found = first_violation(candidate, constraints)
@@ -319,6 +343,9 @@ class DescentSetup:
     cancel: CancelToken = None
     direction: str = "minimize"
     first_step: int = 0  # a resumed run continues the step numbers (and the schedule) from here
+    on_first_gradient: Callable[[torch.Tensor], None] | None = None
+    """Called once with the first step's first gradient, flat float64 over ``u`` (unless the optics
+    are frozen) then the ``extra_groups`` parameters (:func:`flat_gradient`): the start gradient."""
 
 
 def _closure(
@@ -328,8 +355,10 @@ def _closure(
     step: int,
     weights: list[torch.Tensor],
     seen: dict[str, Any],
+    on_gradient: Callable[[torch.Tensor], None] | None = None,
 ) -> Callable[[], torch.Tensor]:
-    """The loss-and-gradient closure of one step; the first call's loss, point and gradient norm go into ``seen``."""
+    """The loss-and-gradient closure of one step; the first call's loss, point and gradient norm go
+    into ``seen`` (and its flat gradient to ``on_gradient``, when given)."""
 
     def closure() -> torch.Tensor:
         optimizer.zero_grad()
@@ -340,6 +369,8 @@ def _closure(
             seen["u"] = u.detach().clone()
             grads = [p.grad.detach().reshape(-1) for p in weights if p.grad is not None]
             seen["grad_norm"] = float(torch.cat(grads).norm()) if grads else 0.0
+            if on_gradient is not None:
+                on_gradient(flat_gradient(weights, [p.grad for p in weights]))
         return loss
 
     return closure
@@ -384,7 +415,10 @@ def descend(
             group["lr"] = source["initial_lr"] * factor
         start = time.perf_counter()
         seen: dict[str, Any] = {}
-        closure = _closure(optimizer, loss_at, u, step, weights, seen)
+        first = step == setup.first_step
+        closure = _closure(
+            optimizer, loss_at, u, step, weights, seen, setup.on_first_gradient if first else None
+        )
         if setup.optimizer == "lbfgs":
             optimizer.step(closure)  # type: ignore[arg-type]
         else:
@@ -411,8 +445,7 @@ def descend(
                 # L-BFGS' curvature pairs describe the step it proposed, not the projected or
                 # backtracked one that was taken: forget them rather than mislead the next steps.
                 optimizer.state.clear()
-        values = setup.binding.values(seen["u"].to(torch.float64))
-        point = setup.binding.point(values)
+        _, point = setup.binding.values_and_point(seen["u"])
         loss_value = seen["loss"]
         value = loss_value * sign(setup.direction)
         record = StepRecord(
@@ -428,41 +461,143 @@ def descend(
         )
         history.append(record)
         if setup.study is not None:
-            at, notes = quietly(partial(setup.binding.space.apply, setup.design, point))
-            design_json = design_to_json(at)
-            setup.study.add(
-                point,
-                value,
-                design_json,
-                seconds=record.seconds,
-                warnings=notes,
-                gradient={
-                    "step": step,
-                    "loss": loss_value,
-                    "grad_norm": record.grad_norm,
-                    "lr": record.lr,
-                    "optimizer": setup.optimizer,
-                    "backtracks": backtracks,
-                    "backtrack_reason": reason,
-                },
-            )
+            record_point(
+                setup.study, setup.binding, setup.design, point, value, seconds=record.seconds,
+                gradient={"step": step, "loss": loss_value, "grad_norm": record.grad_norm, "lr": record.lr,
+                          "optimizer": setup.optimizer, "backtracks": backtracks, "backtrack_reason": reason},
+            )  # fmt: skip
     checkpoint(setup.cancel, setup.progress, setup.steps, setup.steps, "gradient steps done")
     return history
+
+
+def design_at(binding: SpaceBinding, design: Design, point: Mapping[str, float]) -> tuple[Design, list[str]]:
+    """``design`` with the space ``point`` (design units) written in, and its design warnings
+    (caught, not emitted: :func:`quietly`)."""
+    return quietly(lambda: binding.space.apply(design, point))
 
 
 def start_point(binding: SpaceBinding, design: Design) -> tuple[torch.Tensor, Design]:
     """``u`` of the design's values, clamped to the bounds, and the design at that point."""
     u = binding.normalised(binding.values_of(design)).clamp(0.0, 1.0)
-    start, _ = quietly(lambda: binding.space.apply(design, binding.point(binding.values(u))))
+    start, _ = design_at(binding, design, binding.values_and_point(u)[1])
     return u, start
 
 
-def snap_design(
-    binding: SpaceBinding, design: Design, catalogue: FocalLengthCatalogue
-) -> tuple[Design, torch.Tensor]:
-    """``design`` snapped to the catalogue and its values at the space's paths (``(P,)`` float64)."""
-    snapped, _ = quietly(lambda: catalogue.snap(design))
-    return snapped, binding.values_of(snapped)
+@dataclass(frozen=True)
+class Start:
+    """Where a gradient run starts (:func:`prepare_start`).
+
+    binding : the space bound to the design (:func:`.gradient_params.bind_space`).
+    constraints : checked after every step (the given ones, else the design's defaults).
+    u : the normalised start ``(P,)`` float64 in ``[0, 1]`` (the design's values projected on the bounds).
+    design : the design at ``u`` (the bound-projected start).
+    """
+
+    binding: SpaceBinding
+    constraints: tuple[Constraint, ...]
+    u: torch.Tensor
+    design: Design
+
+
+def prepare_start(design: Design, space: DesignSpace, constraints: Sequence[Constraint] | None) -> Start:
+    """Bind ``space`` to ``design``, project the start on the bounds and refuse an infeasible start
+    (``ValueError`` naming the violated constraint)."""
+    binding = bind_space(space, design)
+    checks = default_constraints(design) if constraints is None else tuple(constraints)
+    u0, start_design = start_point(binding, design)
+    _, found = _feasible(binding, design, u0, checks)
+    if found is not None:
+        raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
+    return Start(binding, checks, u0, start_design)
+
+
+class StartGradientCheck:
+    """The float32 / float64 start-gradient comparison (:func:`precision_check`) of a descent in
+    ``dtype``, sharing its work with the descent.
+
+    The start gradient in ``dtype`` is the descent's first gradient (same point, same loss), so
+    with ``reuse`` (the descent differentiates exactly the check's leaves, in the same order) only
+    the other precision is evaluated here: pass :meth:`take` as ``DescentSetup.on_first_gradient``
+    and read :meth:`result` after the descent. Without ``reuse`` both precisions are evaluated now.
+    The other precision is always evaluated now, at the start weights (before the descent moves them).
+    """
+
+    def __init__(self, loss: PrecisionLoss, dtype: str, tolerance: float, *, reuse: bool) -> None:
+        self.loss, self.dtype, self.tolerance, self.reuse = loss, dtype, tolerance, reuse
+        self.known = {d: gradient_in(loss, d) for d in DTYPES if d != dtype or not reuse}
+
+    def take(self, gradient: torch.Tensor) -> None:
+        """The descent's first gradient (flat float64), when reused."""
+        if self.reuse:
+            self.known[self.dtype] = gradient.clone()
+
+    def result(self) -> PrecisionCheck:
+        """The comparison (evaluates the descent's precision only if the descent did not provide it)."""
+        return precision_check(self.loss, self.tolerance, known=self.known)
+
+
+def open_recorder(
+    study: str | None,
+    study_name: str,
+    *,
+    design: Design,
+    space: DesignSpace,
+    objective: Mapping[str, str],
+    run_settings: EvaluationSettings,
+    options: Mapping[str, Any],
+    seed: int,
+    resume: bool = False,
+) -> GradientStudy | None:
+    """The study a gradient run records into (None without a ``study`` database): sampler
+    ``gradient-<options["optimizer"]>``, settings :func:`study_settings` of ``run_settings`` and ``options``."""
+    if study is None:
+        return None
+    return GradientStudy(
+        study, design=design, space=space, objective=objective,
+        settings=study_settings(run_settings, **options), sampler=f"gradient-{options['optimizer']}",
+        seed=seed, study_name=study_name, resume=resume,
+    )  # fmt: skip
+
+
+def record_point(
+    recorder: GradientStudy,
+    binding: SpaceBinding,
+    design: Design,
+    point: Mapping[str, float],
+    value: float,
+    *,
+    seconds: float,
+    gradient: Mapping[str, Any],
+) -> None:
+    """Store one evaluated point (a step, or the last point) with the design JSON there and its warnings."""
+    at, notes = design_at(binding, design, point)
+    recorder.add(point, value, design_to_json(at), seconds=seconds, warnings=notes, gradient=gradient)
+
+
+def snap_result(
+    result: GradientResult,
+    binding: SpaceBinding,
+    catalogue: FocalLengthCatalogue | None,
+    score: Callable[[torch.Tensor, Design], float],
+) -> None:
+    """Snap ``result.design`` to ``catalogue`` (nothing without one): the snapped design becomes
+    ``result.design`` (the unsnapped one ``unsnapped_design``), ``snapped_value`` is ``score(values,
+    snapped)`` (``values``: the snapped design's ``(P,)`` float64 values at the space's paths) and
+    ``warnings`` the snapped design's."""
+    if catalogue is None:
+        return
+    chosen = result.design
+    snapped, notes = quietly(lambda: catalogue.snap(chosen))
+    result.snapped_value = score(binding.values_of(snapped), snapped)
+    result.unsnapped_design, result.design, result.warnings = chosen, snapped, notes
+
+
+def finish_study(result: GradientResult, recorder: GradientStudy | None) -> GradientResult:
+    """Store the run summary in the study (when recorded) and attach the study to ``result``."""
+    if recorder is not None:
+        recorder.finish(result.summary())
+        result.study = recorder.study
+    return result
 
 
 def study_settings(settings: EvaluationSettings, **options: Any) -> dict[str, Any]:
@@ -573,40 +708,27 @@ def optimize_psf(
         and the schedule continues at the global step. Without ``resume`` an existing study is refused.
     progress, cancel : as everywhere in the engine.
     """
-    if dtype not in ("float32", "float64"):
-        raise ValueError(f"dtype must be 'float32' or 'float64'; got {dtype!r}.")
+    check_dtype(dtype)
     if final not in FINALS:
         raise ValueError(f"final must be one of {FINALS}; got {final!r}.")
     if resume and study is None:
         raise ValueError("resume=True needs a study to continue. Fix: give study (--study) and study_name.")
     built = psf_objective(objective, options)
-    binding = bind_space(space, design)
+    start = prepare_start(design, space, constraints)
+    binding, u0 = start.binding, start.u
     base = settings or EvaluationSettings()
-    run_settings = replace(base, dtype=dtype)
-    constraints = default_constraints(design) if constraints is None else tuple(constraints)
-    u0, start_design = start_point(binding, design)
-    _, found = _feasible(binding, design, u0, constraints)
-    if found is not None:
-        raise ValueError(f"the start design is infeasible ({found}). Fix: start from a feasible design.")
     direction = sign(built.direction)
 
     def loss_of(values: torch.Tensor, at: Design, precision: str) -> torch.Tensor:
         stack = binding.psf_stack(at, values, replace(base, dtype=precision))
         return direction * built.loss(stack).to(torch.float64)
 
-    recorder = None
-    if study is not None:
-        recorder = GradientStudy(
-            study,
-            design=design,
-            space=space,
-            objective={"name": built.name, "unit": built.unit, "direction": built.direction},
-            settings=study_settings(run_settings, optimizer=optimizer, lr=lr, schedule=schedule, steps=steps),
-            sampler=f"gradient-{optimizer}",
-            seed=seed,
-            study_name=study_name,
-            resume=resume,
-        )
+    recorder = open_recorder(
+        study, study_name, design=design, space=space,
+        objective={"name": built.name, "unit": built.unit, "direction": built.direction},
+        run_settings=replace(base, dtype=dtype),
+        options={"optimizer": optimizer, "lr": lr, "schedule": schedule, "steps": steps}, seed=seed, resume=resume,
+    )  # fmt: skip
     stored: list[StepRecord] = []
     if recorder is not None and resume:
         stored, restart = resume_point(recorder, binding, steps, final)
@@ -619,22 +741,22 @@ def optimize_psf(
             leaf = u0.clone().requires_grad_(True)
             return loss_of(binding.values(leaf), design, precision), [leaf]
 
-        check = precision_check(fresh, tolerance)
+        # the descent's first gradient is the start gradient in ``dtype`` (same point, same leaf)
+        check = StartGradientCheck(fresh, dtype, tolerance, reuse=True)
     u = u0.clone().requires_grad_(True)
     first = stored[-1].step + 1 if stored else 0
     setup = DescentSetup(
-        binding, design, steps, optimizer, lr, schedule, constraints,
+        binding, design, steps, optimizer, lr, schedule, start.constraints,
         study=recorder, progress=progress, cancel=cancel, direction=built.direction, first_step=first,
+        on_first_gradient=None if check is None else check.take,
     )  # fmt: skip
     history = stored + descend(setup, u, lambda x, _step: loss_of(binding.values(x), design, dtype))
-    last_values = binding.values(u.detach().to(torch.float64))
-    last_point = binding.point(last_values)
+    last_values, last_point = binding.values_and_point(u)
     with torch.no_grad():
         last_loss = float(loss_of(last_values, design, dtype))
     if recorder is not None:
-        at, notes = quietly(lambda: space.apply(design, last_point))
-        recorder.add(
-            last_point, last_loss * direction, design_to_json(at), seconds=0.0, warnings=notes,
+        record_point(
+            recorder, binding, design, last_point, last_loss * direction, seconds=0.0,
             gradient={"step": steps, "last": True, "loss": last_loss, "grad_norm": None, "lr": None,
                       "optimizer": optimizer, "backtracks": 0, "backtrack_reason": None},
         )  # fmt: skip
@@ -643,20 +765,17 @@ def optimize_psf(
         best = min((h for h in history if math.isfinite(h.loss)), key=lambda h: h.loss, default=None)
         if best is not None and best.loss < last_loss:
             chosen_point, chosen_loss = best.point, best.loss
-    chosen, notes = quietly(lambda: space.apply(design, chosen_point))
+    chosen, notes = design_at(binding, design, chosen_point)
     result = GradientResult(
-        chosen, start_design, history, history[0].value, chosen_loss * direction, check=check,
-        final=final, final_point=chosen_point, last_value=last_loss * direction, last_point=last_point,
-        resumed_from=len(stored),
+        chosen, start.design, history, history[0].value, chosen_loss * direction,
+        check=None if check is None else check.result(), final=final, final_point=chosen_point,
+        last_value=last_loss * direction, last_point=last_point, resumed_from=len(stored),
     )  # fmt: skip
     result.warnings = notes
-    if catalogue is not None:
-        snapped, snapped_values = snap_design(binding, chosen, catalogue)
+
+    def snapped_value(values: torch.Tensor, snapped: Design) -> float:
         with torch.no_grad():
-            result.snapped_value = float(loss_of(snapped_values, snapped, dtype)) * direction
-        result.unsnapped_design, result.design = chosen, snapped
-        result.warnings = quietly(lambda: catalogue.snap(chosen))[1]
-    if recorder is not None:
-        recorder.finish(result.summary())
-        result.study = recorder.study
-    return result
+            return float(loss_of(values, snapped, dtype)) * direction
+
+    snap_result(result, binding, catalogue, snapped_value)
+    return finish_study(result, recorder)

@@ -212,6 +212,12 @@ class SpaceBinding:
         flat = values.detach().to(torch.float64).tolist()
         return {b.parameter.path: float(v) for b, v in zip(self.bindings, flat, strict=True)}
 
+    def values_and_point(self, u: torch.Tensor) -> tuple[torch.Tensor, dict[str, float]]:
+        """The design values ``(P,)`` float64 of normalised ``u`` (detached: a snapshot of the
+        descent's leaf) and their space point (``{path: value}`` in the parameters' units)."""
+        values = self.values(u.detach().to(torch.float64))
+        return values, self.point(values)
+
     def values_of(self, design: Design) -> torch.Tensor:
         """The design's current values at the space's paths, ``(P,)`` float64 (an unset regular
         lenslet aperture reads as the pitch it defaults to)."""

@@ -23,16 +23,32 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from lfm_studio.engine.design import Design
-from lfm_studio.engine.design.design_io import design_to_json
-from lfm_studio.engine.design.space import DesignSpace
+from lfm_studio.engine.design.space import DesignSpace, Point
+from lfm_studio.engine.optimize.constraints import Infeasible
+from lfm_studio.engine.optimize.evaluate import EvaluationRecord
 from lfm_studio.engine.optimize.study import (
     DEFAULT_STUDY_NAME,
     RECORD,
-    make_storage,
     open_stored,
+    record_of,
     require_optuna,
-    storage_url,
+    study_description,
 )
+
+EXISTS_FIX = "choose another --study-name or database, or continue a PSF run with resume=True (--resume)."
+"""The refusal's fix for an existing study name (end-to-end runs cannot resume: :mod:`.end_to_end`)."""
+
+
+def continuous_distributions(space: DesignSpace) -> dict[str, Any]:
+    """One ``FloatDistribution(low, high)`` per parameter (design units): the descent moves every
+    parameter continuously inside its bounds, so a space's ``log``, ``step`` or ``points`` (which
+    :func:`.study.distributions` turns into stepped or categorical distributions) do not apply; a
+    stepped distribution would refuse the off-grid points a descent visits."""
+    optuna = require_optuna()
+    return {
+        p.path: optuna.distributions.FloatDistribution(float(p.low), float(p.high))  # type: ignore[arg-type]
+        for p in space.parameters
+    }
 
 
 class GradientStudy:
@@ -51,30 +67,19 @@ class GradientStudy:
         study_name: str = DEFAULT_STUDY_NAME,
         resume: bool = False,
     ) -> None:
-        optuna = require_optuna()
-        attrs = {
-            "base_design": design_to_json(design),
-            "space": space.to_dict(),
-            "objectives": [dict(objective)],
-            "settings": dict(settings),
-            "sampler": sampler,
-            "seed": seed,
-        }
-        if not resume and study_name in optuna.study.get_all_study_names(storage=make_storage(storage)):
-            raise ValueError(
-                f"study {study_name!r} already exists in {storage_url(storage)}. Fix: choose another --study-name or "
-                "database, or continue a PSF run with resume=True (--resume)."
-            )
+        attrs = study_description(design, space.to_dict(), [objective], settings, sampler, seed)
         self.study = open_stored(
-            attrs, [objective["direction"]], storage, study_name=study_name, resume=resume
+            attrs,
+            [objective["direction"]],
+            storage,
+            study_name=study_name,
+            resume=resume,
+            exists_fix=EXISTS_FIX,
         )
         self.objective = objective["name"]
         self.seed = seed
         self.space = space
-        self._dists = {
-            p.path: optuna.distributions.FloatDistribution(float(p.low), float(p.high))  # type: ignore[arg-type]
-            for p in space.parameters
-        }
+        self._dists = continuous_distributions(space)
 
     def add(
         self,
@@ -88,22 +93,21 @@ class GradientStudy:
     ) -> None:
         """Store one step (a ``COMPLETE`` trial; a non-finite value is stored ``FAIL`` with reason ``not_finite``)."""
         optuna = require_optuna()
-        params = {
+        params: Point = {
             p.path: min(max(float(point[p.path]), float(p.low)), float(p.high))  # type: ignore[arg-type]
             for p in self.space.parameters
         }
         finite = math.isfinite(value)
-        record: dict[str, Any] = {
-            "values": {self.objective: value} if finite else None,
-            "infeasible_reason": None if finite else "not_finite",
-            "infeasible_message": None if finite else f"the objective is {value}",
-            "timing": {"total_s": seconds},
-            "design_json": design_json,
-            "seed": self.seed,
-            "warnings": list(warnings),
-            "cache": {},
-            "gradient": dict(gradient),
-        }
+        evaluation = EvaluationRecord(
+            params=params,
+            values={self.objective: value} if finite else None,
+            infeasible=None if finite else Infeasible("not_finite", f"the objective is {value}"),
+            timing={"total_s": seconds},
+            design_json=design_json,
+            seed=self.seed,
+            warnings=tuple(warnings),
+        )
+        record = {**evaluation.attrs(), "gradient": dict(gradient)}
         state = optuna.trial.TrialState.COMPLETE if finite else optuna.trial.TrialState.FAIL
         trial = optuna.trial.create_trial(
             params=params,
@@ -118,7 +122,7 @@ class GradientStudy:
         """``(params, value, record)`` of every stored gradient trial (value NaN for a failed one)."""
         out = []
         for trial in self.study.get_trials(deepcopy=False):
-            record = dict(trial.user_attrs.get(RECORD) or {})
+            record = record_of(trial)
             if "gradient" not in record or trial.state.name not in ("COMPLETE", "FAIL"):
                 continue
             value = float(trial.values[0]) if trial.state.name == "COMPLETE" else math.nan

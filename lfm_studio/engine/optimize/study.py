@@ -26,11 +26,12 @@ Dask worker keeps its own per-lenslet cache (the evaluator is scattered once).
 from __future__ import annotations
 
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from itertools import islice
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
 from lfm_studio.engine.design.space import DesignSpace, Parameter, point_key
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
@@ -128,18 +129,43 @@ def make_sampler(name: str, seed: int) -> Any:
     return optuna.samplers.RandomSampler(seed=seed)
 
 
-def study_attrs(evaluator: Evaluator, sampler: str) -> dict[str, Any]:
-    """What a study is about (stored once; a resumed run must match)."""
+def objective_attrs(objective: Any) -> dict[str, str]:
+    """How a study names an objective: ``{"name", "unit", "direction"}`` of anything that has them."""
+    return {"name": objective.name, "unit": objective.unit, "direction": objective.direction}
+
+
+def study_description(
+    base: Design,
+    space: Mapping[str, Any],
+    objectives: Sequence[Mapping[str, str]],
+    settings: Mapping[str, Any],
+    sampler: str,
+    seed: int,
+) -> dict[str, Any]:
+    """The study attributes every search stores once (a resumed run must match them,
+    :func:`open_stored`): the base design's JSON, the space (``DesignSpace.to_dict`` or another
+    search's description), the objectives (:func:`objective_attrs`), the settings, the sampler name
+    and the seed."""
     return {
-        "base_design": design_to_json(evaluator.base),
-        "space": evaluator.space.to_dict(),
-        "objectives": [
-            {"name": o.name, "unit": o.unit, "direction": o.direction} for o in evaluator.objectives
-        ],
-        "settings": evaluator.settings.to_dict(),
+        "base_design": design_to_json(base),
+        "space": dict(space),
+        "objectives": [dict(o) for o in objectives],
+        "settings": dict(settings),
         "sampler": sampler,
-        "seed": evaluator.seed,
+        "seed": seed,
     }
+
+
+def study_attrs(evaluator: Evaluator, sampler: str) -> dict[str, Any]:
+    """What a study of ``evaluator``'s points is about (:func:`study_description`)."""
+    return study_description(
+        evaluator.base,
+        evaluator.space.to_dict(),
+        [objective_attrs(o) for o in evaluator.objectives],
+        evaluator.settings.to_dict(),
+        sampler,
+        evaluator.seed,
+    )
 
 
 def _check_same(study: Any, attrs: dict[str, Any]) -> None:
@@ -153,6 +179,10 @@ def _check_same(study: Any, attrs: dict[str, Any]) -> None:
                 f"one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as before, or "
                 "a new --study-name / database."
             )
+
+
+EXISTS_FIX = "pass --resume to continue it, or choose another --study-name or database."
+"""How to get past an existing study (the end of :func:`open_stored`'s refusal)."""
 
 
 def open_study(
@@ -182,19 +212,18 @@ def open_stored(
     study_name: str = DEFAULT_STUDY_NAME,
     sampler: Any = None,
     resume: bool = False,
+    exists_fix: str = EXISTS_FIX,
 ) -> Any:
-    """Create a study described by ``attrs`` (:func:`study_attrs` keys), or (``resume=True``) load
-    it after checking that its stored ``attrs`` match (:class:`StudyMismatchError` otherwise)."""
+    """Create a study described by ``attrs`` (:func:`study_description` keys), or (``resume=True``) load
+    it after checking that its stored ``attrs`` match (:class:`StudyMismatchError` otherwise). An
+    existing study without ``resume`` is refused with a ``ValueError`` ending in ``Fix: <exists_fix>``."""
     optuna = require_optuna()
     url = storage_url(storage)
     rdb = make_storage(storage)
     names = optuna.study.get_all_study_names(storage=rdb)
     exists = study_name in names
     if exists and not resume:
-        raise ValueError(
-            f"study {study_name!r} already exists in {url}. Fix: pass --resume to continue it, or choose "
-            "another --study-name or database."
-        )
+        raise ValueError(f"study {study_name!r} already exists in {url}. Fix: {exists_fix}")
     study = optuna.create_study(
         storage=rdb,
         study_name=study_name,

@@ -27,7 +27,7 @@ from typing import Any
 import torch
 
 from lfm_studio.engine.image_quality import ncc, peak_match
-from lfm_studio.engine.io.camera_counts import CameraCalibration, counts_to_photons
+from lfm_studio.engine.io.camera_counts import counts_to_photons, design_camera
 from lfm_studio.engine.optimize.candidate import Candidate
 from lfm_studio.engine.optimize.objectives import Direction, Objective, ObjectiveFactory, register_objective
 from lfm_studio.engine.reconstruct import reconstruct_frame, registry
@@ -132,14 +132,7 @@ class TaskScore:
                 counts, _ = light_field_image(
                     setup, truth, camera_of(candidate.design), photons=self.photons, seed=seed
                 )
-                spec = candidate.design.camera
-                calibration = CameraCalibration(
-                    baseline_adu=spec.baseline_adu,
-                    gain_adu_per_e=spec.gain_adu_per_e,
-                    quantum_efficiency=spec.quantum_efficiency,
-                    read_noise_e=spec.read_noise_e,
-                    source="design camera",
-                )
+                calibration = design_camera(candidate.design.camera, "design camera")
                 photons, background = counts_to_photons(counts, calibration, name="simulated image")
             with candidate.timed("reconstruct_s"):
                 estimate = reconstruct_frame(

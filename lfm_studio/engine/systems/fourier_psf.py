@@ -26,6 +26,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 
 import torch
@@ -401,52 +402,49 @@ def _per_lenslet(
     PSF is zero."""
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
-    if cache is not None:
-        cache.begin_round()
-    done = skipped = 0
-    s, sensor = acc.oversampling, system.sensor_shape
-    for group in groups:
-        if len(group) > 1:
-            corner, samples = _group_canvas(windows, group, s)
-            if not _window_on_sensor(corner, samples // s, sensor):
-                report.lenslets_off_sensor.extend(group)
+    with cache.stack_round() if cache is not None else nullcontext():  # closed even when a lenslet raises
+        done = skipped = 0
+        s, sensor = acc.oversampling, system.sensor_shape
+        for group in groups:
+            if len(group) > 1:
+                corner, samples = _group_canvas(windows, group, s)
+                if not _window_on_sensor(corner, samples // s, sensor):
+                    report.lenslets_off_sensor.extend(group)
+                    done += len(group)
+                    skipped += len(group)
+                    continue
+                _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel)
+                report.lenslets_computed.extend(group)
                 done += len(group)
-                skipped += len(group)
+                checkpoint(cancel, progress, done, total, f"lenslets {done}/{total} (coherent group)")
                 continue
-            _coherent_group(system, windows, group, z, acc, device, source, parameters, out, cancel)
-            report.lenslets_computed.extend(group)
-            done += len(group)
-            checkpoint(cancel, progress, done, total, f"lenslets {done}/{total} (coherent group)")
-            continue
-        (index,) = group
-        lens, window = system.mla.lenslets[index], windows[index]
-        if not _window_on_sensor(window.first_pixel, window.pixels(s), sensor):
-            report.lenslets_off_sensor.append(index)
+            (index,) = group
+            lens, window = system.mla.lenslets[index], windows[index]
+            if not _window_on_sensor(window.first_pixel, window.pixels(s), sensor):
+                report.lenslets_off_sensor.append(index)
+                done += 1
+                skipped += 1
+                continue
+            checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
+            key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
+            patch = cache.get(key) if cache is not None else None
+            first = _origin_on_sensor(window.first_pixel, system.sensor_shape)
+            if patch is None:
+                patch = lenslet_psf(
+                    system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
+                    antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
+                    pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
+                )  # fmt: skip
+                report.lenslets_computed.append(index)
+                # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
+                patch = _on_sensor(patch, window.first_pixel, system.sensor_shape)
+                if cache is not None:
+                    cache.put(key, patch)
+            else:
+                report.lenslets_cached.append(index)
+            assert isinstance(patch, torch.Tensor)
+            _place(out, patch, first)
             done += 1
-            skipped += 1
-            continue
-        checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
-        key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
-        patch = cache.get(key) if cache is not None else None
-        first = _origin_on_sensor(window.first_pixel, system.sensor_shape)
-        if patch is None:
-            patch = lenslet_psf(
-                system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
-                antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
-                pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
-            )  # fmt: skip
-            report.lenslets_computed.append(index)
-            # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
-            patch = _on_sensor(patch, window.first_pixel, system.sensor_shape)
-            if cache is not None:
-                cache.put(key, patch)
-        else:
-            report.lenslets_cached.append(index)
-        assert isinstance(patch, torch.Tensor)
-        _place(out, patch, first)
-        done += 1
-    if cache is not None:
-        cache.end_round()
     if total and skipped == total:
         warnings.warn(
             f"no lenslet's light reaches the {sensor[0]} x {sensor[1]} px sensor (crop); the PSF is "

@@ -82,15 +82,30 @@ class FourierKind(SystemKind):
         return shift_invariant_setup(stack, field_of_view=field_of_view)
 
 
-def shift_invariant_setup(stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
-    """:class:`ShiftInvariantProjector` of ``stack`` (binned ``k x k`` for ``stack.volume_oversampling``
-    ``k``), on a volume of lateral voxel ``stack.object_pixel_size`` spanning ``field_of_view`` metres."""
+def shift_invariant_lateral(stack: PSFStack, *, field_of_view: float | None = None) -> int:
+    """The lateral voxel count (odd: a voxel on the optical axis) of a volume spanning
+    ``field_of_view`` metres at voxel ``stack.object_pixel_size`` (metres); ``None``: the
+    design's field of view, else a quarter of the (virtual) sensor's smaller side in pixels."""
     voxel = stack.object_pixel_size
     if field_of_view is None and stack.design is not None:
         field_of_view = getattr(stack.design, "field_of_view_diameter", None) or None
     ny, nx = stack.data.shape[-2:]
     lateral = min(ny, nx) // 4 if field_of_view is None else max(1, math.ceil(field_of_view / voxel))
-    lateral += 1 - lateral % 2  # odd: a voxel on the optical axis
+    return lateral + 1 - lateral % 2
+
+
+def shift_invariant_setup(
+    stack: PSFStack, *, field_of_view: float | None = None, lateral: int | None = None
+) -> ImagingSetup:
+    """:class:`ShiftInvariantProjector` of ``stack`` (binned ``k x k`` for ``stack.volume_oversampling``
+    ``k``), on a ``(Z, lateral, lateral)`` volume of lateral voxel ``stack.object_pixel_size``.
+
+    ``lateral`` (voxels): fixed by the caller (e.g. an optimiser that keeps the grid of its start
+    design while the magnification changes); ``None``: :func:`shift_invariant_lateral` of
+    ``field_of_view`` (metres). Differentiable in ``stack.data``."""
+    voxel = stack.object_pixel_size
+    if lateral is None:
+        lateral = shift_invariant_lateral(stack, field_of_view=field_of_view)
     projector: Projector = ShiftInvariantProjector(stack.data, (lateral, lateral))
     if stack.volume_oversampling > 1:
         projector = BinnedProjector(projector, stack.volume_oversampling)

@@ -14,7 +14,8 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import warnings
-from collections.abc import Hashable, Mapping
+from collections.abc import Hashable, Iterator, Mapping
+from contextlib import contextmanager
 
 import torch
 
@@ -106,8 +107,11 @@ class LensletCache(KernelCache):
     ----------
     hits, misses : lookups since construction (a miss is one lenslet computed).
     not_stored : patches computed but not stored because the current round's entries fill the budget.
-    round_bytes : bytes of the patches the current (or last) round used or stored.
+    round_bytes : bytes of the patches the current (or last) round used or stored (for a round
+        abandoned by an error, those it used before it stopped).
     warned : whether the "smaller than one design" :class:`LensletCacheWarning` was given (once per cache).
+
+    A PSF stack runs in :meth:`stack_round`, which closes its round whatever happens.
     """
 
     def __init__(self, max_bytes: int | None = None, *, device: torch.device | str = "cpu") -> None:
@@ -126,8 +130,31 @@ class LensletCache(KernelCache):
             self.round_bytes = 0
             self._round_not_stored = 0
 
-    def end_round(self) -> None:
-        """Close the round; warns once per cache (:class:`LensletCacheWarning`) if patches did not fit."""
+    @contextmanager
+    def stack_round(self) -> Iterator[None]:
+        """One PSF stack's round: :meth:`begin_round`, then :meth:`end_round` when the body returns.
+
+        When the body raises (a cancel, a refused lenslet), the round is abandoned instead: no
+        warning (a partial stack's patches say nothing of the budget a design needs), its
+        not-stored count is dropped, and its entries are no longer protected from eviction (the
+        stack they were kept for is gone). A round that a later :meth:`begin_round` already
+        replaced (another thread's stack) is left alone. The exception propagates."""
+        self.begin_round()
+        with self._lock:
+            number = self._round
+        try:
+            yield
+        except BaseException:
+            with self._lock:
+                if self._round == number:
+                    self._round_not_stored = 0
+                    self._round += 1
+            raise
+        self.end_round(stacklevel=5)  # through contextlib: the warning names the stack's caller
+
+    def end_round(self, *, stacklevel: int = 3) -> None:
+        """Close the round; warns once per cache (:class:`LensletCacheWarning`) if patches did not fit
+        (``stacklevel`` as for :func:`warnings.warn`, counted from here)."""
         if self._round_not_stored and not self.warned:
             self.warned = True
             warnings.warn(
@@ -137,7 +164,7 @@ class LensletCache(KernelCache):
                 f"Fix: give the cache at least {format_bytes(self.round_bytes)} (e.g. Evaluator(cache_bytes=...)), "
                 "crop the sensor or simulate fewer depths.",
                 LensletCacheWarning,
-                stacklevel=3,
+                stacklevel=stacklevel,
             )
 
     def get(self, key: Hashable) -> Kernel | None:

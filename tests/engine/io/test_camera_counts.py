@@ -113,3 +113,31 @@ def test_invalid_calibration_is_named(kwargs, message):
 def test_incomplete_camera_metadata_asks_for_the_options():
     with pytest.raises(ValueError, match="Fix: pass --baseline and --gain"):
         calibration_from_metadata({"camera": {"baseline_adu": 100.0}})
+
+
+def test_a_designs_camera_is_undone_as_the_metadata_of_its_simulated_image_says():
+    """design_camera (the studio's and the task score's conversion) reads the design's camera as
+    the image metadata of a frame simulated with it records it: the same four numbers."""
+    from lfm_studio.engine.design import load_preset
+    from lfm_studio.engine.io.camera_counts import design_camera
+    from lfm_studio.engine.simulation import camera_of
+
+    design = load_preset("flfm_guo2019")
+    spec = design.camera.model_copy(
+        update={"baseline_adu": 100.0, "gain_adu_per_e": 2.0, "read_noise_e": 1.5}
+    )
+    ours = design_camera(spec, "the design's camera")
+    recorded = calibration_from_metadata(
+        {"camera": camera_metadata(camera_of(design.updated(camera=spec)), photons=None, seed=0)}
+    )
+    assert ours.source == "the design's camera" and recorded is not None
+    fields = (
+        "baseline_adu",
+        "gain_adu_per_e",
+        "quantum_efficiency",
+        "read_noise_e",
+        "gain_known",
+        "quantized",
+    )
+    assert [getattr(ours, f) for f in fields] == [getattr(recorded, f) for f in fields]
+    assert (ours.baseline_adu, ours.gain_adu_per_e, ours.read_noise_e) == (100.0, 2.0, 1.5)

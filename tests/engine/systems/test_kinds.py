@@ -227,6 +227,25 @@ def test_fourier_projector_images_an_axial_point_as_the_psf(fourier_stack):
         assert float((image - psf).norm() / psf.norm()) < 1e-9
 
 
+def test_a_fixed_lateral_count_keeps_the_grid_and_the_default_is_the_odd_field_of_view_count(fourier_stack):
+    """``shift_invariant_setup(lateral=n)`` (the end-to-end optimiser's fixed grid) differs from the
+    default only in the lateral count; the default is :func:`shift_invariant_lateral`."""
+    from lfm_studio.engine.systems.kinds_fourier import shift_invariant_lateral, shift_invariant_setup
+
+    default = imaging_setup(fourier_stack)
+    count = shift_invariant_lateral(fourier_stack)
+    assert count % 2 == 1 and default.volume_shape == (2, count, count)
+    same = shift_invariant_setup(fourier_stack, lateral=count)
+    assert same.volume_shape == default.volume_shape and same.voxel_size == default.voxel_size
+    point = torch.zeros(default.volume_shape, dtype=torch.float64)
+    point[1, count // 2, count // 2] = 1.0
+    assert torch.equal(same.projector.forward(point), default.projector.forward(point))
+    fixed = shift_invariant_setup(fourier_stack, lateral=7)
+    assert fixed.volume_shape == (2, 7, 7) and fixed.voxel_size == default.voxel_size
+    assert fixed.projector.image_shape == default.projector.image_shape
+    assert shift_invariant_lateral(fourier_stack, field_of_view=10.5 * fourier_stack.object_pixel_size) == 11
+
+
 # ----- the typed pattern stack -----
 
 

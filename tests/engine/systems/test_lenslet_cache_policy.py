@@ -97,6 +97,40 @@ def test_a_cache_smaller_than_one_design_still_hits_on_a_repeat_and_says_so_once
     assert third.lenslets_computed == [0, 1] and len(cache) == 1 and cache.not_stored == 3
 
 
+def test_a_stack_that_raises_abandons_its_round_without_a_warning_and_unpins_its_entries(monkeypatch):
+    """Room for one of two patches; the stack fails after lenslet 1 was computed and not stored.
+    The round is closed anyway: no "smaller than one design" warning from a partial stack, its
+    not-stored count dropped, and lenslet 0's patch no longer protected (before, the round stayed
+    open and pinned it until the next stack); the next stack then runs as a first one."""
+    from lfm_studio.engine.systems import fourier_psf
+
+    patch = 3 * 15 * 15 * 4
+    cache = LensletCache(patch + 100)
+    placed = fourier_psf._place
+    calls = []
+
+    def place_then_fail(out, value, first):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("lenslet 1 refused")
+        placed(out, value, first)
+
+    monkeypatch.setattr(fourier_psf, "_place", place_then_fail)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the abandoned round does not warn
+        with pytest.raises(RuntimeError, match="lenslet 1 refused"):
+            _stack(cache=cache)
+    assert cache.counters() == (0, 2, 1) and len(cache) == 1 and not cache.warned
+    assert cache._round_not_stored == 0  # the abandoned round's count is gone
+    assert cache.put("other", torch.zeros(3, 15, 15))  # lenslet 0's patch is evictable again
+    assert len(cache) == 1 and "other" in cache
+    monkeypatch.setattr(fourier_psf, "_place", placed)
+    report = FourierPSFReport()
+    with pytest.warns(LensletCacheWarning, match="smaller than one design"):
+        assert torch.equal(_stack(cache=cache, report=report), _stack())
+    assert report.lenslets_computed == [0, 1] and cache.round_bytes == 2 * patch
+
+
 def test_a_cache_that_fits_reports_only_hits_and_misses():
     cache = LensletCache(2**20)
     before = cache.counters()
