@@ -186,6 +186,12 @@ class OptimiseRequest:
     def space(self) -> DesignSpace:
         return DesignSpace(tuple(p.to_parameter() for p in self.parameters))
 
+    method: ClassVar[str] = "grid"
+
+    def columns(self) -> tuple[str, ...]:
+        """The row parameters the dock's table shows (the freed paths)."""
+        return tuple(p.path for p in self.parameters)
+
 
 @dataclass(frozen=True)
 class CandidateRow:
