@@ -39,6 +39,7 @@ from qtpy.QtWidgets import (
     QComboBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QHBoxLayout,
     QHeaderView,
     QLabel,
@@ -46,6 +47,7 @@ from qtpy.QtWidgets import (
     QListWidget,
     QListWidgetItem,
     QPushButton,
+    QScrollArea,
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
@@ -229,8 +231,19 @@ class OptimiseDock(QWidget):
 
     def _build_setup(self) -> QWidget:
         box = QWidget()
-        column = QVBoxLayout(box)
-        column.setContentsMargins(0, 0, 0, 0)
+        outer = QVBoxLayout(box)
+        outer.setContentsMargins(0, 0, 0, 0)
+        # The method, the free parameters and the options scroll in a short dock; Run, Cancel
+        # and the message stay in view below them.
+        settings = QWidget()
+        column = QVBoxLayout(settings)
+        column.setContentsMargins(0, 0, 4, 0)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setWidget(settings)
+        outer.addWidget(scroll, 1)
         line = QHBoxLayout()
         line.addWidget(QLabel("<b>Method</b>"))
         self.method = QComboBox()
@@ -246,6 +259,7 @@ class OptimiseDock(QWidget):
         line.addWidget(self.method, 1)
         column.addLayout(line)
         self.parameters_title = QLabel("<b>Free parameters</b> (tick, then set low / high / points)")
+        self.parameters_title.setWordWrap(True)
         column.addWidget(self.parameters_title)
         self.parameters = QTableWidget(0, 6)
         self.parameters.setHorizontalHeaderLabels(["Free", "Parameter", "Now", "Low", "High", "Points"])
@@ -253,6 +267,7 @@ class OptimiseDock(QWidget):
         header = self.parameters.horizontalHeader()
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         header.setSectionResizeMode(_LABEL, QHeaderView.ResizeMode.Stretch)
+        self.parameters.setMinimumHeight(140)  # pixels: a few rows stay visible whatever the options below
         column.addWidget(self.parameters, 3)
 
         self.grid_box, form = _form_box()
@@ -293,7 +308,9 @@ class OptimiseDock(QWidget):
         column.addWidget(self._build_gradient_box())
         column.addWidget(self._build_psf_box())
         column.addWidget(self._build_end_to_end_box())
+        column.addStretch(0)
 
+        column = outer
         buttons = QHBoxLayout()
         self.run_button = QPushButton("Run")
         self.run_button.clicked.connect(self.start)
@@ -871,7 +888,12 @@ class OptimiseDock(QWidget):
         item.setLabel("bottom", x_label)
         item.setTitle(f"{name} ({self._directions[name]}) against {x_label}", color="k", size="9pt")
         # A gradient run's steps are one path: join them (the loss curve); candidates stay dots.
-        self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if method.startswith("gradient") else None)
+        gradient = method.startswith("gradient")
+        self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if gradient else None)
+        dots = {"grid": "candidate", "algorithm2": "layout"}.get(method, "step (final design last)")
+        for sample, label in item.legend.items:
+            if sample.item is self.feasible_dots:
+                label.setText(dots)
         best = best_so_far(self.rows, name, self._directions[name])
         xs = [r.number for r in self.rows]
         line = [(x, b) for x, b in zip(xs, best, strict=True) if b is not None]
