@@ -111,8 +111,8 @@ def _algorithm2_job(ctx: Any, base: Any, request: Algorithm2Request) -> RunResul
 
 
 def _gradient_job(ctx: Any, base: Any, request: GradientRequest) -> RunResult:
-    """Worker-thread body of a gradient run (the rows come with the result)."""
-    return run_gradient(base, request, progress=ctx.progress, cancel=ctx.cancel)
+    """Worker-thread body of a gradient run (each step goes out as a partial; the final design with the result)."""
+    return run_gradient(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
 
 
 _JOBS = {"grid": _run_job, "algorithm2": _algorithm2_job}
@@ -755,9 +755,8 @@ class OptimiseDock(QWidget):
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
         body = _JOBS.get(request.method, _gradient_job)
-        partial = self._on_row if request.method in _JOBS else None
         self.runner.submit(
-            JOB_NAME, body, self.state.design, request, on_result=self._on_result, on_partial=partial,
+            JOB_NAME, body, self.state.design, request, on_result=self._on_result, on_partial=self._on_row,
         )  # fmt: skip
 
     def cancel(self) -> None:

@@ -52,7 +52,7 @@ from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHE
 from lfm_studio.engine.optimize.gradient_params import bind_space
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, MLAPlane
 from lfm_studio.engine.optimize.objectives import sign
-from lfm_studio.engine.optimize.study import record_of, run_study
+from lfm_studio.engine.optimize.study import load_study, record_of, run_study
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.simulation import simulate_psf
@@ -635,21 +635,102 @@ def objective_info(request: AnyRequest) -> dict[str, tuple[str, str]]:
     return out
 
 
+def _step_note(grad_norm: float | None, lr: float | None, backtracks: int, reason: str | None) -> str:
+    note = "" if grad_norm is None else f"|grad| {grad_norm:.3g}, lr {lr:.3g}"
+    if reason:
+        note += f"; update backtracked {backtracks}x: {reason}"
+    return note
+
+
+_STUDY_NAME = "lfm_study"
+
+
+class _StepWatcher:
+    """The progress callback of a gradient run recorded into a temporary study: at each checkpoint the
+    steps stored since the last one go to ``on_row`` (the descent reports progress, not its steps; its
+    study holds them, one committed trial per step, design JSON included)."""
+
+    def __init__(
+        self,
+        storage: str,
+        name: str,
+        on_row: Callable[[CandidateRow], None],
+        progress: ProgressCallback | None,
+    ) -> None:
+        self.storage, self.name, self.on_row, self.progress = storage, name, on_row, progress
+        self.study: Any = None
+        self.seen: set[int] = set()
+
+    def __call__(self, done: int, total: int, message: str = "") -> None:
+        if done > 0:
+            self.flush()
+        if self.progress is not None:
+            self.progress(done, total, message)
+
+    def flush(self) -> None:
+        if self.study is None:
+            self.study = load_study(self.storage, _STUDY_NAME)
+        for trial in self.study.get_trials(deepcopy=False):
+            record = record_of(trial)
+            step = record.get("gradient")
+            if not step or step.get("last") or trial.number in self.seen:
+                continue
+            self.seen.add(trial.number)
+            complete = trial.state.name == "COMPLETE"
+            self.on_row(
+                CandidateRow(
+                    number=int(step["step"]), params=dict(trial.params),
+                    values={self.name: float(trial.values[0])} if complete else None,
+                    reason=record.get("infeasible_reason"),
+                    message=_step_note(step.get("grad_norm"), step.get("lr"), int(step.get("backtracks") or 0),
+                                       step.get("backtrack_reason")),
+                    design_json=record.get("design_json"),
+                )
+            )  # fmt: skip
+
+
 def run_gradient(
     base: Design,
     request: GradientRequest,
     *,
+    on_row: Callable[[CandidateRow], None] | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
 ) -> RunResult:
-    """Run the gradient optimiser from ``base``: one row per step, then the final design (not recorded in a study)."""
+    """Run the gradient optimiser from ``base``: one row per step, then the final design.
+
+    With ``on_row`` the run is recorded into a temporary study (deleted afterwards) and each step
+    goes to ``on_row`` at the next checkpoint (so the loss curve fills in while it runs)."""
+    scratch = None if on_row is None else Path(tempfile.mkdtemp(prefix="lfm_gradient_"))
+    watcher = None
+    if scratch is not None and on_row is not None:
+        name = request.objective if request.mode == "psf" else "task_loss"
+        watcher = _StepWatcher(str(scratch / "study.db"), name, on_row, progress)
+    try:
+        return _run_gradient(base, request, watcher, progress, cancel)
+    finally:
+        if watcher is not None:
+            watcher.study = None
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _run_gradient(
+    base: Design,
+    request: GradientRequest,
+    watcher: _StepWatcher | None,
+    progress: ProgressCallback | None,
+    cancel: CancelToken,
+) -> RunResult:
     from lfm_studio.engine.learned.data import TrainingDataSpec
 
     space = request.space()
     common: dict[str, Any] = {
         "steps": request.steps, "optimizer": request.optimizer, "lr": request.lr, "schedule": request.schedule,
         "dtype": "float32", "settings": EvaluationSettings(crop=request.crop),
-        "check_float64": request.check_float64, "seed": request.seed, "progress": progress, "cancel": cancel,
+        "check_float64": request.check_float64, "seed": request.seed, "cancel": cancel,
+        "progress": progress if watcher is None else watcher,
+        "study": None if watcher is None else watcher.storage, "study_name": _STUDY_NAME,
     }  # fmt: skip
     if request.mode == "psf":
         options = {"photons": request.photons, "background": request.background}
@@ -674,9 +755,7 @@ def run_gradient(
     for step in result.history:
         finite = math.isfinite(step.value)
         at, _ = quietly(lambda point=step.point: space.apply(base, point))  # type: ignore[misc]
-        note = f"|grad| {step.grad_norm:.3g}, lr {step.lr:.3g}"
-        if step.infeasible:
-            note += f"; update backtracked {step.backtracks}x: {step.infeasible}"
+        note = _step_note(step.grad_norm, step.lr, step.backtracks, step.infeasible)
         rows.append(
             CandidateRow(
                 number=step.step, params=dict(step.point), values={name: step.value} if finite else None,

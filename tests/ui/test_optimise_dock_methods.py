@@ -30,7 +30,7 @@ from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.main_window import MainWindow
 from lfm_studio.ui.optimise_dock import JOB_NAME
-from lfm_studio.ui.optimise_model import METHODS
+from lfm_studio.ui.optimise_model import METHODS, FreeParameter, GradientRequest, run_gradient
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
 
 pytest.importorskip("optuna")
@@ -300,3 +300,19 @@ def test_cancel_keeps_the_previous_results(qtbot, window, monkeypatch):
     qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "failed", timeout=TIMEOUT_MS)
     assert dock.rows == previous and "Failed: the start design is infeasible (test)" in dock.message.text()
     assert "Traceback" not in dock.message.text() and "previous results" in dock.message.text()
+
+
+def test_a_gradient_run_hands_over_each_step_as_it_is_stored():
+    base = _quiet(lambda: SPACE.apply(small_fourier_design(), POOR))
+    request = GradientRequest(
+        "psf", tuple(FreeParameter(p, *b) for p, b in BOUNDS.items()), steps=3, lr=0.1, check_float64=False
+    )
+    live, progress = [], []
+    result = _quiet(
+        lambda: run_gradient(base, request, on_row=live.append, progress=lambda *a: progress.append(a))
+    )
+    assert [r.number for r in live] == [0, 1, 2] == [r.number for r in result.rows[:-1]]
+    for shown, final in zip(live, result.rows, strict=False):
+        assert shown.params == pytest.approx(final.params) and shown.values == pytest.approx(final.values)
+        assert shown.design() == final.design()  # the stored step's design is the step's point
+    assert [p[:2] for p in progress] == [(0, 3), (1, 3), (2, 3), (3, 3)]
