@@ -21,9 +21,9 @@ The run is the job ``"optimise"`` of the studio's shared :class:`~lfm_studio.wid
 (progress and Cancel in the status bar too); each stored candidate arrives as a partial
 result, so the table and plot fill in while the GUI stays responsive. Cancel or a failure
 keeps the candidates already shown (or, when the new run delivered nothing yet, the previous
-results: a run's rows replace the old ones only when its first row arrives). Double-click a candidate (or "Load into studio") to
-make its design the design in force (an edit: the document becomes unsaved; the studio
-has no undo).
+results: a run's rows replace the old ones only when its first row arrives). Double-click a
+candidate (or "Load into studio") to make its design the design in force (an edit: the
+document becomes unsaved; the studio has no undo).
 """
 
 from __future__ import annotations
@@ -115,7 +115,12 @@ def _gradient_job(ctx: Any, base: Any, request: GradientRequest) -> RunResult:
     return run_gradient(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
 
 
-_JOBS = {"grid": _run_job, "algorithm2": _algorithm2_job}
+_JOBS = {
+    "grid": _run_job,
+    "algorithm2": _algorithm2_job,
+    "gradient-psf": _gradient_job,
+    "gradient-end-to-end": _gradient_job,
+}
 X_LABELS = {"grid": "evaluation", "algorithm2": "layout considered", "gradient": "step"}
 
 
@@ -196,13 +201,11 @@ class OptimiseDock(QWidget):
         self.state, self.runner = state, runner
         self.rows: list[CandidateRow] = []
         self.request: AnyRequest | None = None
-        self.chosen: int | None = (
-            None  # the row the engine picked (Algorithm 2's best layout, the final design)
-        )
+        # the row the engine picked (Algorithm 2's best layout, a gradient run's final design)
+        self.chosen: int | None = None
         self.summary = ""
-        self._pending: tuple[AnyRequest, dict[str, tuple[str, str]]] | None = (
-            None  # started, nothing shown yet
-        )
+        # a run started whose first row has not arrived: the rows shown stay until it does
+        self._pending: tuple[AnyRequest, dict[str, tuple[str, str]]] | None = None
         self._min_lenslet_edited = False
         self._directions: dict[str, str] = {}
         self._objective_order: list[str] = []
@@ -310,7 +313,7 @@ class OptimiseDock(QWidget):
         column.addWidget(self._build_end_to_end_box())
         column.addStretch(0)
 
-        column = outer
+        column = outer  # Run, Cancel and the message: below the scroll area, always in view
         buttons = QHBoxLayout()
         self.run_button = QPushButton("Run")
         self.run_button.clicked.connect(self.start)
@@ -754,9 +757,9 @@ class OptimiseDock(QWidget):
         self.message.setText(f"Running {METHODS[request.method]}…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
-        body = _JOBS.get(request.method, _gradient_job)
         self.runner.submit(
-            JOB_NAME, body, self.state.design, request, on_result=self._on_result, on_partial=self._on_row,
+            JOB_NAME, _JOBS[request.method], self.state.design, request,
+            on_result=self._on_result, on_partial=self._on_row,
         )  # fmt: skip
 
     def cancel(self) -> None:

@@ -375,10 +375,8 @@ def default_min_lenslet_um(design: Design) -> float:
 
     The CLI has no default (``--min-lenslet-um`` is required); the search costs about
     ``M**4 / 4`` layouts for ``M`` cells per side, so the dock starts small."""
-    try:
-        pupil_um = float(design.pupil_diameter_at_mla) * 1e6
-    except (AttributeError, TypeError, ValueError):
-        return 1000.0
+    pupil = getattr(design, "pupil_diameter_at_mla", None)  # metres; None for a conventional LFM
+    pupil_um = float(pupil) * 1e6 if isinstance(pupil, int | float) else math.nan
     if not (math.isfinite(pupil_um) and pupil_um > 0):
         return 1000.0
     cell = pupil_um / 4
@@ -628,7 +626,7 @@ def objective_info(request: AnyRequest) -> dict[str, tuple[str, str]]:
             request.objective, {"photons": request.photons, "background": request.background}
         )
         return {request.objective: (built.direction, built.unit)}
-    out = {}
+    out: dict[str, tuple[str, str]] = {}
     for name in request.objectives:
         objective = objective_named(name)
         out[name] = (objective.direction, objective.unit)
