@@ -946,7 +946,7 @@ class OptimiseDock(QWidget):
     def compare(self, a: CandidateRow, b: CandidateRow) -> None:
         """Show ``a`` and ``b`` side by side in the Compare tab."""
         try:
-            design_a, design_b = a.design(), b.design()
+            (design_a, _), (design_b, _) = with_design_warnings(a.design), with_design_warnings(b.design)
         except ValueError as error:
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return

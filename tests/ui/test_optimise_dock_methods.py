@@ -164,6 +164,11 @@ def test_algorithm2_finds_the_engines_layout_without_overlaps_and_it_loads(qtbot
         math.hypot(*lens.center_um) + lens.aperture_diameter_um / 2 <= radius_um + 1e-6 for lens in lenslets
     )
     assert state.dirty and "Loaded candidate" in dock.message.text()
+    # two layouts side by side in the Compare tab: the start (5 lenslets) and the one found
+    dock.compare(dock.rows[0], best)
+    table = {row[0]: row[1:] for row in dock.compare_rows()}
+    assert table["Number of views"] == ("5", str(len(reference.blocks)))
+    qtbot.waitUntil(lambda: all(i.image is not None for i in dock.psf_images), timeout=TIMEOUT_MS)
     # an infeasible layout has no design
     before = state.design
     dock.table.cellDoubleClicked.emit(dock.rows.index(infeasible[0]), 0)
