@@ -1,6 +1,14 @@
-"""The studio's "Optimise" dock: free parameters, pick objectives and a budget, run, plot, load, compare.
+"""The studio's "Optimise" dock: pick a method, free parameters, set its options, run, plot, load, compare.
 
-Left: the freeable design values (:func:`~.optimise_model.freeable_fields`; tick a row and
+Top left: the **method** (:data:`~.optimise_model.METHODS`): grid search / design study (the
+default, described below), the thesis' Algorithm 2 for the MLA layout, or gradient
+optimisation (PSF engineering or end to end). Each method shows only its own options, with
+the CLI's defaults (``lfm-studio optimize``; tooltips give units and meaning). Algorithm 2
+fills the table with one row per layout considered (the best one green: load it like a
+candidate); a gradient run with one row per step and the final design (green), and the plot
+with the objective against the step (the loss curve).
+
+Grid search. Left: the freeable design values (:func:`~.optimise_model.freeable_fields`; tick a row and
 give low / high / points), the objectives (:func:`~lfm_studio.engine.optimize.objective_names`;
 the first ticked one ranks the candidates), the sampler, the budget (number of candidates)
 and an optional SQLite study file (store; tick "Resume" to continue it). Right, in tabs:
@@ -12,9 +20,10 @@ the table of candidates with parameters, scores and feasibility or reason) and "
 The run is the job ``"optimise"`` of the studio's shared :class:`~lfm_studio.widgets.jobs.JobRunner`
 (progress and Cancel in the status bar too); each stored candidate arrives as a partial
 result, so the table and plot fill in while the GUI stays responsive. Cancel or a failure
-keeps the candidates already shown. Double-click a candidate (or "Load into studio") to
-make its design the design in force (an edit: the document becomes unsaved; the studio
-has no undo).
+keeps the candidates already shown (or, when the new run delivered nothing yet, the previous
+results: a run's rows replace the old ones only when its first row arrives). Double-click a
+candidate (or "Load into studio") to make its design the design in force (an edit: the
+document becomes unsaved; the studio has no undo).
 """
 
 from __future__ import annotations
@@ -30,6 +39,7 @@ from qtpy.QtWidgets import (
     QComboBox,
     QFileDialog,
     QFormLayout,
+    QFrame,
     QHBoxLayout,
     QHeaderView,
     QLabel,
@@ -37,6 +47,7 @@ from qtpy.QtWidgets import (
     QListWidget,
     QListWidgetItem,
     QPushButton,
+    QScrollArea,
     QSplitter,
     QTableWidget,
     QTableWidgetItem,
@@ -45,23 +56,41 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
-from lfm_studio.engine.optimize import objective_named, objective_names
+from lfm_studio.engine.optimize import objective_names
+from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS
+from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES
+from lfm_studio.engine.optimize.mla_cells import SYMMETRIES
+from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.optimise_model import (
+    CLI_CROP,
+    METHODS,
+    PHANTOMS,
     PREVIEW_CROP,
     SAMPLERS,
+    Algorithm2Request,
+    AnyRequest,
     CandidateRow,
     FreeParameter,
+    GradientRequest,
     OptimiseRequest,
+    RunResult,
+    algorithm2_cells,
     best_row,
     best_so_far,
+    cell_text,
     comparison_rows,
+    default_min_lenslet_um,
     freeable_fields,
+    objective_info,
+    parse_sizes,
     psf_preview,
+    run_algorithm2_layout,
+    run_gradient,
     run_optimisation,
 )
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
-from lfm_studio.widgets.numeric_field import NumericField
+from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 JOB_NAME = "optimise"
@@ -74,6 +103,25 @@ _FREE, _LABEL, _CURRENT, _LOW, _HIGH, _POINTS = range(6)
 def _run_job(ctx: Any, base: Any, request: OptimiseRequest) -> list[CandidateRow]:
     """Worker-thread body of the ``"optimise"`` job (each stored candidate goes out as a partial)."""
     return run_optimisation(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
+
+
+def _algorithm2_job(ctx: Any, base: Any, request: Algorithm2Request) -> RunResult:
+    """Worker-thread body of an Algorithm 2 run (each layout goes out as a partial)."""
+    return run_algorithm2_layout(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
+
+
+def _gradient_job(ctx: Any, base: Any, request: GradientRequest) -> RunResult:
+    """Worker-thread body of a gradient run (each step goes out as a partial; the final design with the result)."""
+    return run_gradient(base, request, on_row=ctx.partial, progress=ctx.progress, cancel=ctx.cancel)
+
+
+_JOBS = {
+    "grid": _run_job,
+    "algorithm2": _algorithm2_job,
+    "gradient-psf": _gradient_job,
+    "gradient-end-to-end": _gradient_job,
+}
+X_LABELS = {"grid": "evaluation", "algorithm2": "layout considered", "gradient": "step"}
 
 
 def _preview_job(ctx: Any, design_a: Any, design_b: Any) -> tuple[Any, Any]:
@@ -93,6 +141,48 @@ def _item(text: str, *, editable: bool = False, tip: str = "") -> QTableWidgetIt
     return item
 
 
+def _field(
+    name: str,
+    low: float,
+    high: float,
+    value: float,
+    tip: str,
+    *,
+    unit: str = "",
+    integer: bool = False,
+    special: str = "",
+    step: float = 0.0,
+    log_step: bool = False,
+) -> NumericField:
+    """An option's number field (its refusals name ``name``)."""
+    rule = NumberRule(name, low, high, unit=unit, integer=integer, special_text=special)
+    field = NumericField(rule, value, step=step, log_step=log_step, tip=tip)
+    field.setToolTip(tip)  # shown before the first commit too
+    return field
+
+
+def _combo(items: tuple[str, ...] | list[str], current: str, tip: str) -> QComboBox:
+    combo = QComboBox()
+    combo.addItems(list(items))
+    combo.setCurrentText(current)
+    combo.setToolTip(tip)
+    return combo
+
+
+def _check(text: str, tip: str, checked: bool = False) -> QCheckBox:
+    box = QCheckBox(text)
+    box.setChecked(checked)
+    box.setToolTip(tip)
+    return box
+
+
+def _form_box() -> tuple[QWidget, QFormLayout]:
+    box = QWidget()
+    form = QFormLayout(box)
+    form.setContentsMargins(0, 0, 0, 0)
+    return box, form
+
+
 def _number(text: str, what: str) -> float:
     try:
         return float(text.strip())
@@ -110,7 +200,13 @@ class OptimiseDock(QWidget):
         super().__init__(parent)
         self.state, self.runner = state, runner
         self.rows: list[CandidateRow] = []
-        self.request: OptimiseRequest | None = None
+        self.request: AnyRequest | None = None
+        # the row the engine picked (Algorithm 2's best layout, a gradient run's final design)
+        self.chosen: int | None = None
+        self.summary = ""
+        # a run started whose first row has not arrived: the rows shown stay until it does
+        self._pending: tuple[AnyRequest, dict[str, tuple[str, str]]] | None = None
+        self._min_lenslet_edited = False
         self._directions: dict[str, str] = {}
         self._objective_order: list[str] = []
         self._units: dict[str, str] = {}
@@ -132,23 +228,52 @@ class OptimiseDock(QWidget):
         self.runner.progressed.connect(self._on_progress)
         state.design_changed.connect(self._on_design_changed)
         self._fill_parameters()
+        self._on_method_changed()
 
     # ----- building -----
 
     def _build_setup(self) -> QWidget:
         box = QWidget()
-        column = QVBoxLayout(box)
-        column.setContentsMargins(0, 0, 0, 0)
-        column.addWidget(QLabel("<b>Free parameters</b> (tick, then set low / high / points)"))
+        outer = QVBoxLayout(box)
+        outer.setContentsMargins(0, 0, 0, 0)
+        # The method, the free parameters and the options scroll in a short dock; Run, Cancel
+        # and the message stay in view below them.
+        settings = QWidget()
+        column = QVBoxLayout(settings)
+        column.setContentsMargins(0, 0, 4, 0)
+        scroll = QScrollArea()
+        scroll.setWidgetResizable(True)
+        scroll.setFrameShape(QFrame.Shape.NoFrame)
+        scroll.setHorizontalScrollBarPolicy(Qt.ScrollBarPolicy.ScrollBarAlwaysOff)
+        scroll.setWidget(settings)
+        outer.addWidget(scroll, 1)
+        line = QHBoxLayout()
+        line.addWidget(QLabel("<b>Method</b>"))
+        self.method = QComboBox()
+        for key, label in METHODS.items():
+            self.method.addItem(label, key)
+        self.method.setToolTip(
+            "Grid search / design study: score the grid (or sampled) points of the freed values.\n"
+            "Algorithm 2: the thesis' greedy search of the MLA layout (merged cells of the minimum lenslet size).\n"
+            "Gradient: descend a differentiable PSF objective (PSF engineering), or train the optics and an "
+            "unrolled Richardson-Lucy reconstruction on the task loss (end to end)."
+        )
+        self.method.currentIndexChanged.connect(self._on_method_changed)
+        line.addWidget(self.method, 1)
+        column.addLayout(line)
+        self.parameters_title = QLabel("<b>Free parameters</b> (tick, then set low / high / points)")
+        self.parameters_title.setWordWrap(True)
+        column.addWidget(self.parameters_title)
         self.parameters = QTableWidget(0, 6)
         self.parameters.setHorizontalHeaderLabels(["Free", "Parameter", "Now", "Low", "High", "Points"])
         self.parameters.verticalHeader().setVisible(False)
         header = self.parameters.horizontalHeader()
         header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         header.setSectionResizeMode(_LABEL, QHeaderView.ResizeMode.Stretch)
+        self.parameters.setMinimumHeight(140)  # pixels: a few rows stay visible whatever the options below
         column.addWidget(self.parameters, 3)
 
-        form = QFormLayout()
+        self.grid_box, form = _form_box()
         self.objectives = QListWidget()
         self.objectives.setMaximumHeight(110)
         for name, text in objective_names().items():
@@ -181,8 +306,14 @@ class OptimiseDock(QWidget):
         line.addWidget(browse)
         line.addWidget(self.resume)
         form.addRow("Study file", line)
-        column.addLayout(form)
+        column.addWidget(self.grid_box)
+        column.addWidget(self._build_algorithm2_box())
+        column.addWidget(self._build_gradient_box())
+        column.addWidget(self._build_psf_box())
+        column.addWidget(self._build_end_to_end_box())
+        column.addStretch(0)
 
+        column = outer  # Run, Cancel and the message: below the scroll area, always in view
         buttons = QHBoxLayout()
         self.run_button = QPushButton("Run")
         self.run_button.clicked.connect(self.start)
@@ -199,6 +330,186 @@ class OptimiseDock(QWidget):
         self.budget.refused.connect(self._on_budget_refused)
         self.budget.committed.connect(self._on_budget_committed)
         return box
+
+    def _build_algorithm2_box(self) -> QWidget:
+        self.algorithm2_box, form = _form_box()
+        self.a2_objective = QComboBox()
+        for name, text in objective_names().items():
+            self.a2_objective.addItem(name)
+            self.a2_objective.setItemData(self.a2_objective.count() - 1, text, Qt.ItemDataRole.ToolTipRole)
+        self.a2_objective.setCurrentText("axial_crb")
+        self.a2_objective.setToolTip(
+            "The one score Algorithm 2 optimises (greedy: a merge is kept when it strictly improves it). "
+            "CLI --objective (one name)."
+        )
+        form.addRow("Objective", self.a2_objective)
+        self.a2_min_lenslet = _field(
+            "Minimum lenslet size", 1.0, 1e6, default_min_lenslet_um(self.state.design), unit="µm", step=100.0,
+            tip="d_min, µm: the side of a cell of the MLA grid and the smallest lenslet. The pupil at the MLA "
+            "holds M = floor(D / d_min) cells per side; the search tries about M⁴/4 layouts. "
+            "CLI --min-lenslet-um (required there; the dock starts at 4 cells across the pupil).",
+        )  # fmt: skip
+        self.a2_min_lenslet.committed.connect(self._on_min_lenslet_committed)
+        self.a2_cells = QLabel("")
+        line = QHBoxLayout()
+        line.addWidget(self.a2_min_lenslet, 1)
+        line.addWidget(self.a2_cells)
+        form.addRow("Min. lenslet", line)
+        self.a2_symmetry = _combo(
+            SYMMETRIES, "none",
+            "Every merge is applied to the block's symmetric images: none; mirror (x → −x); mirror-xy "
+            "(x → −x and y → −y); 4-fold (90° rotations); 8-fold (rotations and mirrors). CLI --symmetry (default none).",
+        )  # fmt: skip
+        form.addRow("Symmetry", self.a2_symmetry)
+        self.a2_sizes = QLineEdit()
+        self.a2_sizes.setPlaceholderText("all: 1 … M−1")
+        self.a2_sizes.setToolTip(
+            "Block sizes tried, in cells, comma-separated, in this order (e.g. 2,3). Blank: every size from 1 "
+            "to M − 1. CLI --sizes."
+        )
+        form.addRow("Sizes (cells)", self.a2_sizes)
+        self.a2_crop = _field(
+            "PSF crop", 0, 100_000, CLI_CROP, unit="px", integer=True, special="whole sensor", step=64,
+            tip="Camera pixels simulated about the axis for objectives that need a PSF (px; 0 = the whole "
+            "sensor). CLI --crop (default 256).",
+        )  # fmt: skip
+        form.addRow("PSF crop", self.a2_crop)
+        return self.algorithm2_box
+
+    def _build_gradient_box(self) -> QWidget:
+        self.gradient_box, form = _form_box()
+        self.g_steps = _field(
+            "Steps", 1, 100_000, 20, integer=True, step=1,
+            tip="Gradient steps: one loss and gradient evaluation and one update each. CLI --steps (default 20).",
+        )  # fmt: skip
+        self.g_optimizer = _combo(
+            OPTIMIZERS, "adam",
+            "adam: Adam; lbfgs: L-BFGS with one evaluation per step (curvature kept across steps). "
+            "CLI --optimizer (default adam).",
+        )  # fmt: skip
+        line = QHBoxLayout()
+        line.addWidget(self.g_steps, 1)
+        line.addWidget(self.g_optimizer)
+        form.addRow("Steps, optimiser", line)
+        self.g_lr = _field(
+            "Learning rate", 1e-9, 10.0, 0.05, step=0.01,
+            tip="Optics step per update, as a fraction of each parameter's range (high − low); unitless. "
+            "CLI --lr (default 0.05).",
+        )  # fmt: skip
+        self.g_schedule = _combo(
+            SCHEDULES, "constant",
+            "Factor on the learning rate per step: constant; cosine (to 5 %); exponential (to 10 %); step "
+            "(halved every third of the run). CLI --schedule (default constant).",
+        )  # fmt: skip
+        line = QHBoxLayout()
+        line.addWidget(self.g_lr, 1)
+        line.addWidget(self.g_schedule)
+        form.addRow("Learning rate", line)
+        self.g_crop = _field(
+            "PSF crop", 0, 100_000, CLI_CROP, unit="px", integer=True, special="whole sensor", step=64,
+            tip="Camera pixels simulated about the axis (px; 0 = the whole sensor). CLI --crop (default 256).",
+        )  # fmt: skip
+        self.g_check = _check(
+            "float64 check",
+            "Compare the start gradient in float32 with float64 (relative difference, tolerance 1e-3); costs "
+            "one extra gradient in each precision. CLI: on unless --no-float64-check.",
+            checked=True,
+        )
+        line = QHBoxLayout()
+        line.addWidget(self.g_crop, 1)
+        line.addWidget(self.g_check)
+        form.addRow("PSF crop", line)
+        return self.gradient_box
+
+    def _build_psf_box(self) -> QWidget:
+        self.psf_box, form = _form_box()
+        self.g_objective = _combo(
+            PSF_OBJECTIVES, "axial_crb",
+            "The differentiable PSF objective: axial_crb (axial Cramér-Rao bound, µm, minimise); "
+            "depth_dissimilarity (unitless, minimise); mtf_support (soft MTF support, maximise). "
+            "CLI --objective (default axial_crb).",
+        )  # fmt: skip
+        self.g_keep_last = _check(
+            "keep last point",
+            "The final design is the point after the last update, not the best point evaluated. CLI --keep-last.",
+        )
+        line = QHBoxLayout()
+        line.addWidget(self.g_objective, 1)
+        line.addWidget(self.g_keep_last)
+        form.addRow("Objective", line)
+        self.g_photons = _field(
+            "Photons", 1.0, 1e15, 1e5, log_step=True,
+            tip="Expected photons per image for axial_crb (Poisson noise). CLI --photons (default 1e5).",
+        )  # fmt: skip
+        self.g_background = _field(
+            "Background", 0.0, 1e12, 1.0, unit="ph/px", step=1.0,
+            tip="Background of axial_crb, photons per pixel. CLI --background (default 1).",
+        )  # fmt: skip
+        line = QHBoxLayout()
+        line.addWidget(self.g_photons, 1)
+        line.addWidget(self.g_background, 1)
+        form.addRow("Photons, background", line)
+        return self.psf_box
+
+    def _build_end_to_end_box(self) -> QWidget:
+        self.e2e_box, form = _form_box()
+        self.e_reconstruction = _combo(
+            RECONSTRUCTIONS, "unrolled-rl",
+            "unrolled-rl: a learned unrolled Richardson-Lucy network trained with the optics; rl: plain "
+            "unrolled Richardson-Lucy (nothing to train). CLI --reconstruction (default unrolled-rl).",
+        )  # fmt: skip
+        self.e_phantom = _combo(
+            PHANTOMS,
+            "beads",
+            "Training and held-out phantoms (4-10 objects each). CLI --phantom (default beads).",
+        )
+        line = QHBoxLayout()
+        line.addWidget(self.e_reconstruction, 1)
+        line.addWidget(self.e_phantom)
+        form.addRow("Reconstruction", line)
+        self.e_freeze_optics = _check(
+            "freeze optics", "Train the reconstruction only (the design stays). CLI --freeze-optics."
+        )
+        self.e_freeze_reconstruction = _check(
+            "freeze reconstruction", "Train the optics only. CLI --freeze-reconstruction."
+        )
+        line = QHBoxLayout()
+        line.addWidget(self.e_freeze_optics)
+        line.addWidget(self.e_freeze_reconstruction)
+        line.addStretch(1)
+        form.addRow("Freeze", line)
+        self.e_lr = _field(
+            "Reconstruction learning rate", 1e-9, 10.0, 0.01, step=0.01,
+            tip="Adam learning rate of the reconstruction weights. CLI --lr-reconstruction (default 0.01).",
+        )  # fmt: skip
+        self.e_iterations = _field(
+            "Unrolled iterations", 1, 1000, 4, integer=True, step=1,
+            tip="Richardson-Lucy iterations unrolled in the reconstruction. CLI --unrolled-iterations (default 4).",
+        )  # fmt: skip
+        line = QHBoxLayout()
+        line.addWidget(self.e_lr, 1)
+        line.addWidget(QLabel("iterations"))
+        line.addWidget(self.e_iterations, 1)
+        form.addRow("Recon. learning rate", line)
+        self.e_batch = _field(
+            "Batch", 1, 10_000, 2, integer=True, step=1,
+            tip="Training phantoms per step (a new batch every step). CLI --batch (default 2).",
+        )  # fmt: skip
+        self.e_held_out = _field(
+            "Held-out phantoms", 1, 10_000, 4, integer=True, step=1,
+            tip="Test phantoms scored at the start and the end (never trained on). CLI --held-out (default 4).",
+        )  # fmt: skip
+        line = QHBoxLayout()
+        line.addWidget(self.e_batch, 1)
+        line.addWidget(QLabel("held out"))
+        line.addWidget(self.e_held_out, 1)
+        form.addRow("Batch", line)
+        self.e_photons = _field(
+            "Photons", 1.0, 1e15, 1e5, log_step=True,
+            tip="Expected photons per image of the phantoms (Poisson noise). CLI --photons (default 1e5).",
+        )  # fmt: skip
+        form.addRow("Photons", self.e_photons)
+        return self.e2e_box
 
     def _build_run_view(self) -> QWidget:
         view = QWidget()
@@ -341,8 +652,30 @@ class OptimiseDock(QWidget):
         order = self._objective_order
         return [n for n in order if n in checked] + [n for n in checked if n not in order]
 
-    def build_request(self) -> OptimiseRequest:
-        """The run the settings describe (ValueError naming the bad setting and the fix)."""
+    def method_key(self) -> str:
+        """The method chosen (a key of :data:`~.optimise_model.METHODS`)."""
+        return str(self.method.currentData())
+
+    def set_method(self, key: str) -> None:
+        """Choose the method ``key`` (what a user does in the Method box)."""
+        index = self.method.findData(key)
+        if index < 0:
+            raise ValueError(f"the Optimise dock has no method {key!r}; it offers {list(METHODS)}.")
+        self.method.setCurrentIndex(index)
+
+    def option_fields(self, method: str | None = None) -> list[NumericField]:
+        """The number fields of ``method``'s options (default: the method chosen)."""
+        method = method or self.method_key()
+        if method == "grid":
+            return [self.budget]
+        if method == "algorithm2":
+            return [self.a2_min_lenslet, self.a2_crop]
+        fields = [self.g_steps, self.g_lr, self.g_crop]
+        if method == "gradient-psf":
+            return [*fields, self.g_photons, self.g_background]
+        return [*fields, self.e_lr, self.e_iterations, self.e_batch, self.e_held_out, self.e_photons]
+
+    def _free_parameters(self, *, points: bool = True) -> list[FreeParameter]:
         free = []
         for row in range(self.parameters.rowCount()):
             if self.parameters.item(row, _FREE).checkState() != Qt.CheckState.Checked:
@@ -350,16 +683,60 @@ class OptimiseDock(QWidget):
             path = self.parameters.item(row, _FREE).data(Qt.ItemDataRole.UserRole)
             low = _number(self.parameters.item(row, _LOW).text(), f"low of {path}")
             high = _number(self.parameters.item(row, _HIGH).text(), f"high of {path}")
-            points = _number(self.parameters.item(row, _POINTS).text(), f"points of {path}")
-            if points != int(points) or points < 1:
-                raise ValueError(f"points of {path} must be a whole number >= 1; got {points:g}.")
-            free.append(FreeParameter(path, low, high, int(points)))
+            count = 1.0
+            if points:
+                count = _number(self.parameters.item(row, _POINTS).text(), f"points of {path}")
+                if count != int(count) or count < 1:
+                    raise ValueError(f"points of {path} must be a whole number >= 1; got {count:g}.")
+            free.append(FreeParameter(path, low, high, int(count)))
+        return free
+
+    def build_request(self) -> AnyRequest:
+        """The run the settings describe (ValueError naming the bad setting and the fix)."""
+        method = self.method_key()
+        fields = self.option_fields(method)
+        if not commit_all(fields):  # a text still being typed counts; a refused one stops the run
+            raise ValueError(next(f.error() for f in fields if f.error() is not None))
+        if method == "algorithm2":
+            return self._algorithm2_request()
+        if method.startswith("gradient"):
+            return self._gradient_request(method.removeprefix("gradient-"))
+        free = self._free_parameters()
         study = self.study_path.text().strip() or None
         request = OptimiseRequest(
             tuple(free), tuple(self.checked_objectives()), sampler=self.sampler.currentText(),
             budget=self.budget.value(), study=study, resume=self.resume.isChecked(),
         )  # fmt: skip
         request.space()  # bounds and points checked now, with the parameter's name
+        return request
+
+    def _algorithm2_request(self) -> Algorithm2Request:
+        crop = int(self.a2_crop.value())
+        request = Algorithm2Request(
+            objective=self.a2_objective.currentText(), min_lenslet_um=float(self.a2_min_lenslet.value()),
+            symmetry=self.a2_symmetry.currentText(), sizes=parse_sizes(self.a2_sizes.text()),
+            crop=crop or None,
+        )  # fmt: skip
+        request.check(self.state.design)
+        return request
+
+    def _gradient_request(self, mode: str) -> GradientRequest:
+        crop = int(self.g_crop.value())
+        psf = mode == "psf"
+        request = GradientRequest(
+            mode, tuple(self._free_parameters(points=False)),
+            objective=self.g_objective.currentText(), steps=int(self.g_steps.value()),
+            optimizer=self.g_optimizer.currentText(), lr=float(self.g_lr.value()),
+            schedule=self.g_schedule.currentText(), crop=crop or None, check_float64=self.g_check.isChecked(),
+            photons=float(self.g_photons.value() if psf else self.e_photons.value()),
+            background=float(self.g_background.value()), keep_last=self.g_keep_last.isChecked(),
+            reconstruction=self.e_reconstruction.currentText(), freeze_optics=self.e_freeze_optics.isChecked(),
+            freeze_reconstruction=self.e_freeze_reconstruction.isChecked(), lr_reconstruction=float(self.e_lr.value()),
+            unrolled_iterations=int(self.e_iterations.value()), batch=int(self.e_batch.value()),
+            held_out=int(self.e_held_out.value()), phantom=self.e_phantom.currentText(),
+        )  # fmt: skip
+        request.space()  # low <= high, named by path
+        request.check(self.state.design)  # every freed value differentiable
         return request
 
     # ----- running -----
@@ -371,17 +748,17 @@ class OptimiseDock(QWidget):
         except ValueError as error:
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return
-        self.request = request
-        built = [objective_named(n) for n in request.objectives]
-        self._directions = {n: o.direction for n, o in zip(request.objectives, built, strict=True)}
-        self._units = {n: o.unit for n, o in zip(request.objectives, built, strict=True)}
-        self.rows = []
-        self._show_rows()
-        self.message.setText("Running…")
+        try:
+            info = objective_info(request)
+        except ValueError as error:
+            self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
+            return
+        self._pending = (request, info)  # the rows shown stay until this run delivers its first one
+        self.message.setText(f"Running {METHODS[request.method]}…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
         self.runner.submit(
-            JOB_NAME, _run_job, self.state.design, request,
+            JOB_NAME, _JOBS[request.method], self.state.design, request,
             on_result=self._on_result, on_partial=self._on_row,
         )  # fmt: skip
 
@@ -392,12 +769,27 @@ class OptimiseDock(QWidget):
     def is_running(self) -> bool:
         return self.runner.is_running(JOB_NAME)
 
+    def _adopt(self) -> None:
+        """The running job delivered: its request replaces the one whose rows were shown."""
+        if self._pending is None:
+            return
+        request, info = self._pending
+        self._pending = None
+        self.request, self.rows, self.chosen, self.summary = request, [], None, ""
+        self._directions = {n: d for n, (d, _) in info.items()}
+        self._units = {n: u for n, (_, u) in info.items()}
+
     def _on_row(self, row: CandidateRow) -> None:
+        self._adopt()
         self.rows = [r for r in self.rows if r.number != row.number] + [row]
         self._show_rows()
 
-    def _on_result(self, rows: list[CandidateRow]) -> None:
-        self.rows = list(rows)
+    def _on_result(self, result: list[CandidateRow] | RunResult) -> None:
+        self._adopt()
+        if isinstance(result, RunResult):
+            self.rows, self.chosen, self.summary = list(result.rows), result.chosen, result.summary
+        else:
+            self.rows = list(result)
         self._show_rows()
 
     def _on_progress(self, name: str, _generation: int, done: int, total: int, message: str) -> None:
@@ -410,16 +802,30 @@ class OptimiseDock(QWidget):
         self.run_button.setEnabled(True)
         self.cancel_button.setEnabled(False)
         count = len(self.rows)
+        untouched = self._pending is not None  # the run delivered nothing: the previous results stay
+        self._pending = None
+        kept = (
+            f"the previous results ({count} rows) are kept"
+            if untouched
+            else f"the {count} rows delivered so far are kept"
+        )
         if outcome.state == "done":
+            if self.summary:
+                self.message.setText(
+                    f"Done: {self.summary}. Double-click a row to load it (green: the chosen one)."
+                )
+                return
             best = self.best()
             where = "no feasible candidate" if best is None else f"best: candidate {best.number}"
             self.message.setText(f"Done: {count} candidates, {where} (double-click a row to load it).")
         elif outcome.state == "cancelled":
-            self.message.setText(f"Cancelled: the {count} candidates evaluated so far are kept.")
+            if untouched:
+                self.message.setText(f"Cancelled: {kept}.")
+            else:
+                self.message.setText(f"Cancelled: the {count} candidates evaluated so far are kept.")
         else:
             self.message.setText(
-                f"<span style='color:{INFEASIBLE.name()}'>Failed: {outcome.error}</span> "
-                f"(the {count} candidates evaluated so far are kept)"
+                f"<span style='color:{INFEASIBLE.name()}'>Failed: {outcome.error}</span> ({kept})"
             )
 
     # ----- showing -----
@@ -430,7 +836,10 @@ class OptimiseDock(QWidget):
         return None if self.request is None else self.request.objectives[0]
 
     def best(self) -> CandidateRow | None:
-        """The best feasible candidate shown, by the ranking objective."""
+        """The row the engine chose (Algorithm 2's best layout, a gradient run's final design), else the
+        best feasible candidate shown by the ranking objective."""
+        if self.chosen is not None:
+            return next((r for r in self.rows if r.number == self.chosen), None)
         name = self.ranking
         return None if name is None else best_row(self.rows, name, self._directions[name])
 
@@ -445,7 +854,7 @@ class OptimiseDock(QWidget):
 
     def _show_rows(self) -> None:
         request = self.request
-        paths = [p.path for p in request.parameters] if request is not None else []
+        paths = list(request.columns()) if request is not None else []
         names = list(request.objectives) if request is not None else []
         headers = ["#", *paths, *names, "Feasible / reason"]
         self.table.setColumnCount(len(headers))
@@ -454,9 +863,10 @@ class OptimiseDock(QWidget):
         best = self.best()
         for r, row in enumerate(self.rows):
             cells = [str(row.number)]
-            cells += [f"{row.params.get(p, float('nan')):.6g}" for p in paths]
+            cells += [cell_text(row.params.get(p, float("nan"))) for p in paths]
             cells += ["—" if row.values is None else f"{row.values[n]:.6g}" for n in names]
-            cells.append("yes" if row.feasible else f"no: {row.reason}")
+            note = f" ({row.note})" if row.note else ""
+            cells.append(f"yes{note}" if row.feasible else f"no: {row.reason}")
             for c, text in enumerate(cells):
                 item = _item(text, tip=row.message or text)
                 if not row.feasible:
@@ -474,8 +884,18 @@ class OptimiseDock(QWidget):
                 curve.setData([], [])
             return
         unit = self._units.get(name, "")
+        method = self.request.method if self.request is not None else "grid"
+        x_label = X_LABELS["gradient" if method.startswith("gradient") else method]
         item.setLabel("left", f"{name} ({unit})" if unit else name)
-        item.setTitle(f"{name} ({self._directions[name]}) against evaluation", color="k", size="9pt")
+        item.setLabel("bottom", x_label)
+        item.setTitle(f"{name} ({self._directions[name]}) against {x_label}", color="k", size="9pt")
+        # A gradient run's steps are one path: join them (the loss curve); candidates stay dots.
+        gradient = method.startswith("gradient")
+        self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if gradient else None)
+        dots = {"grid": "candidate", "algorithm2": "layout"}.get(method, "step (final design last)")
+        for sample, label in item.legend.items:
+            if sample.item is self.feasible_dots:
+                label.setText(dots)
         best = best_so_far(self.rows, name, self._directions[name])
         xs = [r.number for r in self.rows]
         line = [(x, b) for x, b in zip(xs, best, strict=True) if b is not None]
@@ -499,12 +919,17 @@ class OptimiseDock(QWidget):
     def load(self, row: CandidateRow) -> bool:
         """Make ``row``'s design the design in force (False, with the reason shown, for an infeasible one)."""
         try:
-            design = row.design()
+            design, notes = with_design_warnings(row.design)  # shown as the studio shows design warnings
         except ValueError as error:
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return False
-        self.state.set_design(design)
-        self.message.setText(f"Loaded candidate {row.number} into the studio.")
+        self.state.set_design(design, warnings=notes)
+        warned = (
+            f" ({len(notes)} design warning{'s' * (len(notes) != 1)}: see the parameter panel)"
+            if notes
+            else ""
+        )
+        self.message.setText(f"Loaded {row.label} into the studio{warned}.")
         return True
 
     def load_selected(self) -> None:
@@ -521,7 +946,7 @@ class OptimiseDock(QWidget):
     def compare(self, a: CandidateRow, b: CandidateRow) -> None:
         """Show ``a`` and ``b`` side by side in the Compare tab."""
         try:
-            design_a, design_b = a.design(), b.design()
+            (design_a, _), (design_b, _) = with_design_warnings(a.design), with_design_warnings(b.design)
         except ValueError as error:
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return
@@ -536,7 +961,7 @@ class OptimiseDock(QWidget):
                 if text.startswith(("PASS", "FAIL")):
                     item.setForeground(QBrush(BEST if text.startswith("PASS") else INFEASIBLE))
                 self.compare_table.setItem(r, c, item)
-        params = lambda row: ", ".join(f"{k} = {v:.6g}" for k, v in row.params.items())  # noqa: E731
+        params = lambda row: ", ".join(f"{k} = {cell_text(v)}" for k, v in row.params.items())  # noqa: E731
         self.compare_title.setText(f"<b>A</b>: {params(a)}<br><b>B</b>: {params(b)}")
         self.tabs.setCurrentIndex(1)
         for image in self.psf_images:
@@ -569,6 +994,46 @@ class OptimiseDock(QWidget):
 
     def _on_design_changed(self, _design: Any) -> None:
         self._fill_parameters()  # current values, and the lenslets of the design in force
+        if not self._min_lenslet_edited:
+            self.a2_min_lenslet.setValue(default_min_lenslet_um(self.state.design))
+        self._show_cells()
+
+    def _on_min_lenslet_committed(self, *_: Any) -> None:
+        self._min_lenslet_edited = True
+        self._show_cells()
+
+    def _show_cells(self) -> None:
+        """The number of Algorithm 2 cells per side the minimum lenslet size gives the design in force."""
+        try:
+            cells = algorithm2_cells(self.state.design, float(self.a2_min_lenslet.value()))
+        except ValueError:
+            self.a2_cells.setText("")
+            return
+        self.a2_cells.setText(f"= {cells} cells per side")
+
+    def _on_method_changed(self, *_: Any) -> None:
+        """Show the chosen method's options only (the results shown stay until the next run delivers)."""
+        method = self.method_key()
+        gradient = method.startswith("gradient")
+        self.grid_box.setVisible(method == "grid")
+        self.algorithm2_box.setVisible(method == "algorithm2")
+        self.gradient_box.setVisible(gradient)
+        self.psf_box.setVisible(method == "gradient-psf")
+        self.e2e_box.setVisible(method == "gradient-end-to-end")
+        self.parameters.setVisible(method != "algorithm2")
+        self.parameters.setColumnHidden(_POINTS, gradient)
+        if method == "algorithm2":
+            self.parameters_title.setText(
+                "<b>Algorithm 2</b>: searches the MLA layout (merged cells of the minimum lenslet size inside the "
+                "pupil); the rest of the design stays."
+            )
+            self._show_cells()
+        elif gradient:
+            self.parameters_title.setText(
+                "<b>Free parameters</b> (tick, then set the bounds low / high; the descent starts from the value now)"
+            )
+        else:
+            self.parameters_title.setText("<b>Free parameters</b> (tick, then set low / high / points)")
 
     def disconnect_state(self) -> None:
         """Stop observing the state and the runner (on close)."""

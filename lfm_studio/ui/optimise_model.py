@@ -11,6 +11,15 @@ study file); :func:`run_optimisation` runs it through
 :func:`~lfm_studio.engine.optimize.study.run_study` (a temporary SQLite study when no
 file is given, so grid, TPE and random runs record and report candidates the same way)
 and hands each stored candidate to ``on_row`` as a :class:`CandidateRow`.
+
+The dock offers three methods (:data:`METHODS`): grid search / design study (the above),
+the thesis' Algorithm 2 for the MLA layout (:class:`Algorithm2Request`,
+:func:`run_algorithm2_layout` through :func:`~lfm_studio.engine.optimize.run_algorithm2_study`:
+one row per layout considered, the best layout chosen) and gradient optimisation
+(:class:`GradientRequest`, :func:`run_gradient` through
+:func:`~lfm_studio.engine.optimize.optimize_psf` or
+:func:`~lfm_studio.engine.optimize.end_to_end.optimize_end_to_end`: one row per step, then the
+final design). Both return a :class:`RunResult` (rows, the row the engine chose, a summary line).
 """
 
 from __future__ import annotations
@@ -21,14 +30,29 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from lfm_studio.engine.design import Design
-from lfm_studio.engine.design.design_io import design_from_json
+from lfm_studio.engine.design.design_io import design_from_json, design_to_json
 from lfm_studio.engine.design.space import unit_of
-from lfm_studio.engine.optimize import DesignSpace, EvaluationSettings, Evaluator, Parameter, objective_named
+from lfm_studio.engine.optimize import (
+    DesignSpace,
+    EvaluationSettings,
+    Evaluator,
+    Parameter,
+    objective_named,
+    objective_names,
+    optimize_psf,
+    run_algorithm2_study,
+)
+from lfm_studio.engine.optimize.algorithm2 import LayoutTrial
+from lfm_studio.engine.optimize.algorithm2_study import layout_key
+from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS, optimize_end_to_end
+from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES, psf_objective, quietly
+from lfm_studio.engine.optimize.gradient_params import bind_space
+from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, MLAPlane
 from lfm_studio.engine.optimize.objectives import sign
-from lfm_studio.engine.optimize.study import record_of, run_study
+from lfm_studio.engine.optimize.study import load_study, record_of, run_study
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.simulation import simulate_psf
@@ -38,6 +62,14 @@ from lfm_studio.ui.parameter_fields import FIELDS
 
 SAMPLERS: tuple[str, ...] = ("grid", "tpe", "random")
 """Samplers the dock offers (``grid`` tries every grid point in order, up to the budget)."""
+
+METHODS: dict[str, str] = {
+    "grid": "Grid search / design study",
+    "algorithm2": "Algorithm 2: MLA layout",
+    "gradient-psf": "Gradient: PSF engineering",
+    "gradient-end-to-end": "Gradient: end to end",
+}
+"""The dock's methods (key: label), grid search first (the default)."""
 
 DEFAULT_CROP = 128  # camera pixels kept about the axis when an objective needs a PSF (fast candidates)
 _MLA_ARRAY_FIELDS = (
@@ -154,10 +186,19 @@ class OptimiseRequest:
     def space(self) -> DesignSpace:
         return DesignSpace(tuple(p.to_parameter() for p in self.parameters))
 
+    method: ClassVar[str] = "grid"
+
+    def columns(self) -> tuple[str, ...]:
+        """The row parameters the dock's table shows (the freed paths)."""
+        return tuple(p.path for p in self.parameters)
+
 
 @dataclass(frozen=True)
 class CandidateRow:
-    """One stored candidate: trial number, parameters, objective values, feasibility, design JSON."""
+    """One stored candidate: trial number, parameters, objective values, feasibility, design JSON.
+
+    ``note`` says what the row is when it is more than a candidate ("final design", "accepted").
+    """
 
     number: int
     params: dict[str, Any]
@@ -165,17 +206,23 @@ class CandidateRow:
     reason: str | None
     message: str
     design_json: str | None
+    note: str = ""
 
     @property
     def feasible(self) -> bool:
         return self.values is not None
 
+    @property
+    def label(self) -> str:
+        """How messages name the row: "candidate 3", or "the final design (step 5)"."""
+        if self.note.startswith("final"):
+            return f"the {self.note} (row {self.number})"
+        return f"candidate {self.number}"
+
     def design(self) -> Design:
         """The candidate's design (refused for an infeasible candidate, which has none)."""
         if self.design_json is None:
-            raise ValueError(
-                f"candidate {self.number} is infeasible ({self.reason}): it has no design to load."
-            )
+            raise ValueError(f"{self.label} is infeasible ({self.reason}): it has no design to load.")
         return design_from_json(self.design_json, origin=f"candidate {self.number}")
 
 
@@ -253,6 +300,507 @@ def run_optimisation(
             study = None
             shutil.rmtree(scratch, ignore_errors=True)
     return [rows[k] for k in sorted(rows)]
+
+
+# ----- the other methods: Algorithm 2 (MLA layout) and gradient optimisation -----
+
+CLI_CROP = 256  # camera pixels simulated about the axis by Algorithm 2 and gradient runs (the CLI's --crop)
+
+
+def cell_text(value: Any) -> str:
+    """A table cell: numbers to 6 significant digits, None empty, anything else as text."""
+    if value is None:
+        return ""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, int | float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What an Algorithm 2 or gradient run hands the dock.
+
+    rows : one per layout considered / per step, then (gradient) the final design.
+    chosen : the ``number`` of the row the engine picked (best layout, final design); None: none feasible.
+    summary : one line for the dock's message.
+    details : the engine's numbers (start / final values, held-out losses, the precision check).
+    """
+
+    rows: list[CandidateRow]
+    chosen: int | None = None
+    summary: str = ""
+    details: dict[str, Any] = field(default_factory=dict)
+
+
+def _whole(value: Any, name: str, minimum: int = 1) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+        raise ValueError(f"{name} must be a whole number >= {minimum}; got {value!r}.")
+
+
+def _positive(value: Any, name: str, unit: str = "") -> None:
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, int | float)
+        or not (math.isfinite(value) and value > 0)
+    ):
+        raise ValueError(f"{name} must be a positive number{' of ' + unit if unit else ''}; got {value!r}.")
+
+
+def _crop_ok(crop: int | None) -> None:
+    if crop is not None:
+        _whole(crop, "PSF crop (px)")
+
+
+def parse_sizes(text: str) -> tuple[int, ...] | None:
+    """The dock's Algorithm 2 "Sizes" text: blank -> None (every size 1 .. M - 1), else cells, comma-separated."""
+    text = text.strip()
+    if not text:
+        return None
+    try:
+        sizes = tuple(int(v) for v in text.replace(";", ",").split(",") if v.strip())
+    except ValueError:
+        raise ValueError(
+            f"Sizes must be whole numbers of cells separated by commas; got {text!r}. Fix: e.g. 2,3 "
+            "(or leave it blank for every size)."
+        ) from None
+    for size in sizes:
+        _whole(size, "Sizes (cells)")
+    return sizes or None
+
+
+def default_min_lenslet_um(design: Design) -> float:
+    """A cell size for Algorithm 2: four cells across the pupil at the MLA (µm, 2 significant digits).
+
+    The CLI has no default (``--min-lenslet-um`` is required); the search costs about
+    ``M**4 / 4`` layouts for ``M`` cells per side, so the dock starts small."""
+    pupil = getattr(design, "pupil_diameter_at_mla", None)  # metres; None for a conventional LFM
+    pupil_um = float(pupil) * 1e6 if isinstance(pupil, int | float) else math.nan
+    if not (math.isfinite(pupil_um) and pupil_um > 0):
+        return 1000.0
+    cell = pupil_um / 4
+    return float(f"{cell:.2g}")
+
+
+def algorithm2_cells(design: Design, min_lenslet_um: float) -> int:
+    """Cells per side ``M`` of the Algorithm 2 grid of ``design`` with cells of ``min_lenslet_um`` µm."""
+    return MLAPlane.from_design(design, float(min_lenslet_um)).cells
+
+
+@dataclass(frozen=True)
+class Algorithm2Request:
+    """One Algorithm 2 run of the dock (the options of ``lfm-studio optimize --algorithm2``).
+
+    objective : one registered objective (Algorithm 2 is greedy on one score).
+    min_lenslet_um : the cell size ``d_min`` (µm): the smallest lenslet, ``M = floor(pupil / d_min)``.
+    symmetry : one of :data:`~lfm_studio.engine.optimize.mla_cells.SYMMETRIES`.
+    sizes : block sizes tried, in cells (None: 1 .. M - 1).
+    crop : camera pixels simulated about the axis for PSF objectives (None: the whole sensor).
+    """
+
+    method: ClassVar[str] = "algorithm2"
+    objective: str = "axial_crb"
+    min_lenslet_um: float = 1000.0
+    symmetry: str = "none"
+    sizes: tuple[int, ...] | None = None
+    crop: int | None = CLI_CROP
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.objective not in objective_names():
+            raise ValueError(
+                f"Objective {self.objective!r} is not a registered objective. Fix: pick one of the list."
+            )
+        _positive(self.min_lenslet_um, "Minimum lenslet size", "µm")
+        if self.symmetry not in SYMMETRIES:
+            raise ValueError(f"Symmetry must be one of {SYMMETRIES}; got {self.symmetry!r}.")
+        if self.sizes is not None:
+            if not self.sizes:
+                raise ValueError(
+                    "Sizes is empty. Fix: give block sizes in cells (e.g. 2,3) or leave it blank."
+                )
+            for size in self.sizes:
+                _whole(size, "Sizes (cells)")
+        _crop_ok(self.crop)
+
+    @property
+    def objectives(self) -> tuple[str, ...]:
+        return (self.objective,)
+
+    def columns(self) -> tuple[str, ...]:
+        """The row parameters the dock's table shows."""
+        return ("block", "merged into", "lenslets")
+
+    def check(self, design: Design) -> None:
+        """Refuse a cell size that leaves the design no grid (ValueError naming the option)."""
+        try:
+            cells = algorithm2_cells(design, self.min_lenslet_um)
+        except ValueError as error:
+            raise ValueError(f"Minimum lenslet size {self.min_lenslet_um:g} µm: {error}") from None
+        if cells < 2:
+            raise ValueError(
+                f"Minimum lenslet size {self.min_lenslet_um:g} µm leaves {cells} cell across the pupil: nothing "
+                "to merge. Fix: a smaller minimum lenslet size."
+            )
+        if self.sizes is not None and max(self.sizes) > cells:
+            raise ValueError(
+                f"Sizes {','.join(map(str, self.sizes))}: the grid has {cells} cells per side. "
+                f"Fix: sizes from 1 to {cells}."
+            )
+
+
+def _layout_row(step: LayoutTrial, record: dict[str, Any], name: str) -> CandidateRow:
+    params = step.params
+    if params["base"] == "initial":
+        block = "start: every cell a lenslet"
+    else:
+        block = f"{params['size']}×{params['size']} cells at ({params['i']}, {params['j']})"
+    feasible = step.score is not None
+    return CandidateRow(
+        number=int(step.index),
+        params={"block": block, "merged into": params["base"], "lenslets": len(step.blocks) or None},
+        values={name: float(step.score)} if step.score is not None else None,
+        reason=record.get("infeasible_reason"),
+        message=record.get("infeasible_message") or ("; ".join(step.warnings) if step.warnings else ""),
+        design_json=record.get("design_json") if feasible else None,
+        note="accepted" if step.accepted else "",
+    )
+
+
+def run_algorithm2_layout(
+    base: Design,
+    request: Algorithm2Request,
+    *,
+    on_row: Callable[[CandidateRow], None] | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> RunResult:
+    """Run Algorithm 2 on ``base``'s MLA (a temporary study, deleted afterwards); each layout goes to ``on_row``."""
+    objective = objective_named(request.objective)
+    rows: list[CandidateRow] = []
+    layouts: dict[int, str] = {}
+
+    def on_step(step: LayoutTrial, record: dict[str, Any]) -> None:
+        row = _layout_row(step, record, objective.name)
+        rows.append(row)
+        layouts[row.number] = record["layout"]
+        if on_row is not None:
+            on_row(row)
+
+    scratch = Path(tempfile.mkdtemp(prefix="lfm_algorithm2_"))
+    try:
+        result, study = run_algorithm2_study(
+            base, objective, str(scratch / "study.db"), min_lenslet_um=request.min_lenslet_um,
+            symmetry=request.symmetry, sizes=request.sizes, settings=EvaluationSettings(crop=request.crop),
+            seed=request.seed, progress=progress, cancel=cancel, on_step=on_step,
+        )  # fmt: skip
+        study = None  # noqa: F841  (the storage closes before its folder goes)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    counts = f"{result.evaluated} layouts scored, {result.infeasible} infeasible"
+    details = {"score": result.score, "lenslets": len(result.blocks), "history": list(result.history),
+               "evaluated": result.evaluated, "infeasible": result.infeasible}  # fmt: skip
+    if result.design is None:
+        return RunResult(rows, None, f"no layout was feasible ({counts}).", details)
+    key = layout_key(result.blocks)
+    chosen = next(r.number for r in rows if r.feasible and layouts[r.number] == key)
+    unit = f" {objective.unit}" if objective.unit else ""
+    summary = (
+        f"best layout (row {chosen}): {len(result.blocks)} lenslets, {objective.name} = {result.score:.6g}{unit} "
+        f"({counts})"
+    )
+    return RunResult(rows, chosen, summary, details)
+
+
+GRADIENT_MODES: tuple[str, ...] = ("psf", "end-to-end")
+PHANTOMS: tuple[str, ...] = ("beads", "cells")
+
+
+@dataclass(frozen=True)
+class GradientRequest:
+    """One gradient run of the dock (the options of ``lfm-studio optimize --gradient``; same defaults).
+
+    mode : "psf" (PSF engineering, :func:`~lfm_studio.engine.optimize.optimize_psf`) or "end-to-end"
+        (optics and an unrolled-RL reconstruction on the task loss).
+    parameters : the freed values; low / high are the bounds (``points`` is not used).
+    The rest as the CLI flags of the same names (docs/optimize.md).
+    """
+
+    mode: str
+    parameters: tuple[FreeParameter, ...]
+    objective: str = "axial_crb"
+    steps: int = 20
+    optimizer: str = "adam"
+    lr: float = 0.05
+    schedule: str = "constant"
+    crop: int | None = CLI_CROP
+    check_float64: bool = True
+    photons: float = 1e5
+    background: float = 1.0
+    keep_last: bool = False
+    reconstruction: str = "unrolled-rl"
+    freeze_optics: bool = False
+    freeze_reconstruction: bool = False
+    lr_reconstruction: float = 0.01
+    unrolled_iterations: int = 4
+    batch: int = 2
+    held_out: int = 4
+    phantom: str = "beads"
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.mode not in GRADIENT_MODES:
+            raise ValueError(f"gradient mode must be one of {GRADIENT_MODES}; got {self.mode!r}.")
+        if not self.parameters:
+            raise ValueError(
+                "no parameter is freed. Fix: tick at least one parameter to optimise (its low / high are the bounds)."
+            )
+        if self.mode == "psf" and self.objective not in PSF_OBJECTIVES:
+            raise ValueError(
+                f"Objective must be one of {PSF_OBJECTIVES} (differentiable); got {self.objective!r}."
+            )
+        _whole(self.steps, "Steps")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"Optimiser must be one of {OPTIMIZERS}; got {self.optimizer!r}.")
+        _positive(self.lr, "Learning rate")
+        if self.schedule not in SCHEDULES:
+            raise ValueError(f"Schedule must be one of {SCHEDULES}; got {self.schedule!r}.")
+        _crop_ok(self.crop)
+        _positive(self.photons, "Photons")
+        if not (
+            isinstance(self.background, int | float)
+            and math.isfinite(self.background)
+            and self.background >= 0
+        ):
+            raise ValueError(f"Background must be a number >= 0 photons per pixel; got {self.background!r}.")
+        if self.mode == "end-to-end":
+            if self.reconstruction not in RECONSTRUCTIONS:
+                raise ValueError(
+                    f"Reconstruction must be one of {RECONSTRUCTIONS}; got {self.reconstruction!r}."
+                )
+            frozen_net = self.freeze_reconstruction or self.reconstruction == "rl"
+            if self.freeze_optics and frozen_net:
+                raise ValueError(
+                    "Freeze optics with a frozen reconstruction leaves nothing to optimise (plain rl has no "
+                    "weights). Fix: untick Freeze optics, or train the unrolled-rl reconstruction."
+                )
+            _positive(self.lr_reconstruction, "Reconstruction learning rate")
+            _whole(self.unrolled_iterations, "Unrolled iterations")
+            _whole(self.batch, "Batch")
+            _whole(self.held_out, "Held-out phantoms")
+            if self.phantom not in PHANTOMS:
+                raise ValueError(f"Phantom must be one of {PHANTOMS}; got {self.phantom!r}.")
+
+    @property
+    def method(self) -> str:
+        return f"gradient-{self.mode}"
+
+    @property
+    def objectives(self) -> tuple[str, ...]:
+        return (self.objective,) if self.mode == "psf" else ("task_loss",)
+
+    def space(self) -> DesignSpace:
+        """The bounds of the freed values (continuous: no grid points)."""
+        return DesignSpace(
+            tuple(Parameter(p.path, low=float(p.low), high=float(p.high)) for p in self.parameters)
+        )
+
+    def columns(self) -> tuple[str, ...]:
+        return tuple(p.path for p in self.parameters)
+
+    def check(self, design: Design) -> None:
+        """Refuse a parameter the gradient path cannot differentiate (the engine's message lists those it can)."""
+        bind_space(self.space(), design)
+
+
+AnyRequest = OptimiseRequest | Algorithm2Request | GradientRequest
+
+
+def objective_info(request: AnyRequest) -> dict[str, tuple[str, str]]:
+    """``{objective name: (direction, unit)}`` of the objectives ``request`` reports (the first ranks)."""
+    if isinstance(request, GradientRequest):
+        if request.mode == "end-to-end":
+            return {"task_loss": ("minimize", "")}
+        built = psf_objective(
+            request.objective, {"photons": request.photons, "background": request.background}
+        )
+        return {request.objective: (built.direction, built.unit)}
+    out: dict[str, tuple[str, str]] = {}
+    for name in request.objectives:
+        objective = objective_named(name)
+        out[name] = (objective.direction, objective.unit)
+    return out
+
+
+def _step_note(grad_norm: float | None, lr: float | None, backtracks: int, reason: str | None) -> str:
+    note = "" if grad_norm is None else f"|grad| {grad_norm:.3g}, lr {lr:.3g}"
+    if reason:
+        note += f"; update backtracked {backtracks}x: {reason}"
+    return note
+
+
+_STUDY_NAME = "lfm_study"
+
+
+class _StepWatcher:
+    """The progress callback of a gradient run recorded into a temporary study: at each checkpoint the
+    steps stored since the last one go to ``on_row`` (the descent reports progress, not its steps; its
+    study holds them, one committed trial per step, design JSON included)."""
+
+    def __init__(
+        self,
+        storage: str,
+        name: str,
+        on_row: Callable[[CandidateRow], None],
+        progress: ProgressCallback | None,
+    ) -> None:
+        self.storage, self.name, self.on_row, self.progress = storage, name, on_row, progress
+        self.study: Any = None
+        self.seen: set[int] = set()
+
+    def __call__(self, done: int, total: int, message: str = "") -> None:
+        if done > 0:
+            self.flush()
+        if self.progress is not None:
+            self.progress(done, total, message)
+
+    def flush(self) -> None:
+        if self.study is None:
+            self.study = load_study(self.storage, _STUDY_NAME)
+        for trial in self.study.get_trials(deepcopy=False):
+            record = record_of(trial)
+            step = record.get("gradient")
+            if not step or step.get("last") or trial.number in self.seen:
+                continue
+            self.seen.add(trial.number)
+            complete = trial.state.name == "COMPLETE"
+            self.on_row(
+                CandidateRow(
+                    number=int(step["step"]), params=dict(trial.params),
+                    values={self.name: float(trial.values[0])} if complete else None,
+                    reason=record.get("infeasible_reason"),
+                    message=_step_note(step.get("grad_norm"), step.get("lr"), int(step.get("backtracks") or 0),
+                                       step.get("backtrack_reason")),
+                    design_json=record.get("design_json"),
+                )
+            )  # fmt: skip
+
+
+def run_gradient(
+    base: Design,
+    request: GradientRequest,
+    *,
+    on_row: Callable[[CandidateRow], None] | None = None,
+    progress: ProgressCallback | None = None,
+    cancel: CancelToken = None,
+) -> RunResult:
+    """Run the gradient optimiser from ``base``: one row per step, then the final design.
+
+    With ``on_row`` the run is recorded into a temporary study (deleted afterwards) and each step
+    goes to ``on_row`` at the next checkpoint (so the loss curve fills in while it runs)."""
+    scratch = None if on_row is None else Path(tempfile.mkdtemp(prefix="lfm_gradient_"))
+    watcher = None
+    if scratch is not None and on_row is not None:
+        name = request.objective if request.mode == "psf" else "task_loss"
+        watcher = _StepWatcher(str(scratch / "study.db"), name, on_row, progress)
+    try:
+        return _run_gradient(base, request, watcher, progress, cancel)
+    finally:
+        if watcher is not None:
+            watcher.study = None
+        if scratch is not None:
+            shutil.rmtree(scratch, ignore_errors=True)
+
+
+def _run_gradient(
+    base: Design,
+    request: GradientRequest,
+    watcher: _StepWatcher | None,
+    progress: ProgressCallback | None,
+    cancel: CancelToken,
+) -> RunResult:
+    from lfm_studio.engine.learned.data import TrainingDataSpec
+
+    space = request.space()
+    common: dict[str, Any] = {
+        "steps": request.steps, "optimizer": request.optimizer, "lr": request.lr, "schedule": request.schedule,
+        "dtype": "float32", "settings": EvaluationSettings(crop=request.crop),
+        "check_float64": request.check_float64, "seed": request.seed, "cancel": cancel,
+        "progress": progress if watcher is None else watcher,
+        "study": None if watcher is None else watcher.storage, "study_name": _STUDY_NAME,
+    }  # fmt: skip
+    if request.mode == "psf":
+        options = {"photons": request.photons, "background": request.background}
+        name = request.objective
+        unit = psf_objective(name, options).unit
+        result = optimize_psf(
+            base, space, name, options=options, final="last" if request.keep_last else "best", **common
+        )
+    else:
+        name, unit = "task_loss", ""
+        data = TrainingDataSpec(
+            phantoms=request.phantom,  # type: ignore[arg-type]
+            objects=(4, 10), photons=(request.photons,), seed=request.seed,
+        )  # fmt: skip
+        result = optimize_end_to_end(
+            base, space, reconstruction=request.reconstruction, freeze_optics=request.freeze_optics,
+            freeze_reconstruction=request.freeze_reconstruction, lr_reconstruction=request.lr_reconstruction,
+            iterations=request.unrolled_iterations, batch=request.batch, held_out=request.held_out, data=data,
+            **common,
+        )  # fmt: skip
+    rows = []
+    for step in result.history:
+        finite = math.isfinite(step.value)
+        at, _ = quietly(lambda point=step.point: space.apply(base, point))  # type: ignore[misc]
+        note = _step_note(step.grad_norm, step.lr, step.backtracks, step.infeasible)
+        rows.append(
+            CandidateRow(
+                number=step.step, params=dict(step.point), values={name: step.value} if finite else None,
+                reason=None if finite else "not_finite", message=note, design_json=design_to_json(at),
+            )
+        )  # fmt: skip
+    final_point = result.final_point or {p: float(v) for p, v in space.values_of(result.design).items()}
+    chosen = len(result.history)
+    notes = list(result.warnings)
+    if request.mode == "end-to-end":  # final_value is the last step's training loss (a new batch each step)
+        notes.insert(
+            0, f"task_loss of the last step; held-out task loss {result.extra['held_out_final']:.4g}"
+        )
+    rows.append(
+        CandidateRow(
+            number=chosen, params=dict(final_point), values={name: result.final_value}, reason=None,
+            message="; ".join(notes), design_json=design_to_json(result.design),
+            note=f"final design ({result.final} point)",
+        )
+    )  # fmt: skip
+    unit_text = f" {unit}" if unit else ""
+    details: dict[str, Any] = {
+        "start_value": result.start_value,
+        "final_value": result.final_value,
+        **result.extra,
+    }
+    if request.mode == "psf":
+        summary = (
+            f"{name}: start {result.start_value:.6g}, final {result.final_value:.6g}{unit_text} after "
+            f"{len(result.history)} {request.optimizer} steps (the final design is the {result.final} point)"
+        )
+    else:
+        extra = result.extra
+        summary = (
+            f"task loss (training batches) {result.start_value:.4g} → {result.final_value:.4g}; held-out "
+            f"{extra['held_out_start']:.4g} → {extra['held_out_final']:.4g} (all-zero volume {extra['zero_floor']:g})"
+        )
+        if extra.get("final_volume_trivial"):
+            summary += f"; the final reconstruction is {extra['final_volume_trivial']}"
+    if result.check is not None:
+        details["check_error"] = result.check.relative_error
+        verdict = "within" if result.check.passed else "OUTSIDE"
+        summary += (
+            f"; float32 vs float64 start gradient differ by {result.check.relative_error:.2g} ({verdict} "
+            f"{result.check.tolerance:g})"
+        )
+    return RunResult(rows, chosen, summary, details)
 
 
 # Closed-form metrics shown side by side: (attribute, label, unit; lengths are shown in µm).

@@ -27,7 +27,7 @@ study (:func:`.algorithm2.algorithm2`'s ``lookup``): no stored layout is scored 
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
 from lfm_studio.engine.design import Design
@@ -128,6 +128,7 @@ def run_algorithm2_study(
     seed: int = 0,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
+    on_step: Callable[[LayoutTrial, dict[str, Any]], None] | None = None,
 ) -> tuple[Algorithm2Result, Any]:
     """Run (or resume) Algorithm 2 on ``design`` recording every layout into a stored study.
 
@@ -143,6 +144,10 @@ def run_algorithm2_study(
     constraints : checks of each layout's design (default: the Fourier-design checks).
     seed : recorded with every trial.
     progress, cancel : as :func:`.algorithm2.algorithm2`.
+    on_step : called with each step (:class:`.algorithm2.LayoutTrial`) and its stored record
+        (the ``record`` user attribute, ``design_json`` included) right after the trial is
+        stored, in the worker that runs the search (the studio's Optimise dock shows each
+        layout as it is scored). Steps a resumed study already holds are not passed.
 
     Returns
     -------
@@ -229,6 +234,8 @@ def run_algorithm2_study(
         )
         study.add_trial(trial)
         stored_steps.add(step.index)
+        if on_step is not None:
+            on_step(step, attrs)
 
     result = algorithm2(
         design,

@@ -99,6 +99,20 @@ def test_every_step_is_stored_like_a_study_trial(xlfm, tmp_path):
     assert {"size", "i", "j", "base"} == set(best.params)
 
 
+def test_on_step_sees_every_stored_step_with_its_record(xlfm, tmp_path):
+    seen = []
+    _, study = run(
+        xlfm, str(tmp_path / "s.db"), Lopsided(), on_step=lambda step, record: seen.append((step, record))
+    )
+    stored = steps(study)
+    assert [step.index for step, _ in seen] == [s[0] for s in stored]
+    for (step, record), (_index, layout, value, reason) in zip(seen, stored, strict=True):
+        assert record["layout"] == layout == layout_key(step.blocks) and record["infeasible_reason"] == reason
+        assert (value is None) == (step.score is None) and (record["design_json"] is None) == (
+            step.design is None
+        )
+
+
 def test_layout_key_round_trip():
     blocks = (Block(0, 1, 2), Block(3, 3, 1))
     assert json.loads(layout_key(blocks)) == [[0, 1, 2], [3, 3, 1]]

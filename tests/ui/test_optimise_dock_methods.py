@@ -1,0 +1,323 @@
+"""The Optimise dock's other methods, driven as a user does: Algorithm 2 finds the MLA layout the engine
+finds (non-overlapping lenslets, loadable), a gradient PSF-engineering run lowers its objective and its
+final design loads, an end-to-end run reports the held-out loss, each method shows only its options,
+bad option values are refused by name, and Cancel keeps the previous results."""
+
+from __future__ import annotations
+
+import gc
+import itertools
+import math
+import threading
+import warnings
+
+import pytest
+from qtpy.QtCore import QSettings
+from qtpy.QtWidgets import QApplication
+
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.design.errors import DesignWarning
+from lfm_studio.engine.optimize import (
+    DesignSpace,
+    Parameter,
+    objective_named,
+    optimize_psf,
+    run_algorithm2_study,
+)
+from lfm_studio.engine.optimize import objectives as objectives_module
+from lfm_studio.engine.optimize.candidate import EvaluationSettings
+from lfm_studio.engine.optimize.objectives import ClosedForm
+from lfm_studio.ui.app import build_studio
+from lfm_studio.ui.main_window import MainWindow
+from lfm_studio.ui.optimise_dock import JOB_NAME
+from lfm_studio.ui.optimise_model import METHODS, FreeParameter, GradientRequest, run_gradient
+from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+
+pytest.importorskip("optuna")
+
+TIMEOUT_MS = 120_000
+FOCAL, DISTANCE = "mla.lenslets[*].focal_length_mm", "mla_to_camera_distance_mm"
+BOUNDS = {FOCAL: (12.0, 24.0), DISTANCE: (14.0, 20.0)}
+POOR = {FOCAL: 22.0, DISTANCE: 15.0}  # out of focus: 22 mm lenslets with the camera 15 mm behind them
+SPACE = DesignSpace(tuple(Parameter(p, *b) for p, b in BOUNDS.items()))
+CELL_UM = 1000.0  # the FLFM preset's pupil at the MLA is 3 cells of 1 mm across: 9 layouts
+
+
+def _quiet(build):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        return build()
+
+
+@pytest.fixture
+def window(qtbot, tmp_path):
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    win = build_studio(
+        small_fourier_design(), settings=settings, debounce_ms=600_000,  # no PSF work during the test
+        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets), viewer_factory=FakePSFViewer,
+    )  # fmt: skip
+    win.show()
+    qtbot.waitExposed(win)
+    yield win
+    win.state.set_dirty(False)
+    with qtbot.waitSignal(win.destroyed, timeout=TIMEOUT_MS):
+        assert win.close()
+    QApplication.sendPostedEvents(None, 0)
+    gc.collect()
+    assert [w for w in QApplication.topLevelWidgets() if isinstance(w, MainWindow)] == []
+
+
+def _done(qtbot, window):
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state != "running", timeout=TIMEOUT_MS)
+    assert window.state.job(JOB_NAME).state == "done", window.optimise.message.text()
+
+
+def _algorithm2(qtbot, window, objective="lateral_resolution"):
+    dock = window.optimise
+    window.state.set_design(_quiet(lambda: load_preset("flfm_guo2019")))
+    dock.set_method("algorithm2")
+    dock.a2_objective.setCurrentText(objective)
+    dock.a2_min_lenslet.setText(f"{CELL_UM:g}")
+    dock.run_button.click()
+
+
+def _poor_start(window):
+    window.state.set_design(_quiet(lambda: SPACE.apply(window.state.design, POOR)))
+
+
+def _free_focus(dock):
+    for path, (low, high) in BOUNDS.items():
+        dock.free(path, low, high, 3)
+
+
+def test_each_method_shows_only_its_own_options(window):
+    dock = window.optimise
+    assert dock.method_key() == "grid" and [dock.method.itemData(i) for i in range(4)] == list(METHODS)
+    boxes = {
+        "grid": dock.grid_box, "algorithm2": dock.algorithm2_box, "gradient": dock.gradient_box,
+        "gradient-psf": dock.psf_box, "gradient-end-to-end": dock.e2e_box,
+    }  # fmt: skip
+    for method in METHODS:
+        dock.set_method(method)
+        shown = {k for k, box in boxes.items() if not box.isHidden()}
+        expected = {method} | ({"gradient"} if method.startswith("gradient") else set())
+        assert shown == expected, method
+        assert dock.parameters.isHidden() == (method == "algorithm2")
+        assert dock.parameters.isColumnHidden(5) == method.startswith("gradient")  # no grid points
+    # The CLI's defaults (lfm-studio optimize), each option with a tooltip giving what it does
+    assert (dock.g_steps.value(), dock.g_lr.value(), dock.g_optimizer.currentText()) == (20, 0.05, "adam")
+    assert (dock.g_schedule.currentText(), dock.g_crop.value(), dock.g_objective.currentText()) == (
+        "constant", 256, "axial_crb",
+    )  # fmt: skip
+    assert (dock.e_lr.value(), dock.e_iterations.value(), dock.e_batch.value(), dock.e_held_out.value()) == (
+        0.01, 4, 2, 4,
+    )  # fmt: skip
+    assert dock.g_photons.value() == dock.e_photons.value() == 1e5 and dock.g_background.value() == 1.0
+    assert dock.a2_symmetry.currentText() == "none" and dock.a2_sizes.text() == ""
+    assert "µm" in dock.a2_min_lenslet.toolTip() and "--min-lenslet-um" in dock.a2_min_lenslet.toolTip()
+    for widget in (dock.g_lr, dock.g_steps, dock.g_schedule, dock.e_batch, dock.a2_symmetry, dock.a2_sizes):
+        assert "CLI --" in widget.toolTip()
+    assert "range" in dock.g_lr.toolTip() and "px" in dock.g_crop.toolTip()
+
+
+def _no_overlaps(lenslets):
+    """Independent check of Algorithm 2's constraint: no two lenslet apertures overlap (they may touch)."""
+    for a, b in itertools.combinations(lenslets, 2):
+        gap = math.dist(a.center_um, b.center_um) - (a.aperture_diameter_um + b.aperture_diameter_um) / 2
+        assert gap >= -1e-6, (a, b)
+
+
+def test_algorithm2_finds_the_engines_layout_without_overlaps_and_it_loads(qtbot, window, tmp_path):
+    _algorithm2(qtbot, window)
+    dock, state = window.optimise, window.state
+    base = state.design
+    _done(qtbot, window)
+    # The engine's own search on the same design, independently of the dock: the same best layout.
+    objective = objective_named("lateral_resolution")
+    reference, _ = run_algorithm2_study(base, objective, str(tmp_path / "ref.db"), min_lenslet_um=CELL_UM)
+    assert reference.score < reference.history[0]  # a merge improved on the all-minimum start
+    best = dock.best()
+    assert best is not None and best.number == dock.chosen and best.note == "accepted"
+    assert best.values["lateral_resolution"] == pytest.approx(reference.score, rel=1e-12)
+    assert [r.number for r in dock.rows] == list(range(len(dock.rows))) and len(dock.rows) == 9
+    infeasible = [r for r in dock.rows if not r.feasible]
+    assert infeasible and all(r.reason == "layout_refused" for r in infeasible)  # cells outside the pupil
+    assert f"{len(reference.blocks)} lenslets" in dock.message.text() and dock.message.text().startswith(
+        "Done"
+    )
+    # the table: the block merged, the base, the lenslet count, the score, "yes (accepted)" for the best
+    table = {dock.table.horizontalHeaderItem(c).text(): c for c in range(dock.table.columnCount())}
+    row = dock.rows.index(best)
+    assert dock.table.item(row, table["lenslets"]).text() == str(len(reference.blocks))
+    assert dock.table.item(row, table["Feasible / reason"]).text() == "yes (accepted)"
+    assert list(dock.plot.getPlotItem().getAxis("bottom").labelText.split()) == ["layout", "considered"]
+    # Load it: the design in force has the layout found, no two lenslets overlap, all inside the pupil
+    dock.table.cellDoubleClicked.emit(row, 0)
+    lenslets = state.design.mla.lenslets
+    assert len(lenslets) == len(reference.blocks) == reference.design.mla.count
+    assert sorted(lens.center_um for lens in lenslets) == sorted(
+        lens.center_um for lens in reference.design.mla.lenslets
+    )
+    _no_overlaps(lenslets)
+    radius_um = base.pupil_diameter_at_mla * 1e6 / 2
+    assert all(
+        math.hypot(*lens.center_um) + lens.aperture_diameter_um / 2 <= radius_um + 1e-6 for lens in lenslets
+    )
+    assert state.dirty and "Loaded candidate" in dock.message.text()
+    # two layouts side by side in the Compare tab: the start (5 lenslets) and the one found
+    dock.compare(dock.rows[0], best)
+    table = {row[0]: row[1:] for row in dock.compare_rows()}
+    assert table["Number of views"] == ("5", str(len(reference.blocks)))
+    qtbot.waitUntil(lambda: all(i.image is not None for i in dock.psf_images), timeout=TIMEOUT_MS)
+    # an infeasible layout has no design
+    before = state.design
+    dock.table.cellDoubleClicked.emit(dock.rows.index(infeasible[0]), 0)
+    assert state.design is before and "infeasible" in dock.message.text()
+
+
+def test_gradient_psf_engineering_lowers_the_objective_and_loads_the_final_design(qtbot, window):
+    dock, state = window.optimise, window.state
+    _poor_start(window)
+    start = state.design
+    dock.set_method("gradient-psf")
+    _free_focus(dock)
+    dock.g_steps.setText("3")
+    dock.g_lr.setText("0.1")
+    dock.run_button.click()
+    _done(qtbot, window)
+    steps, final = dock.rows[:-1], dock.rows[-1]
+    assert [r.number for r in steps] == [0, 1, 2] and final.number == 3 and dock.best() is final
+    values = [r.values["axial_crb"] for r in steps]
+    assert values[0] > 0 and final.values["axial_crb"] < values[0]  # the loss went down from its start
+    assert steps[0].params == pytest.approx(POOR)  # the descent starts from the design in force
+    # The same run straight through the engine: the same values (the runs are deterministic).
+    reference = _quiet(
+        lambda: optimize_psf(
+            start,
+            SPACE,
+            "axial_crb",
+            steps=3,
+            lr=0.1,
+            settings=EvaluationSettings(crop=256),
+            options={"photons": 1e5, "background": 1.0},  # the CLI's (and the dock's) defaults
+        )
+    )
+    assert values == pytest.approx([h.value for h in reference.history], rel=1e-6)
+    assert final.values["axial_crb"] == pytest.approx(reference.final_value, rel=1e-6)
+    assert "float32 vs float64 start gradient" in dock.message.text() and "within" in dock.message.text()
+    # the loss curve: one point per step and the final design, joined
+    xs, ys = dock.feasible_dots.getData()
+    assert list(xs) == [0, 1, 2, 3] and list(ys) == pytest.approx([*values, final.values["axial_crb"]])
+    assert dock.plot.getPlotItem().getAxis("bottom").labelText == "step"
+    dock.table.cellDoubleClicked.emit(len(dock.rows) - 1, 0)
+    for path, value in SPACE.values_of(state.design).items():
+        assert value == pytest.approx(final.params[path]) and BOUNDS[path][0] <= value <= BOUNDS[path][1]
+    assert SPACE.values_of(state.design) == pytest.approx(SPACE.values_of(reference.design))
+    assert "final design" in dock.message.text()
+
+
+def test_gradient_end_to_end_reports_the_held_out_loss(qtbot, window):
+    dock = window.optimise
+    _poor_start(window)
+    dock.set_method("gradient-end-to-end")
+    _free_focus(dock)
+    for field, text in ((dock.g_steps, "2"), (dock.g_lr, "0.1"), (dock.e_batch, "1"), (dock.e_held_out, "1"),
+                        (dock.e_iterations, "2")):  # fmt: skip
+        field.setText(text)
+    dock.g_check.setChecked(False)
+    dock.run_button.click()
+    _done(qtbot, window)
+    assert [r.number for r in dock.rows] == [0, 1, 2] and dock.best() is dock.rows[-1]
+    assert all(0 < r.values["task_loss"] < 1.5 for r in dock.rows)  # energy-normalised MSE (all-zero: 1)
+    text = dock.message.text()
+    assert "held-out" in text and "all-zero volume 1" in text and "float64" not in text
+    assert dock.rows[-1].note == "final design (last point)"
+    assert dock.rows[1].params != pytest.approx(POOR)  # the optics moved
+    dock.table.cellDoubleClicked.emit(2, 0)
+    assert SPACE.values_of(window.state.design) == pytest.approx(dock.rows[-1].params)
+
+
+def test_bad_option_values_are_refused_by_name(qtbot, window):
+    dock = window.optimise
+    dock.set_method("algorithm2")
+    dock.a2_min_lenslet.setText("0")
+    dock.run_button.click()
+    assert "Minimum lenslet size" in dock.message.text() and "out of range" in dock.message.text()
+    assert not dock.is_running()
+    dock.a2_min_lenslet.setText("5000")  # more than the 3.6 mm pupil
+    dock.run_button.click()
+    assert "Minimum lenslet size 5000" in dock.message.text() and not dock.is_running()
+    dock.a2_min_lenslet.setText("900")
+    dock.a2_sizes.setText("2,x")
+    dock.run_button.click()
+    assert "Sizes must be whole numbers" in dock.message.text() and not dock.is_running()
+    dock.a2_sizes.setText("9")
+    dock.run_button.click()
+    assert "Sizes 9" in dock.message.text() and "cells per side" in dock.message.text()
+    dock.set_method("gradient-psf")
+    dock.run_button.click()
+    assert "no parameter is freed" in dock.message.text()
+    _free_focus(dock)
+    dock.g_lr.setText("abc")
+    dock.run_button.click()
+    assert "Learning rate must be a number" in dock.message.text() and not dock.is_running()
+    dock.g_lr.setText("0.05")
+    dock.free("camera.pixel_pitch_um", 5.0, 7.0, 3)  # not differentiable: the engine says which are
+    dock.run_button.click()
+    assert "camera.pixel_pitch_um" in dock.message.text() and not dock.is_running()
+    dock.set_method("gradient-end-to-end")
+    dock.e_batch.setText("0")
+    dock.run_button.click()
+    assert "Batch 0 is out of range" in dock.message.text() and not dock.is_running()
+
+
+def test_cancel_keeps_the_previous_results(qtbot, window, monkeypatch):
+    dock = window.optimise
+    _algorithm2(qtbot, window)
+    _done(qtbot, window)
+    previous, chosen = list(dock.rows), dock.chosen
+    release, calls = threading.Event(), []
+
+    class Gated(ClosedForm):
+        def __call__(self, candidate):  # the first layout waits until the test has pressed Cancel
+            calls.append(1)
+            release.wait(30)
+            return super().__call__(candidate)
+
+    factory = (lambda options: Gated("lateral_resolution"), "test: gated closed form")
+    monkeypatch.setitem(objectives_module._REGISTRY, "lateral_resolution", factory)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: len(calls) == 1, timeout=TIMEOUT_MS)
+    dock.cancel_button.click()
+    release.set()
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "cancelled", timeout=TIMEOUT_MS)
+    assert dock.rows == previous and dock.chosen == chosen and dock.table.rowCount() == len(previous)
+    assert dock.message.text().startswith("Cancelled: the previous results") and len(calls) == 1
+    # a failed run keeps them too, and shows the error, not a traceback
+    dock.set_method("gradient-psf")
+    _free_focus(dock)
+    dock.g_steps.setText("2")
+    monkeypatch.setattr(
+        "lfm_studio.ui.optimise_model.optimize_psf",
+        lambda *a, **k: (_ for _ in ()).throw(ValueError("the start design is infeasible (test)")),
+    )
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "failed", timeout=TIMEOUT_MS)
+    assert dock.rows == previous and "Failed: the start design is infeasible (test)" in dock.message.text()
+    assert "Traceback" not in dock.message.text() and "previous results" in dock.message.text()
+
+
+def test_a_gradient_run_hands_over_each_step_as_it_is_stored():
+    base = _quiet(lambda: SPACE.apply(small_fourier_design(), POOR))
+    request = GradientRequest(
+        "psf", tuple(FreeParameter(p, *b) for p, b in BOUNDS.items()), steps=3, lr=0.1, check_float64=False
+    )
+    live, progress = [], []
+    result = _quiet(
+        lambda: run_gradient(base, request, on_row=live.append, progress=lambda *a: progress.append(a))
+    )
+    assert [r.number for r in live] == [0, 1, 2] == [r.number for r in result.rows[:-1]]
+    for shown, final in zip(live, result.rows, strict=False):
+        assert shown.params == pytest.approx(final.params) and shown.values == pytest.approx(final.values)
+        assert shown.design() == final.design()  # the stored step's design is the step's point
+    assert [p[:2] for p in progress] == [(0, 3), (1, 3), (2, 3), (3, 3)]
