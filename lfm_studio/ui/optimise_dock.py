@@ -190,6 +190,15 @@ def _number(text: str, what: str) -> float:
         raise ValueError(f"{what} must be a number; got {text.strip()!r}. Fix: type a number.") from None
 
 
+def _holds(cells: list[str], value: float) -> bool:
+    """Whether the kept ``(low, high, points)`` texts are a range that holds ``value``."""
+    try:
+        low, high = float(cells[0]), float(cells[1])
+    except (ValueError, IndexError):
+        return False
+    return min(low, high) <= value <= max(low, high)
+
+
 class OptimiseDock(QWidget):
     """The "Optimise" dock of ``state``, running on ``runner`` (the studio controller's).
 
@@ -591,7 +600,12 @@ class OptimiseDock(QWidget):
         return view
 
     def _fill_parameters(self) -> None:
-        """List the design's freeable values; a path listed before keeps its tick and range."""
+        """List the design's freeable values; a path listed before keeps its tick and range.
+
+        An unticked row whose kept range no longer holds the design's value (the design changed)
+        gets the default range around the new value: a stale range would start a descent outside
+        its bounds once ticked.
+        """
         kept = {}
         for row in range(self.parameters.rowCount()):
             free = self.parameters.item(row, _FREE)
@@ -615,6 +629,8 @@ class OptimiseDock(QWidget):
             self.parameters.setItem(row, _POINTS, _item("3", editable=True))
             if spec.path in kept:
                 check, cells = kept[spec.path]
+                if check != Qt.CheckState.Checked and not _holds(cells, spec.value):
+                    continue
                 free.setCheckState(check)
                 for column, text in zip((_LOW, _HIGH, _POINTS), cells, strict=True):
                     self.parameters.item(row, column).setText(text)

@@ -258,3 +258,24 @@ def test_the_zernike_terms_of_a_pupil_phase_mask_are_freeable():
     assert not any(
         p.startswith("pupil_phase") for p in (f.path for f in freeable_fields(load_preset("xlfm_cong2017")))
     )
+
+
+def test_a_design_change_moves_an_unticked_range_but_keeps_a_ticked_one(window):
+    """The table's Low/High follow the design's value unless the user ticked the row (their range)."""
+    dock = window.optimise
+
+    def cells(path):
+        row = dock.parameter_row(path)
+        return [float(dock.parameters.item(row, c).text()) for c in (2, 3, 4)]
+
+    assert dock.parameters.horizontalHeaderItem(2).text() == "Now"
+    dock.free(RELAY, 60.0, 90.0, 4)
+    other = "objective.tube_lens_focal_length_mm"
+    new_value = cells(other)[0] * 1.5  # outside the default +-10 % range around the old value
+    design = apply_changes(window.state.design, {other: new_value, RELAY: 120.0})
+    window.state.set_design(design)
+    now, low, high = cells(other)
+    assert now == pytest.approx(new_value, rel=1e-5)
+    assert low <= now <= high  # the stale range around the old value is gone
+    assert cells(RELAY)[1:] == [60.0, 90.0]  # ticked: the user's range stays, even if the value left it
+    assert dock.parameters.item(dock.parameter_row(RELAY), 0).checkState() == Qt.CheckState.Checked
