@@ -152,7 +152,7 @@ def train(
                 )
             pool = mismatch_pool(jitter_design, data.optics_jitter, count=data.jitter_designs,
                                  seed=data.seed + POOL_SEED_OFFSET)  # fmt: skip
-        start, best = 0, math.inf
+        start, best, best_step = 0, math.inf, 0
         if resume and target is not None and target.exists():
             previous, tensors = read_checkpoint(target)
             if previous.model != model:
@@ -167,12 +167,14 @@ def train(
                     f"--resume: {target} has no readable step count and validation loss in its header."
                 )
             start, best = int(steps), float(best_validation)
+            recorded = previous.training.get("best_step", start)
+            best_step = int(recorded) if isinstance(recorded, (int, float)) else start
         loop = _Loop(
             network, setup, data, model_name=model, design_hash=design_hash, depths=depths, seed=seed,
             high_pass_weight=high_pass_weight, validation_size=validation_size, target=target, pool=pool,
         )  # fmt: skip
         history, reason = loop.run(
-            start=start, best=best, budget_s=60.0 * budget_minutes, max_steps=max_steps,
+            start=start, best=best, best_step=best_step, budget_s=60.0 * budget_minutes, max_steps=max_steps,
             learning_rate=learning_rate, validate_every=validate_every, patience=patience,
             progress=progress, cancel=cancel, clock=clock, on_step=on_step,
         )  # fmt: skip
@@ -195,20 +197,25 @@ class _Loop:
         self.high_pass_weight, self.target = high_pass_weight, target
         validation_imaging = pool if data.jitter_validation else None
         self.validation = make_samples(data, setup, "validation", validation_size, imaging=validation_imaging)
-        self.best = math.inf
+        self.best, self.best_step = math.inf, 0
         self.best_state = copy.deepcopy(network.state_dict())
         self.seconds = 0.0
 
-    def run(self, *, start: int, best: float, budget_s: float, max_steps: int | None, learning_rate: float,
+    def run(self, *, start: int, best: float, best_step: int, budget_s: float, max_steps: int | None, learning_rate: float,
             validate_every: int, patience: int, progress: ProgressCallback | None, cancel: CancelToken,
             clock: Callable[[], float], on_step: Callable[[int, float, float], None] | None = None,
             ) -> tuple[list[tuple[int, float, float]], str]:  # fmt: skip
-        """Steps until ``max_steps``, the budget, early stopping or cancel; returns (history, stop reason)."""
+        """Steps until ``max_steps``, the budget, early stopping or cancel; returns (history, stop reason).
+
+        ``best`` / ``best_step``: the validation loss to beat and the step its weights come from
+        (a resumed checkpoint's). When the budget ends the run, the steps since the last
+        validation are validated once more, so no trained step is dropped unscored.
+        """
         network = self.network
         optimiser = torch.optim.Adam(network.parameters(), lr=learning_rate)
         history: list[tuple[int, float, float]] = []
         began, since_best, reason, step = clock(), 0, "steps", start
-        self.best = best
+        self.best, self.best_step = best, best_step
         if math.isinf(best):  # the starting point is the first candidate: training never ends worse
             self.network.eval()
             self.best = validation_loss(network, self.validation, self.high_pass_weight)
@@ -216,6 +223,9 @@ class _Loop:
         while max_steps is None or step - start < max_steps:
             if clock() - began >= budget_s:
                 reason = "time budget"
+                if history and math.isnan(history[-1][2]):  # the steps since the last validation count too
+                    checked = self._validate(step, clock() - began)
+                    history[-1] = (history[-1][0], history[-1][1], checked)
                 break
             if is_cancelled(cancel):
                 reason = "cancelled"
@@ -249,7 +259,7 @@ class _Loop:
         self.network.eval()
         checked = validation_loss(self.network, self.validation, self.high_pass_weight)
         if checked < self.best:
-            self.best = checked
+            self.best, self.best_step = checked, step
             self.best_state = copy.deepcopy(self.network.state_dict())
             if (
                 self.target is not None
@@ -264,7 +274,7 @@ class _Loop:
         self, steps: int, seconds: float, reason: str, metrics: dict[str, JSONValue] | None = None
     ) -> CheckpointHeader:
         training: dict[str, JSONValue] = {"steps": steps, "seconds": seconds, "seed": self.seed, "best_validation": self.best,
-                    "stop_reason": reason, "parameters": parameter_count(self.network),
+                    "best_step": self.best_step, "stop_reason": reason, "parameters": parameter_count(self.network),
                     "zero_floor": 1.0 + self.high_pass_weight}  # fmt: skip
         return header_for(self.model_name, model_config(self.network), self.setup, self.design_hash, self.depths,
                           data=self.data.to_dict(), training=training, metrics=metrics or {})  # fmt: skip

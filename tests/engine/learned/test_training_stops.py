@@ -149,3 +149,29 @@ def test_resume_counts_steps_and_the_best_loss_from_the_checkpoint(fourier, tmp_
     assert _same(tensors, before)  # nothing better was found: the resumed weights are what is kept
     assert _same(_weights(resumed.model), before)
     assert resumed.header.training == header.training
+
+
+def test_a_budget_stop_validates_the_steps_since_the_last_validation(fourier, tmp_path, built, monkeypatch):
+    """Steps trained after the last scheduled validation are scored when the budget ends the run,
+    and the header names the step whose weights the file holds."""
+    _script(monkeypatch, [1.0, 0.9, 0.5])  # start, step 2 (scheduled), step 3 (at the budget stop)
+    now = [0.0]
+    snapshots = {}
+
+    def on_step(step, loss, checked):
+        now[0] += 25.0
+        snapshots[step] = _weights(built[0])
+
+    path = tmp_path / "m.safetensors"
+    result = train(
+        fourier.setup, data=DATA, budget_minutes=1.0, max_steps=20, validate_every=2, patience=100, validation_size=FEW,
+        checkpoint=path, clock=lambda: now[0], on_step=on_step,
+    )  # fmt: skip
+    assert result.stop_reason == "time budget"
+    values = [value for _, _, value in result.history]
+    assert [step for step, _, _ in result.history] == [1, 2, 3]
+    assert math.isnan(values[0]) and values[1:] == [0.9, 0.5]  # step 3 was scored at the stop
+    header, tensors = read_checkpoint(path)
+    assert header.training["best_validation"] == 0.5 and header.training["best_step"] == 3
+    assert header.training["steps"] == 3
+    assert _same(tensors, snapshots[3])  # the last step's weights were the best: kept, not dropped
