@@ -136,6 +136,7 @@ def optimize_end_to_end(
         reconstruction weights (Adam; L-BFGS takes one group with ``lr``).
     batch : training phantoms per step; held_out : test phantoms scored at the start and the end.
     data : the phantoms and photon budget (default :data:`DEFAULT_DATA` with ``seed``).
+    seed : seeds the phantoms (unless ``data`` is given) and the new unrolled RL's initial weights.
     high_pass_weight : the high-pass term of the loss (0: plain energy-normalised MSE, floor 1).
 
     Returns
@@ -180,7 +181,12 @@ def optimize_end_to_end(
     start_setup = setup_of(start_stack)
     net: nn.Module | None = None
     if reconstruction == "unrolled-rl":
-        net = model if model is not None else UnrolledRL(start_setup.projector, iterations=iterations)
+        if model is not None:
+            net = model
+        else:  # initial weights drawn from ``seed``: the run repeats (the caller's RNG is left as it was)
+            with torch.random.fork_rng(devices=[]):
+                torch.manual_seed(seed)
+                net = UnrolledRL(start_setup.projector, iterations=iterations)
         net = net.to(device=start_setup.projector.device, dtype=start_setup.projector.dtype)
         net.requires_grad_(not freeze_reconstruction)
 
