@@ -335,9 +335,10 @@ class OptimiseDock(QWidget):
         self.message = QLabel("")
         self.message.setWordWrap(True)
         column.addWidget(self.message)
-        self._refusal: str | None = None  # the budget field's refusal on show (cleared by its next commit)
-        self.budget.refused.connect(self._on_budget_refused)
-        self.budget.committed.connect(self._on_budget_committed)
+        self._refusal: str | None = None  # a number field's refusal on show (cleared by its next commit)
+        for field in self.all_option_fields():
+            field.refused.connect(self._on_field_refused)
+            field.committed.connect(self._on_field_committed)
         return box
 
     def _build_algorithm2_box(self) -> QWidget:
@@ -679,6 +680,13 @@ class OptimiseDock(QWidget):
             raise ValueError(f"the Optimise dock has no method {key!r}; it offers {list(METHODS)}.")
         self.method.setCurrentIndex(index)
 
+    def all_option_fields(self) -> list[NumericField]:
+        """Every method's number fields, each once (a refusal in any of them shows in the message line)."""
+        fields: list[NumericField] = []
+        for method in METHODS:
+            fields += [f for f in self.option_fields(method) if f not in fields]
+        return fields
+
     def option_fields(self, method: str | None = None) -> list[NumericField]:
         """The number fields of ``method``'s options (default: the method chosen)."""
         method = method or self.method_key()
@@ -859,11 +867,11 @@ class OptimiseDock(QWidget):
         name = self.ranking
         return None if name is None else best_row(self.rows, name, self._directions[name])
 
-    def _on_budget_refused(self, reason: str) -> None:
+    def _on_field_refused(self, reason: str) -> None:
         self._refusal = reason
         self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{reason}</span>")
 
-    def _on_budget_committed(self, *_: Any) -> None:
+    def _on_field_committed(self, *_: Any) -> None:
         if self._refusal is not None and self._refusal in self.message.text():
             self.message.setText("")
         self._refusal = None

@@ -31,8 +31,10 @@ MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": N
 LOCALES = ("C", "de_DE")
 # Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
 # (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 1  # parameter panel (incl. the two volume-grid settings), workflow,
-# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (budget)
+EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 13  # parameter panel (incl. the two volume-grid settings), workflow,
+# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (grid budget; Algorithm 2:
+# minimum lenslet, crop; gradient: steps, learning rate, crop, photons, background; end to end: learning
+# rate, iterations, batch, held-out, photons)
 # Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
 # are shown disabled and cannot be typed into.
 DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
@@ -209,7 +211,8 @@ def _hosts(window):
         field = getattr(train, name)
         hosts[field] = (name, field.value, lambda: _shown(train.message))
     optimise = window.optimise
-    hosts[optimise.budget] = ("budget", optimise.budget.value, lambda: _shown(optimise.message))
+    for field in optimise.all_option_fields():  # read when Run is pressed: the field holds the value in force
+        hosts[field] = (field.rule.name, field.value, lambda: _shown(optimise.message))
     bar = editor.symmetry_bar
     for field in editor.numeric_fields():
         in_force = (lambda: editor.symmetry().rotation) if field is bar.rotation else field.value
