@@ -125,8 +125,12 @@ def nip_quadrants(
     expands it): a quarter of the memory of the fields, kept for all depths during a build.
 
     :data:`DEBYE_DEPTHS` depths per Debye call (the Bessel table in ``(radius, theta)`` is
-    shared by the depths of a call). ``radial_sampling`` is the radial-table oversampling of :func:`debye_psf`
-    (8: interpolation error <= (k NA h)^4 / 384 ~ 2e-6 of the peak at Nyquist-sampled grids);
+    shared by the depths of a call). ``radial_sampling`` (an integer ``s``) sets the radial table's
+    step to ``min(dx, lambda / (4 NA_img)) / s``: ``s`` entries per grid step or per Nyquist step
+    of the field, whichever is finer (8: interpolation error <= (k NA h)^4 / 384 ~ 4e-6 of the
+    peak, :func:`debye_psf`; the NIP grids are finer than Nyquist, 1.7 um against 4.4 um for the
+    10x/0.3 system at the standard preset, and 8 entries per grid step cost 2x the Bessel
+    evaluations for a 16x smaller error bound); ``"exact"`` or ``"auto"`` are passed on;
     ``model`` and ``n_quadrature`` are those of :func:`debye_psf`; ``oversampling`` is the NIP
     grid factor of :func:`samples_per_pitch`. ``wavelength`` (a float or 0-d tensor, metres)
     overrides the system's in the Debye integrand (gradients flow to it); the grid stays
@@ -145,6 +149,11 @@ def nip_quadrants(
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
     lam = system.wavelength if wavelength is None else wavelength
     waves = pupil_waves(system, zernike_waves)
+    table = radial_sampling
+    if isinstance(table, int) and not isinstance(table, bool) and table >= 1:  # per Nyquist step if coarser
+        na_image = _value(system.objective.numerical_aperture) / system.magnification
+        nyquist = system.wavelength / (4.0 * na_image)
+        table = max(1, math.ceil(table * dx / nyquist - 1e-9)) if dx < nyquist else table
     out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
     # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
     # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
@@ -153,7 +162,7 @@ def nip_quadrants(
         part = slice(start, min(len(depths), start + DEBYE_DEPTHS))
         field = debye_psf(
             system.objective, quadrant, lam, z[part], position=(offset, offset),
-            image_side=True, radial_sampling=radial_sampling, model=model, n_quadrature=n_quadrature,
+            image_side=True, radial_sampling=table, model=model, n_quadrature=n_quadrature,
             dtype=cdtype, device=device, zernike_waves=waves,
         )  # fmt: skip
         out[part] = field.data.reshape(-1, h + 1, h + 1)
