@@ -38,7 +38,7 @@ class ConventionalAccuracy:
     pixel_oversampling : sensor-field samples per intensity Nyquist interval before the
         midpoint-rule pixel integration (:func:`sub_samples`; > 0).
     radial_sampling : radial-table oversampling of the Debye field, or ``"exact"``.
-    depth_chunk : depths per pattern batch (bounds memory; >= 1).
+    depth_chunk : depths per Debye NIP-field batch (bounds memory; >= 1; the patterns do not depend on it).
     """
 
     dtype: torch.dtype = torch.float32
