@@ -149,24 +149,44 @@ def nip_quadrants(
     offset = ((h + 1) // 2) * dx / system.magnification  # object side; the image is inverted
     lam = system.wavelength if wavelength is None else wavelength
     waves = pupil_waves(system, zernike_waves)
-    table = radial_sampling
-    if isinstance(table, int) and not isinstance(table, bool) and table >= 1:  # per Nyquist step if coarser
-        na_image = _value(system.objective.numerical_aperture) / system.magnification
-        nyquist = system.wavelength / (4.0 * na_image)
-        table = max(1, math.ceil(table * dx / nyquist - 1e-9)) if dx < nyquist else table
+    table = radial_table_sampling(system, dx, radial_sampling)
     out = torch.empty((len(depths), h + 1, h + 1), dtype=cdtype, device=device)
+    # Without a pupil phase the defocus phase is odd in z and the rest real: U(-z) = -conj(U(z))
+    # (exact), so of a pair +-z only one is integrated.
+    mirror: dict[int, int] = {}
+    if waves is None:
+        first: dict[float, int] = {}
+        for index, depth in enumerate(depths):
+            if -depth in first and depth != 0.0:
+                mirror[index] = first[-depth]
+            else:
+                first.setdefault(depth, index)
+    computed = [index for index in range(len(depths)) if index not in mirror]
     # A few depths per Debye call: its interpolation temporaries are complex128 per depth and
     # sample (about 15x the complex64 result), so one call for 31 depths on a 518^2 quadrant
     # peaked at 490 MB above the result; the radial tables are per depth anyway.
-    for start in range(0, len(depths), DEBYE_DEPTHS):
-        part = slice(start, min(len(depths), start + DEBYE_DEPTHS))
+    for start in range(0, len(computed), DEBYE_DEPTHS):
+        part = torch.tensor(computed[start : start + DEBYE_DEPTHS], device=device)
         field = debye_psf(
             system.objective, quadrant, lam, z[part], position=(offset, offset),
             image_side=True, radial_sampling=table, model=model, n_quadrature=n_quadrature,
             dtype=cdtype, device=device, zernike_waves=waves,
         )  # fmt: skip
         out[part] = field.data.reshape(-1, h + 1, h + 1)
+    for index, source in mirror.items():
+        out[index] = -out[source].conj()
     return out
+
+
+def radial_table_sampling(system: ConventionalLFMSystem, dx: float, radial_sampling: int | str) -> int | str:
+    """The ``radial_sampling`` :func:`debye_psf` gets for NIP grid step ``dx`` (see :func:`nip_quadrants`):
+    an integer ``s`` becomes ``ceil(s dx / (lambda / (4 NA_img)))`` when ``dx`` is finer than that
+    Nyquist step (the table step is then ``<=`` Nyquist / ``s``); anything else is passed on."""
+    if isinstance(radial_sampling, bool) or not isinstance(radial_sampling, int) or radial_sampling < 1:
+        return radial_sampling
+    na_image = _value(system.objective.numerical_aperture) / system.magnification
+    nyquist = system.wavelength / (4.0 * na_image)
+    return max(1, math.ceil(radial_sampling * dx / nyquist - 1e-9)) if dx < nyquist else radial_sampling
 
 
 def pupil_waves(

@@ -111,9 +111,13 @@ def conventional_psf_stack(
     width = (2 * max(groups) + 3) * q
     data = torch.zeros((s, s, len(depths), width, width), dtype=dtype, device=device)
     reach_of = [0] * len(depths)
+    # Each group by |z|, so the depths +-z share a chunk (nip_quadrants integrates one of them).
+    ordered = {
+        reach: sorted(indices, key=lambda i: (abs(depths[i]), depths[i])) for reach, indices in groups.items()
+    }
     chunks = [
         (reach, indices[start : start + acc.depth_chunk])
-        for reach, indices in groups.items()
+        for reach, indices in ordered.items()
         for start in range(0, len(indices), acc.depth_chunk)
     ]
     for done, (reach, indices) in enumerate(chunks):

@@ -25,6 +25,7 @@ from lfm_studio.engine.systems.conventional_patterns import (
     nip_field_size,
     nip_fields,
     offset_pattern,
+    radial_table_sampling,
     samples_per_pitch,
 )
 from lfm_studio.engine.systems.conventional_psf import conventional_projector
@@ -115,10 +116,12 @@ def test_symmetry_expansion_equals_direct_computation():
 def test_nip_field_quadrant_mirror_equals_full_grid():
     z = (25 * um,)
     mirrored = nip_fields(SYSTEM, z, reach=1, dtype=torch.float64)
-    n = nip_field_size(SYSTEM, 1)
+    n, dx = nip_field_size(SYSTEM, 1), SYSTEM.pitch / samples_per_pitch(SYSTEM)
+    table = radial_table_sampling(SYSTEM, dx, 8)
+    assert table == 5  # 51 samples per pitch: 2.45 um against the 4.4 um Nyquist step (8 x 0.56)
     direct = debye_psf(
-        SYSTEM.objective, Grid(n, SYSTEM.pitch / samples_per_pitch(SYSTEM)), SYSTEM.wavelength, torch.tensor(z, dtype=torch.float64),
-        image_side=True, radial_sampling=8, dtype=torch.complex128,
+        SYSTEM.objective, Grid(n, dx), SYSTEM.wavelength, torch.tensor(z, dtype=torch.float64),
+        image_side=True, radial_sampling=table, dtype=torch.complex128,
     ).data  # fmt: skip
     assert torch.allclose(mirrored, direct, rtol=0, atol=1e-12 * float(direct.abs().max()))
 

@@ -25,6 +25,7 @@ from lfm_studio.engine.systems.conventional_patterns import (
     conventional_patterns,
     fft_pitches,
     nip_fields,
+    nip_quadrants,
     offset_pattern,
     samples_per_pitch,
     sub_samples,
@@ -130,3 +131,14 @@ def test_fft_grid_holds_the_canvas_and_padding_at_fast_lengths():
                 rest //= prime
         assert rest == 1, pitches
     assert [fft_pitches(r) for r in (1, 2, 5, 6)] == [6, 8, 15, 16]
+
+
+@pytest.mark.parametrize("waves", [None, {11: 0.2}])
+def test_the_field_at_minus_z_taken_from_plus_z_equals_its_own_integration(waves):
+    # Without a pupil phase U(-z) = -conj(U(z)) and only one of a pair is integrated; a phase mask
+    # breaks the symmetry and both are integrated.
+    system = _system("square")
+    pair = nip_quadrants(system, (-40 * um, 40 * um, 0.0), reach=1, dtype=F64, zernike_waves=waves)
+    for index, z in enumerate((-40 * um, 40 * um, 0.0)):
+        alone = nip_quadrants(system, (z,), reach=1, dtype=F64, zernike_waves=waves)[0]
+        assert torch.allclose(pair[index], alone, rtol=0, atol=1e-12 * float(alone.abs().max())), z
