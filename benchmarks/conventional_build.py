@@ -1,29 +1,34 @@
-"""Conventional-LFM build: ours against a pyolaf-style numpy reference, time and peak memory.
+"""Conventional-LFM build: ours against pyolaf itself and a pyolaf-style numpy reference, time and peak memory.
 
     python benchmarks/conventional_build.py [--depths 31] [--threads 1 2] [--repeats 1] [--quick]
+        [--pyolaf-python /path/to/python-with-pyolaf]
 
 Configuration of issue 17: preset ``lfm_10x_na03`` (10x/0.3, 125 um / 1.875 mm lenslets),
 41 x 41 lenslets, 15 px and 5 voxels per lenslet, ``--depths`` depths over +-150 um, the
 ``standard`` accuracy preset (float32 fields, 5 sensor-field samples per pixel, NIP grid
 1.5x: 75 NIP samples per pitch).
 
-- **ours**: ``conventional_psf_stack`` (Debye NIP fields, the lattice Fresnel transform of
+- **ours**: ``conventional_psf_stack`` (Debye NIP fields, the lattice FFT Fresnel transform of
   :mod:`lfm_studio.engine.systems.conventional_patterns`, pixel integration).
-- **pyolaf-style reference** (numpy, written here; pyolaf is not installed): the same
-  model computed the way pyolaf does it, per depth and voxel sub-position: the NIP field
-  of the lenslets within reach times the microlens transmittance
-  ``exp(-j k (x^2 + y^2) / (2 f))`` (tiled square lenslets), Fresnel propagation to the
-  sensor by the FFT transfer-function method ``exp(-j pi lambda d (fx^2 + fy^2))`` on the
-  NIP grid (zero-padded by one pitch on each side), ``|U|^2`` binned onto the pixels.
-  It uses the engine's NIP fields (the Debye part, identical in both, is timed inside
-  the reference too) and the same 6 of 25 sub-positions (lattice symmetry). It needs the
-  NIP grid to be the sensor sub-sample grid (75 = 15 x 5 samples per pitch here).
+- **pyolaf** (with ``--pyolaf-python``): pyolaf's own operator build
+  (``LFM_computeLFMatrixOperators``: NIP fields, forward and backward patterns) run by that
+  interpreter, ``benchmarks/pyolaf_build.py`` (which says what its configuration is and how its
+  sampling differs: one sample per pixel, 15 per pitch, against our 75).
+- **pyolaf-style reference** (numpy, written here): our model computed the way pyolaf does it,
+  per depth and voxel sub-position: the NIP field of the lenslets within reach times the
+  microlens transmittance ``exp(-j k (x^2 + y^2) / (2 f))`` (tiled square lenslets), Fresnel
+  propagation to the sensor by the 2-D FFT transfer-function method
+  ``exp(-j pi lambda d (fx^2 + fy^2))`` on the NIP grid (zero-padded by one pitch on each side),
+  ``|U|^2`` binned onto the pixels. It uses the engine's NIP fields (the Debye part, identical in
+  both, is timed inside the reference too) and the same 6 of 25 sub-positions (lattice symmetry).
+  It needs the NIP grid to be the sensor sub-sample grid (75 = 15 x 5 samples per pitch here).
 
 Each build runs in a fresh process under ``/usr/bin/time -v`` (peak RSS = "Maximum
-resident set size"), ours and the reference alternately, for each thread count; the
-table gives build seconds, peak GB and the ratios reference / ours from the same run.
-The agreement of the two pattern stacks (worst-depth relative L2) is printed once.
-Nothing here asserts a time: the machine is shared.
+resident set size"), ours, the reference and pyolaf alternately, for each thread count
+(``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` and torch's threads); the
+table gives build seconds, peak GB and the ratios other / ours from the same run. The agreement
+of our stack with the reference (worst-depth relative L2) is printed once. Nothing here asserts a
+time: the machine is shared.
 """
 
 from __future__ import annotations
@@ -68,14 +73,7 @@ def build_ours(depths: tuple[float, ...]) -> np.ndarray:
 
 def build_reference(depths: tuple[float, ...]) -> np.ndarray:
     """The pyolaf-style stack ``(S, S, Z, H, H)`` (see the module notes), complex128 fields."""
-    from lfm_studio.engine.systems.conventional_patterns import (
-        _expand_symmetric,
-        _unique_offsets,
-        light_radius,
-        nip_fields,
-        samples_per_pitch,
-        sub_samples,
-    )
+    from lfm_studio.engine.systems.conventional_patterns import nip_fields, samples_per_pitch, sub_samples
     from lfm_studio.engine.systems.conventional_psf import depth_groups
 
     system, accuracy = _system_and_accuracy()
@@ -91,6 +89,7 @@ def build_reference(depths: tuple[float, ...]) -> np.ndarray:
     groups = depth_groups(system, depths)
     width = (2 * max(groups) + 3) * q
     out = np.zeros((s, s, len(depths), width, width), dtype=np.float32)
+    half = s // 2
     for reach, indices in groups.items():
         base = nip_fields(
             system, tuple(depths[i] for i in indices), reach=reach, dtype=torch.float64,
@@ -103,37 +102,29 @@ def build_reference(depths: tuple[float, ...]) -> np.ndarray:
         mla = np.tile(lens, (2 * reach + 1, 2 * reach + 1))
         freq = np.fft.fftfreq(n, dx)
         transfer = np.exp(-1j * math.pi * system.wavelength * d * (freq[:, None] ** 2 + freq[None, :] ** 2))
-        radius = light_radius(system, tuple(depths[i] for i in indices), accuracy.light_margin)
-        unique = {}
-        for a, b in _unique_offsets(s // 2):
-            step, field_n = ns // s, base.shape[-1]
-            oy, ox = field_n // 2 - a * step, field_n // 2 - b * step
-            span = (2 * reach + 1) * ns
-            top, left = oy - reach * ns - ns // 2, ox - reach * ns - ns // 2
-            lit = np.zeros((2 * reach + 1, 2 * reach + 1))
-            p = system.pitch
-            for i in range(-reach, reach + 1):
-                for j in range(-reach, reach + 1):
-                    gap = math.hypot(
-                        max(abs(i * p - a * p / s) - p / 2, 0), max(abs(j * p - b * p / s) - p / 2, 0)
-                    )
-                    lit[reach + i, reach + j] = gap <= radius
-            mask = np.kron(lit, np.ones((ns, ns)))
-            patterns = []
-            for z in range(len(indices)):  # one full-field propagation per depth and sub-position
-                plane = np.zeros((n, n), dtype=np.complex128)
-                start = 2 * ns  # region starts one pitch into the canvas, after the padding
-                plane[start : start + span, start : start + span] = (
-                    base[z, top : top + span, left : left + span] * mla * mask
-                )
-                sensor = np.fft.ifft2(np.fft.fft2(plane) * transfer)[ns : ns + canvas, ns : ns + canvas]
-                power = (sensor.real**2 + sensor.imag**2) * dx * dx
-                patterns.append(power.reshape(canvas // m, m, canvas // m, m).sum(axis=(1, 3)))
-            unique[(a, b)] = torch.from_numpy(np.stack(patterns))
-        full = _expand_symmetric(unique, s).numpy()  # (Z, S, S, H, H)
-        h = full.shape[-1]
+        h = (2 * reach + 3) * q
         c = (width - h) // 2
-        out[:, :, indices, c : c + h, c : c + h] = full.transpose(1, 2, 0, 3, 4)
+        for a in range(half + 1):
+            for b in range(a, half + 1):
+                step, field_n = ns // s, base.shape[-1]
+                oy, ox = field_n // 2 - a * step, field_n // 2 - b * step
+                span = (2 * reach + 1) * ns
+                top, left = oy - reach * ns - ns // 2, ox - reach * ns - ns // 2
+                for z, index in enumerate(indices):  # one full-field propagation per depth and sub-position
+                    plane = np.zeros((n, n), dtype=np.complex128)
+                    start = 2 * ns  # region starts one pitch into the canvas, after the padding
+                    plane[start : start + span, start : start + span] = (
+                        base[z, top : top + span, left : left + span] * mla
+                    )
+                    sensor = np.fft.ifft2(np.fft.fft2(plane) * transfer)[ns : ns + canvas, ns : ns + canvas]
+                    power = (sensor.real**2 + sensor.imag**2) * dx * dx
+                    pattern = power.reshape(canvas // m, m, canvas // m, m).sum(axis=(1, 3))
+                    for row in {a, -a}:  # the lattice's mirrors and transpose
+                        for col in {b, -b}:
+                            for r, cc, image in ((row, col, pattern), (col, row, pattern.T)):
+                                image = image[::-1] if r < 0 else image
+                                image = image[:, ::-1] if cc < 0 else image
+                                out[r + half, cc + half, index, c : c + h, c : c + h] = image
     return out
 
 
@@ -151,10 +142,24 @@ def _child(args) -> None:
     print(json.dumps({"seconds": seconds}))
 
 
-def _run(which: str, threads: int, depths: int, save: str | None = None) -> tuple[float, float]:
-    command = ["/usr/bin/time", "-v", sys.executable, __file__, "--child", which, "--threads", str(threads)]
-    command += ["--depths", str(depths)] + (["--save", save] if save else [])
-    env = {**os.environ, "OMP_NUM_THREADS": str(threads)}
+def _run(which: str, threads: int, depths: int, pyolaf_python: str | None = None) -> tuple[float, float]:
+    if which == "pyolaf":
+        script = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyolaf_build.py")
+        command = ["/usr/bin/time", "-v", pyolaf_python, script, "--depths", str(depths)]
+    else:
+        command = [
+            "/usr/bin/time",
+            "-v",
+            sys.executable,
+            __file__,
+            "--child",
+            which,
+            "--threads",
+            str(threads),
+        ]
+        command += ["--depths", str(depths)]
+    count = str(threads)
+    env = {**os.environ, "OMP_NUM_THREADS": count, "MKL_NUM_THREADS": count, "OPENBLAS_NUM_THREADS": count}
     result = subprocess.run(command, capture_output=True, text=True, check=True, env=env)
     seconds = json.loads(result.stdout.strip().splitlines()[-1])["seconds"]
     peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", result.stderr).group(1))
@@ -167,6 +172,10 @@ def main() -> None:
     parser.add_argument("--threads", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--repeats", type=int, default=1)
     parser.add_argument("--quick", action="store_true", help="7 depths, 1 thread")
+    parser.add_argument(
+        "--pyolaf-python", help="an interpreter with pyolaf installed: time pyolaf itself too"
+    )
+    parser.add_argument("--no-reference", action="store_true", help="skip the numpy pyolaf-style reference")
     parser.add_argument("--child", choices=("ours", "reference"), help=argparse.SUPPRESS)
     parser.add_argument("--save", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -180,29 +189,43 @@ def main() -> None:
     print(
         f"# {PRESET}, 41 x 41 lenslets, 15 px / 5 voxels per lenslet, {args.depths} depths over +-150 um, "
         f"standard preset; threads {args.threads} of {available_cores()} cores, "
-        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}; fresh process per build"
+        f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}; fresh process per build; "
+        f"load average {os.getloadavg()[0]:.2f} at the start"
     )
-    results = {}
+    others = ([] if args.no_reference else ["reference"]) + (["pyolaf"] if args.pyolaf_python else [])
+    results: dict[tuple[str, int], list[tuple[float, float]]] = {}
     for _ in range(args.repeats):
         for threads in args.threads:
-            for which in ("ours", "reference"):
-                results.setdefault((which, threads), []).append(_run(which, threads, args.depths))
-    print("| threads | ours s | reference s | reference / ours | ours peak GB | reference peak GB |")
-    print("|---|---|---|---|---|---|")
+            for which in ["ours", *others]:
+                results.setdefault((which, threads), []).append(
+                    _run(which, threads, args.depths, args.pyolaf_python)
+                )
+    print(f"# load average {os.getloadavg()[0]:.2f} at the end; times: median of {args.repeats}; peak: max")
+    header = "| threads | ours s | " + " | ".join(f"{o} s | {o} / ours" for o in others)
+    header += " | ours peak GB | " + " | ".join(f"{o} peak GB" for o in others) + " |"
+    print(header)
+    print("|" + "---|" * (header.count("|") - 1))
     for threads in args.threads:
-        ours, ref = results[("ours", threads)], results[("reference", threads)]
-        t_ours, t_ref = statistics.median(r[0] for r in ours), statistics.median(r[0] for r in ref)
-        m_ours, m_ref = max(r[1] for r in ours), max(r[1] for r in ref)
+        ours = results[("ours", threads)]
+        t_ours, m_ours = statistics.median(r[0] for r in ours), max(r[1] for r in ours)
+        cells = [f"{threads}", f"{t_ours:.2f}"]
+        peaks = [f"{m_ours:.3f}"]
+        for other in others:
+            rows = results[(other, threads)]
+            t_other = statistics.median(r[0] for r in rows)
+            cells += [f"{t_other:.2f}", f"{t_other / t_ours:.2f}"]
+            peaks.append(f"{max(r[1] for r in rows):.3f}")
+        print("| " + " | ".join(cells + peaks) + " |")
+    if not args.no_reference:
+        a, b = build_ours(_depths(args.depths)), build_reference(_depths(args.depths))
+        errors = [
+            float(np.linalg.norm(a[:, :, z] - b[:, :, z]) / np.linalg.norm(b[:, :, z]))
+            for z in range(a.shape[2])
+        ]
         print(
-            f"| {threads} | {t_ours:.1f} | {t_ref:.1f} | {t_ref / t_ours:.2f} | {m_ours:.2f} | {m_ref:.2f} |"
+            f"agreement ours vs reference: worst-depth relative L2 {max(errors):.2e} "
+            f"(median {np.median(errors):.2e})"
         )
-    a, b = build_ours(_depths(args.depths)), build_reference(_depths(args.depths))
-    errors = [
-        float(np.linalg.norm(a[:, :, z] - b[:, :, z]) / np.linalg.norm(b[:, :, z])) for z in range(a.shape[2])
-    ]
-    print(
-        f"agreement ours vs reference: worst-depth relative L2 {max(errors):.2e} (median {np.median(errors):.2e})"
-    )
 
 
 if __name__ == "__main__":

@@ -4,8 +4,8 @@ Every setting is the "standard" preset's engine options with ONE knob changed (s
 row shows what that knob costs and buys), plus one point per accuracy preset. Knobs
 that do not reach a system kind's computation are left out of its sweep (the reason
 is in ``NOT_APPLICABLE``). Engine-only knobs that :class:`AccuracySpec` does not
-expose (the per-lenslet window margin, the conventional NIP grid factor, light
-margin and radial table) are swept too, since the presets rely on their defaults.
+expose (the per-lenslet window margin, the conventional NIP grid factor and
+radial table) are swept too, since the presets rely on their defaults.
 """
 
 from __future__ import annotations
@@ -31,8 +31,9 @@ NOT_APPLICABLE: dict[SystemKind, dict[str, str]] = {
         "propagator=fresnel_ir": "changes the grid; the per-lenslet path is the single-FFT Fresnel transform",
     },
     CONVENTIONAL: {
-        "propagator": "no FFT propagation: each lenslet is a direct Fresnel matrix product onto its window",
-        "padding": "no FFT, so no wrap-around; light_margin is the truncation knob",
+        "propagator": "always the Fresnel transfer function of the whole lenslet region (one FFT grid)",
+        "padding": "fixed: the canvas plus at least half a pitch each side (conventional_patterns.fft_pitches)",
+        "light_margin": "every lenslet within the reach is propagated (one FFT carries them all)",
         "per_lenslet": "lenslets are always summed coherently on one sensor grid",
         "pixel_integration": "always the midpoint rule with m sub-samples: the pixel_oversampling rows",
     },
@@ -100,7 +101,7 @@ def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[Engi
       s = 3 to 6).
     - conventional: the midpoint pixel integral (``m x m`` sub-samples) converges as ``1/m^2``,
       so the reference is the Richardson extrapolation of m = 5 and 7 (refined: 7 and 9), NIP
-      grid x1.5 (x2), light margin 24 (32) diffraction lengths, the converged Debye quadrature.
+      grid x1.5 (x2), the converged Debye quadrature.
     """
     if case.system_kind is FOURIER:
         full = footprints_overlap_in(case)
@@ -128,7 +129,6 @@ def reference_plan(case: BenchCase, *, refined: bool = False) -> list[tuple[Engi
         model="debye",
         debye_points=None,
         nip_oversampling=2.0 if refined else 1.5,
-        light_margin=32.0 if refined else 24.0,
         radial_sampling=8,
         depth_chunk=64,
     )
@@ -210,7 +210,6 @@ def conventional_settings(case: BenchCase, *, quick: bool = False) -> list[KnobS
     settings += _vary(base, "dtype", (torch.float64,))
     settings += _vary(base, "objective_model", ("paraxial",), field="model")
     settings += _vary(base, "debye_points", (64,) if quick else (48, 64, 96, 128))
-    settings += _vary(base, "light_margin", (6.0,) if quick else (6.0, 24.0))
     settings += _vary(base, "radial_sampling", ("exact",) if quick else (4, "exact"))
     settings += _vary(base, "depth_chunk", (1,))
     return settings

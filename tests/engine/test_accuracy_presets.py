@@ -125,8 +125,8 @@ def test_conventional_knobs_reach_the_patterns():
     pair = (10e-6, 0.0)
     whole = conventional_psf_stack(system, pair, accuracy=base).data
     chunked = conventional_psf_stack(system, pair, accuracy=dataclasses.replace(base, depth_chunk=1)).data
-    # Chunks only change which lenslets count as lit (the light radius is per batch): ~0.1 %.
-    assert float((chunked - whole).norm() / whole.norm()) < 2e-3
+    # Chunks only batch the Debye NIP fields; every depth is transformed alone either way.
+    assert float((chunked - whole).norm() / whole.norm()) < 1e-12
 
 
 def test_preset_descriptions_state_the_knobs_and_the_tested_bounds():

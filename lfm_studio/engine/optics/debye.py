@@ -331,10 +331,13 @@ def debye_psf(
             "radial_sampling must be 'auto', 'exact' or an integer oversampling >= 1; "
             f"got {radial_sampling!r}. Fix: use 'auto', or 8 for ~1e-6 accuracy at Nyquist sampling."
         )
-    radii_sq, inverse = torch.unique(r2.reshape(-1), return_inverse=True)
     r = torch.sqrt(r2).reshape(-1)
     count = 0 if step is None else int(float(r.max()) / step) + 2
-    if step is None or (radial_sampling == "auto" and radii_sq.numel() <= count):
+    use_table = step is not None
+    if not use_table or radial_sampling == "auto":  # the distinct radii (a sort: skipped for a fixed table)
+        radii_sq, inverse = torch.unique(r2.reshape(-1), return_inverse=True)
+        use_table = use_table and radii_sq.numel() > count
+    if not use_table or step is None:
         radial = debye_integral(
             objective, wavelength, torch.sqrt(radii_sq), z,
             apodization=apodization, n_quadrature=n_quadrature, model=model, zernike_waves=zernike_waves,

@@ -37,10 +37,8 @@ class ConventionalAccuracy:
     nip_oversampling : factor (>= 1) on the NIP samples per pitch (:func:`samples_per_pitch`).
     pixel_oversampling : sensor-field samples per intensity Nyquist interval before the
         midpoint-rule pixel integration (:func:`sub_samples`; > 0).
-    light_margin : diffraction lengths ``lambda / NA_img`` kept beyond the geometric blur
-        (:func:`light_radius`; lenslets farther out are skipped; > 0).
     radial_sampling : radial-table oversampling of the Debye field, or ``"exact"``.
-    depth_chunk : depths per pattern batch (bounds memory; >= 1).
+    depth_chunk : depths per Debye NIP-field batch (bounds memory; >= 1; the patterns do not depend on it).
     """
 
     dtype: torch.dtype = torch.float32
@@ -48,7 +46,6 @@ class ConventionalAccuracy:
     debye_points: int | None = None
     nip_oversampling: float = 1.0
     pixel_oversampling: float = OUTPUT_OVERSAMPLING
-    light_margin: float = 12.0
     radial_sampling: int | str = 8
     depth_chunk: int = 64
 
@@ -63,8 +60,6 @@ class ConventionalAccuracy:
             raise ValueError(
                 f"pixel_oversampling must be > 0; got {self.pixel_oversampling!r}. Fix: use {OUTPUT_OVERSAMPLING}."
             )
-        if not self.light_margin > 0.0:
-            raise ValueError(f"light_margin must be > 0 (in lambda / NA_img); got {self.light_margin!r}.")
         if self.depth_chunk < 1:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
 
@@ -116,9 +111,13 @@ def conventional_psf_stack(
     width = (2 * max(groups) + 3) * q
     data = torch.zeros((s, s, len(depths), width, width), dtype=dtype, device=device)
     reach_of = [0] * len(depths)
+    # Each group by |z|, so the depths +-z share a chunk (nip_quadrants integrates one of them).
+    ordered = {
+        reach: sorted(indices, key=lambda i: (abs(depths[i]), depths[i])) for reach, indices in groups.items()
+    }
     chunks = [
         (reach, indices[start : start + acc.depth_chunk])
-        for reach, indices in groups.items()
+        for reach, indices in ordered.items()
         for start in range(0, len(indices), acc.depth_chunk)
     ]
     for done, (reach, indices) in enumerate(chunks):
@@ -132,21 +131,19 @@ def conventional_psf_stack(
             radial_sampling=acc.radial_sampling, model=acc.model, n_quadrature=acc.debye_points,
             oversampling=acc.nip_oversampling, wavelength=wavelength,
         )  # fmt: skip
-        fields = mirrored(quadrants, nip_field_size(system, reach, acc.nip_oversampling))
-        del quadrants
-        patterns = conventional_patterns(
-            system, tuple(depths[i] for i in indices), reach=reach, dtype=dtype, device=device,
-            cancel=cancel, nip_field=fields, nip_oversampling=acc.nip_oversampling,
-            pixel_oversampling=acc.pixel_oversampling, light_margin=acc.light_margin,
-            lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
-            lenslet_aperture=lenslet_aperture,
-        )  # fmt: skip
-        del fields
-        h = patterns.shape[-1]
+        field_n = nip_field_size(system, reach, acc.nip_oversampling)
+        h = (2 * reach + 3) * q
         start = (width - h) // 2
-        data[:, :, indices, start : start + h, start : start + h] = patterns.permute(1, 2, 0, 3, 4)
-        for i in indices:
+        for position, i in enumerate(indices):  # each depth mirrored and written in place
+            conventional_patterns(
+                system, (depths[i],), reach=reach, dtype=dtype, device=device, cancel=cancel,
+                nip_field=mirrored(quadrants[position : position + 1], field_n),
+                nip_oversampling=acc.nip_oversampling, pixel_oversampling=acc.pixel_oversampling,
+                lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
+                lenslet_aperture=lenslet_aperture, out=data[:, :, i : i + 1, start : start + h, start : start + h],
+            )  # fmt: skip
             reach_of[i] = reach
+        del quadrants
     checkpoint(cancel, progress, len(chunks), len(chunks), "patterns done")
     return PSFStack(
         data,

@@ -8,21 +8,21 @@ Which accuracy knob (:class:`AccuracySpec`) reaches which computation:
 ==================  ==========================================  ==========================================
 knob                Fourier LFM (:class:`FourierAccuracy`)      conventional LFM (:class:`ConventionalAccuracy`)
 ==================  ==========================================  ==========================================
-propagator          full-field path only                        n/a: no FFT propagation (each lenslet is a
-                                                                direct Fresnel matrix product onto its window)
+propagator          full-field path only                        n/a: always the Fresnel transfer function of
+                                                                the whole lenslet region on one FFT grid
 oversampling        sub-samples per pixel                       ``2^o + 1`` sensor-field sub-samples per
                                                                 pixel (midpoint rule); NIP grid factor
                                                                 ``clip(o, 1, 1.5)``
 pixel_integration   exact box integral ("fourier") or the       n/a: midpoint rule
                     sub-sample sum ("midpoint")
-padding             full-field propagation padding               n/a: no FFT, no wrap-around
+padding             full-field propagation padding               n/a: fixed (canvas + >= half a pitch a side)
 dtype               field precision                             field precision
 debye_points        n/a: the pupil-plane field is closed-form   not used: the engine's converged order for the
                     (exact defocus phase, no quadrature)        phase excursion (fixed counts: 41-127 % error)
 objective_model     pupil field model                           NIP field model (Debye / paraxial)
 per_lenslet         "auto" (per lenslet unless sub-images       n/a: lenslets are always summed coherently
                     overlap) or the full sensor field           on one sensor grid
-depth_chunk         depths per FFT batch (per-lenslet path)     depths per pattern batch
+depth_chunk         depths per FFT batch (per-lenslet path)     depths per Debye NIP-field batch
 voxels_per_lenslet  n/a                                         lateral voxels per lenslet pitch (odd)
 volume_oversampling volume voxels per sensor pixel ``k``: the   n/a
                     PSF on a k-times finer virtual sensor

@@ -33,10 +33,12 @@ def test_an_untrained_unrolled_rl_is_plain_rl(system, request):
     setup = request.getfixturevalue(system).setup64  # float64: the two paths differ only by rounding
     image = make_sample(TrainingDataSpec(seed=1, photons=(1e5,)), setup, "test", 1).image.double()
     model = build_model("unrolled-rl", setup.projector, iterations=4)
+    # rtol 1e-8: rounding after 4 iterations reached 1.03e-9 relative in one voxel of the conventional
+    # system (FFT-built patterns; the largest absolute difference is 1e-10 of the volume's maximum).
     with torch.no_grad():
-        torch.testing.assert_close(model(image), _plain_rl(setup.projector, image, 4), rtol=1e-9, atol=1e-9)
+        torch.testing.assert_close(model(image), _plain_rl(setup.projector, image, 4), rtol=1e-8, atol=1e-9)
         plain = richardson_lucy_unrolled(setup.projector, image.clamp_min(0.0), 4)  # the engine's unrolled RL
-        torch.testing.assert_close(model(image), plain, rtol=1e-9, atol=1e-9)
+        torch.testing.assert_close(model(image), plain, rtol=1e-8, atol=1e-9)
 
 
 def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):

@@ -7,10 +7,10 @@ lattice (output shift 0: both sides then sample the same points; the sub-pixel s
 ramp is checked by the centre-gradient and sub-image position tests).
 
 Conventional LFM: the native-image-plane Debye field of an offset source -> ``apply_mla``
-(one lenslet at a time) -> zero padding -> ``fresnel_ir`` (distance chosen so that its
-output spacing is the sensor sub-sample) -> each lenslet's three-pitch window added as a
-complex field -> intensity -> bins, against :func:`offset_pattern`; also with a clear aperture
-smaller than the pitch (square and circle, antialiased in both).
+(one lenslet at a time) -> zero padding onto the periodic plane of :func:`fft_pitches` pitches,
+moved to the lenslet's axis -> ``fresnel_tf`` -> the lenslets' fields added -> the centred canvas
+-> intensity -> bins, against :func:`offset_pattern` (NIP grid = sensor sub-sample grid); also
+with a clear aperture smaller than the pitch (square and circle, antialiased in both).
 """
 
 from __future__ import annotations
@@ -32,7 +32,12 @@ from lfm_studio.engine.optics.objective import ObjectiveLens
 from lfm_studio.engine.optics.padding import pad_field
 from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
-from lfm_studio.engine.systems.conventional_patterns import offset_pattern, samples_per_pitch, sub_samples
+from lfm_studio.engine.systems.conventional_patterns import (
+    fft_pitches,
+    offset_pattern,
+    samples_per_pitch,
+    sub_samples,
+)
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_lenslet import lenslet_psf
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
@@ -111,19 +116,15 @@ def test_fourier_lenslet_equals_pupil_lens_fresnel_composition(centre, shape):
 
 
 # -- Conventional LFM -------------------------------------------------------------------------
-def _conventional_case() -> tuple[ConventionalLFMSystem, int]:
-    """A system whose Fresnel-IR output spacing ``lambda d / (M dx)`` is the sensor sub-sample for an odd ``M``."""
+def _conventional_case() -> ConventionalLFMSystem:
+    """A small system (50 um pitch, camera in the lenslets' focal plane) whose NIP samples per pitch
+    equal the sensor sub-samples per pitch (15 = 5 px x 3), so no resampling enters."""
     pitch, wavelength, q = 50 * um, 525 * nm, 5
     system = ConventionalLFMSystem(
         ObjectiveLens(10.0, 0.3, 1.0, 200 * mm), pitch, 1 * mm, "square", 1 * mm, (3, 3), q, 3, wavelength
     )
-    ns, m = samples_per_pitch(system), sub_samples(system)
-    padded = 47
-    d = padded * pitch**2 / (wavelength * ns * q * m)
-    system = dataclasses.replace(system, mla_to_camera=d, lenslet_focal_length=d)
-    assert (samples_per_pitch(system), sub_samples(system)) == (ns, m)
-    assert padded >= 3 * ns and padded >= 3 * q * m
-    return system, padded
+    assert samples_per_pitch(system) == q * sub_samples(system) == 15
+    return system
 
 
 @pytest.mark.parametrize(
@@ -132,26 +133,22 @@ def _conventional_case() -> tuple[ConventionalLFMSystem, int]:
      (0, 1, "circle", 0.83)],
 )  # fmt: skip
 def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b, shape, fill):
-    system, padded = _conventional_case()
+    system = _conventional_case()
     aperture = None if fill is None else fill * system.pitch
     system = dataclasses.replace(system, lenslet_shape=shape, lenslet_aperture=aperture)
     reach, depths = 1, (0.0, 8 * um)
-    ns, m, q, s = (
-        samples_per_pitch(system),
-        sub_samples(system),
-        system.pixels_per_lenslet,
-        system.voxels_per_lenslet,
-    )
+    ns, m, s = samples_per_pitch(system), sub_samples(system), system.voxels_per_lenslet
     dx, step, mag = system.pitch / ns, ns // s, system.magnification
     z = torch.tensor(depths, dtype=F64)
     field_n = (2 * reach + 1) * ns + 2 * (s // 2) * step
     base = debye_psf(system.objective, Grid(field_n, dx), system.wavelength, z, image_side=True,
                      radial_sampling="exact", dtype=C128).data  # fmt: skip
-    fast = offset_pattern(system, base, a, b, reach=reach, dtype=F64, light_radius=None)
+    fast = offset_pattern(system, base, a, b, reach=reach, dtype=F64)
 
-    per_lenslet, out_n = q * m, 3 * q * m
-    canvas_n = (2 * reach + 3) * per_lenslet
-    canvas = torch.zeros((len(depths), canvas_n, canvas_n), dtype=C128)
+    # Every lenslet alone: its NIP patch through apply_mla, placed at its axis on the periodic plane
+    # of fft_pitches(reach) pitches, propagated by the Fresnel transfer function, fields summed.
+    plane_n = fft_pitches(reach) * ns
+    total = torch.zeros((len(depths), plane_n, plane_n), dtype=C128)
     lens = MicrolensArray((Lenslet((0.0, 0.0), system.aperture, system.lenslet_focal_length, shape),))
     for i in range(-reach, reach + 1):
         for j in range(-reach, reach + 1):
@@ -162,19 +159,17 @@ def test_conventional_pattern_equals_nip_mla_fresnel_composition(a, b, shape, fi
                 system.objective, Grid(ns, dx), system.wavelength, z, position=(-image_x / mag, -image_y / mag),
                 image_side=True, radial_sampling="exact", dtype=C128,
             )  # fmt: skip
+            lensed = pad_field(apply_mla(nip, lens, antialias=fill is not None), shape=(plane_n, plane_n))
+            placed = lensed.with_data(torch.roll(lensed.data, (i * ns, j * ns), dims=(-2, -1)))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", SamplingWarning)
-                lensed = pad_field(apply_mla(nip, lens, antialias=fill is not None), shape=(padded, padded))
                 sensor = propagate(
-                    lensed, system.mla_to_camera, method="fresnel_ir", padding=1.0, check_sampling=False
+                    placed, system.mla_to_camera, method="fresnel_tf", padding=1.0, check_sampling=False
                 )
-            assert sensor.grid.dx == pytest.approx(system.pitch / per_lenslet, rel=1e-12)
-            # The lenslet's three-pitch window, centred on its axis, onto the canvas (complex sum).
-            first = padded // 2 - out_n // 2
-            top, left = (reach + i) * per_lenslet, (reach + j) * per_lenslet
-            canvas[:, top : top + out_n, left : left + out_n] += sensor.data[
-                :, first : first + out_n, first : first + out_n
-            ]
-    reference = _bin((canvas.real**2 + canvas.imag**2) * sensor.grid.pixel_area, m)
+            total += sensor.data
+    canvas_n = (2 * reach + 3) * ns  # centred on the source lenslet's axis (the plane's centre)
+    first = plane_n // 2 - canvas_n // 2
+    canvas = total[:, first : first + canvas_n, first : first + canvas_n]
+    reference = _bin((canvas.real**2 + canvas.imag**2) * dx * dx, m)
     assert fast.shape == reference.shape
     assert _relative_error(fast, reference) <= TOLERANCE
