@@ -3,6 +3,7 @@
     python benchmarks/learned.py [--quick] [--preset flfm_guo2019] [--pixels 512] [--depths 32]
         [--minutes 10] [--models unrolled-rl multiwiener unet] [--seeds 0 1 2] [--test 50]
         [--photons 1e4 1e5 1e6] [--threads 1] [--mismatch 0.05] [--train-jitter 0]
+        [--validate-every 50] [--patience 20] [--config '{"width": 24}']
 
 Every run prints its thread settings. For each model and training seed: train on the design's
 own forward model (beads, the photon budgets given, ``--minutes`` each), then score on
@@ -28,6 +29,7 @@ from __future__ import annotations
 
 import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
+import json
 import math
 import statistics
 import time
@@ -130,6 +132,15 @@ def main() -> None:
     parser.add_argument("--photons", nargs="+", type=float, default=[1e4, 1e5, 1e6])
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument(
+        "--validate-every", type=int, default=50, help="training steps between validations (8 samples each)"
+    )
+    parser.add_argument(
+        "--patience", type=int, default=20, help="validations without improvement before stopping"
+    )
+    parser.add_argument(
+        "--config", default="{}", help="model config as JSON, e.g. '{\"width\": 24}' (one model)"
+    )
+    parser.add_argument(
         "--mismatch", type=float, default=0.05, help="relative optics jitter of the mismatch test set"
     )
     parser.add_argument(
@@ -166,14 +177,20 @@ def main() -> None:
             "RL-accelerated-30": rl(setup, 30, "rl-accelerated"),
         }
         models: dict[str, list] = {}
+        config = json.loads(args.config)
+        if config and len(args.models) != 1:
+            parser.error("--config applies to one model; give one --models name with it")
+        print(f"training: {args.minutes} min per model, validation every {args.validate_every} steps, "
+              f"patience {args.patience} validations, config {config or 'default'}")  # fmt: skip
         for name in args.models:
             for seed in args.seeds:
                 began = time.perf_counter()
                 data = TrainingDataSpec(
                     phantoms="beads", photons=tuple(args.photons), seed=seed, optics_jitter=args.train_jitter
                 )
-                result = train(setup, model=name, data=data, budget_minutes=args.minutes, seed=seed, threads=args.threads,
-                               design=design)  # fmt: skip
+                result = train(setup, model=name, config=config, data=data, budget_minutes=args.minutes, seed=seed,
+                               threads=args.threads, design=design, validate_every=args.validate_every,
+                               patience=args.patience)  # fmt: skip
                 print(f"trained {name} seed {seed}: {parameter_count(result.model)} parameters, "
                       f"{result.header.training['steps']} steps, {time.perf_counter() - began:.0f} s ({result.stop_reason})")  # fmt: skip
                 models.setdefault(name, []).append(result.model)

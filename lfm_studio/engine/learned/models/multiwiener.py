@@ -5,7 +5,11 @@ Shift-invariant (Fourier LFM) projector: depth ``z`` is ``F^-1[g_z(|k|) conj(H_z
 M_z^2 / SNR_z)]`` on the projector's FFT window (as :func:`~lfm_studio.engine.reconstruct.wiener`),
 with a learnable ``SNR_z`` (started at ``snr``) and a learnable radial gain ``g_z`` (``bins``
 control points from DC to the highest frequency, linear in between, started at 1): an untrained
-stage is exactly the Wiener filter. Spatially varying (conventional) projector: the stage is the
+stage is exactly the Wiener filter. The stage costs one adjoint ``A^T`` (the projector's pruned
+transforms, :mod:`.wiener_stage`); without autograd its filters are built once per parameter state
+and kept, so inference is that adjoint plus the U-Net. ``learn_filters=False`` keeps ``SNR_z`` and
+``g_z`` at their start (not trained, not counted as parameters): a training step then has no
+gradient through the FFTs, only through the U-Net. Spatially varying (conventional) projector: the stage is the
 normalised adjoint ``A^T y / A^T 1`` with a learnable gain per depth (started at 1). A 2.5-D U-Net (depths as
 channels) then refines the stack; its output is added to the stage's and passed through a
 softplus (non-negative).
@@ -27,29 +31,35 @@ from lfm_studio.engine.learned.models.common import (
     image_scale,
     projector_dtype,
 )
+from lfm_studio.engine.learned.models.wiener_stage import WienerGeometry, check_bins
 from lfm_studio.engine.operators.protocol import FourierProjector, Projector
-from lfm_studio.engine.reconstruct.fourier_geometry import (
-    filter_to_volume,
-    image_spectrum,
-    otf_peaks,
-    radial_frequency,
-    require_fourier_projector,
-)
-from lfm_studio.engine.types import DepthSlice
+from lfm_studio.engine.reconstruct.fourier_geometry import require_fourier_projector
 
 
 class MultiWienerNet(nn.Module):
     """Learnable per-depth Wiener filters (or normalised adjoint) + a U-Net of ``width`` features."""
 
-    def __init__(self, projector: Projector, *, snr: float = 100.0, bins: int = 8, width: int = 16) -> None:
+    def __init__(
+        self,
+        projector: Projector,
+        *,
+        snr: float = 100.0,
+        bins: int = 8,
+        width: int = 16,
+        learn_filters: bool = True,
+    ) -> None:
         super().__init__()
         self.projector = projector
         depths = int(projector.volume_shape[0])
-        self.config = {"snr": snr, "bins": bins, "width": width}
+        self.config = {"snr": snr, "bins": bins, "width": width, "learn_filters": learn_filters}
         self.fourier = isinstance(projector, FourierProjector)
-        if self.fourier:
+        self._cached: tuple[object, torch.Tensor] | None = None
+        if isinstance(projector, FourierProjector):
+            self.geometry = WienerGeometry(projector, check_bins(bins))
             self.log_snr = nn.Parameter(torch.full((depths,), math.log(snr)))
             self.radial_gain = nn.Parameter(torch.ones(depths, bins))
+            self.log_snr.requires_grad_(learn_filters)
+            self.radial_gain.requires_grad_(learn_filters)
         else:
             self.depth_gain = nn.Parameter(torch.ones(depths))
             self.norm: torch.Tensor
@@ -58,22 +68,23 @@ class MultiWienerNet(nn.Module):
         self.to(projector_dtype(projector))
 
     def _wiener(self, y: torch.Tensor) -> torch.Tensor:
-        projector = require_fourier_projector(self.projector, "MultiWienerNet's Wiener stage")
-        otf = projector.otf
-        peaks2 = otf_peaks(projector).to(y.dtype) ** 2
-        frequency = radial_frequency(projector).to(y.dtype)
-        position = frequency / frequency.max() * (self.radial_gain.shape[1] - 1)
-        low = position.floor().long().clamp(max=self.radial_gain.shape[1] - 2)
-        weight = position - low
+        """The Wiener stage of image ``y`` ``(Py, Px)``: volume ``(Z, Vy, Vx)`` (:mod:`.wiener_stage`)."""
+        require_fourier_projector(self.projector, "MultiWienerNet's Wiener stage")
+        return self.geometry.apply(y, self._filters())
 
-        def filters(part: DepthSlice) -> torch.Tensor:
-            h = otf[part]
-            gain = self.radial_gain[part]
-            radial = gain[:, low] * (1 - weight) + gain[:, low + 1] * weight
-            regulariser = (peaks2[part] / torch.exp(self.log_snr[part]))[:, None, None]
-            return h.conj() * (radial / (h.real**2 + h.imag**2 + regulariser))
+    def _filters(self) -> torch.Tensor:
+        """The stage's filters; without autograd, built once per parameter state and kept.
 
-        return filter_to_volume(projector, image_spectrum(projector, y), filters)
+        The key is each parameter's storage and in-place version counter, so an optimiser step,
+        ``load_state_dict`` or a dtype/device move builds them again.
+        """
+        if torch.is_grad_enabled() and (self.log_snr.requires_grad or self.radial_gain.requires_grad):
+            return self.geometry.filters(self.log_snr, self.radial_gain)
+        key = tuple((p.data_ptr(), p._version, p.dtype) for p in (self.log_snr, self.radial_gain))
+        if self._cached is None or self._cached[0] != key:
+            with torch.no_grad():
+                self._cached = (key, self.geometry.filters(self.log_snr, self.radial_gain))
+        return self._cached[1]
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         y = image.to(self.net.head.weight.dtype)
