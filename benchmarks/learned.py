@@ -3,9 +3,9 @@
     python benchmarks/learned.py [--quick] [--preset flfm_guo2019] [--pixels 512] [--depths 32]
         [--minutes 10] [--models unrolled-rl multiwiener unet] [--seeds 0 1 2] [--test 50]
         [--photons 1e4 1e5 1e6] [--threads 1] [--mismatch 0.05] [--train-jitter 0]
-        [--validate-every 50] [--patience 20] [--config '{"width": 24}']
+        [--validate-every 50] [--patience 20] [--config '{"width": 24}'] [--no-rl-best]
 
-Every run prints its thread settings. For each model and training seed: train on the design's
+Every run prints its thread settings and the load average after each training and test set. For each model and training seed: train on the design's
 own forward model (beads, the photon budgets given, ``--minutes`` each), then score on
 ``--test`` held-out phantoms per photon budget (test split: seeds disjoint from training and
 validation) against RL-30 (plain Richardson-Lucy, 30 iterations), RL at its best iteration
@@ -31,6 +31,7 @@ import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY bef
 import argparse
 import json
 import math
+import os
 import statistics
 import time
 import warnings
@@ -166,16 +167,16 @@ def main() -> None:
             "cells (unseen class)": make_samples(TrainingDataSpec(phantoms="cells", photons=tuple(args.photons), seed=99), setup, "test", per_budget),
             f"beads, {args.mismatch:.0%} optics mismatch": make_samples(TrainingDataSpec(phantoms="beads", photons=tuple(args.photons), seed=99), setup, "test", per_budget, imaging=mismatched),
         }  # fmt: skip
-        validation = make_samples(train_data, setup, "validation", 4)
-        best = best_rl_iteration(setup, validation)
         norm = adjoint_normaliser(setup.projector)
         baselines: dict[str, Method] = {
             "all-zero": lambda y: torch.zeros(setup.volume_shape),
             "back-projection": lambda y: setup.projector.adjoint(y) / norm,
             "RL-30": rl(setup, 30),
-            f"RL-best ({best} it.)": rl(setup, best),
-            "RL-accelerated-30": rl(setup, 30, "rl-accelerated"),
         }
+        if args.rl_best:
+            best = best_rl_iteration(setup, make_samples(train_data, setup, "validation", 4))
+            baselines[f"RL-best ({best} it.)"] = rl(setup, best)
+        baselines["RL-accelerated-30"] = rl(setup, 30, "rl-accelerated")
         models: dict[str, list] = {}
         config = json.loads(args.config)
         if config and len(args.models) != 1:
@@ -194,11 +195,13 @@ def main() -> None:
                 print(f"trained {name} seed {seed}: {parameter_count(result.model)} parameters, "
                       f"{result.header.training['steps']} steps, {time.perf_counter() - began:.0f} s ({result.stop_reason})")  # fmt: skip
                 models.setdefault(name, []).append(result.model)
+                print(f"load average (1, 5, 15 min): {os.getloadavg()}")
         for title, samples in tests.items():
             rows = {label: [scores(samples, method, voxel)] for label, method in baselines.items()}
             for name, trained in models.items():
                 rows[name] = [scores(samples, model, voxel) for model in trained]
             print_table(f"{title}: {len(samples)} phantoms, photons {args.photons}", rows)
+            print(f"load average (1, 5, 15 min): {os.getloadavg()}")
 
 
 if __name__ == "__main__":

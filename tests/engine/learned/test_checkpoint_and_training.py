@@ -137,3 +137,28 @@ def test_the_registrys_learned_method_runs_a_checkpoint_and_is_differentiable(tm
         lambda y: (method(projector, y, {"model": str(path)}) * weights).sum(), (frame.clone().requires_grad_(True),),
         eps=1e-6, atol=1e-5,
     )  # fmt: skip
+
+
+def test_a_checkpoint_of_an_older_architecture_or_another_config_is_refused_by_name(fourier, tmp_path):
+    setup = fourier.setup
+    model = build_model("multiwiener", setup.projector, width=8)
+    old_config = {k: v for k, v in model.config.items() if k not in ("architecture", "learn_filters")}
+    old = save_checkpoint(  # what MultiWienerNet architecture 1 wrote: no "architecture" entry
+        tmp_path / "old.safetensors", model, header_for("multiwiener", old_config, setup, None, ())
+    )
+    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 2.*Fix: train it again"):
+        load_model(old, setup)
+    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 2"):
+        train(setup, model="multiwiener", data=DATA, max_steps=1, checkpoint=old, resume=True)
+    with pytest.raises(ValueError, match="architecture 7 cannot be built"):
+        build_model("multiwiener", setup.projector, architecture=7)
+    current = save_checkpoint(
+        tmp_path / "new.safetensors", model, header_for("multiwiener", model.config, setup, None, ())
+    )
+    loaded, _ = load_model(current, setup)
+    assert loaded.config == model.config
+    with pytest.raises(
+        ValueError, match=r"--resume: .* with config .*Fix: resume with the same model config"
+    ):
+        train(setup, model="multiwiener", config={"width": 16}, data=DATA, max_steps=1, checkpoint=current,
+              resume=True)  # fmt: skip

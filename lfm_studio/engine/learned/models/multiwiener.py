@@ -11,8 +11,9 @@ and kept, so inference is that adjoint plus the U-Net. ``learn_filters=False`` k
 ``g_z`` at their start (not trained, not counted as parameters): a training step then has no
 gradient through the FFTs, only through the U-Net. Spatially varying (conventional) projector: the stage is the
 normalised adjoint ``A^T y / A^T 1`` with a learnable gain per depth (started at 1). A 2.5-D U-Net (depths as
-channels) then refines the stack; its output is added to the stage's and passed through a
-softplus (non-negative).
+channels) then refines the stack divided by its largest magnitude (so it sees values of order 1 at
+any photon budget and sampling); its output is added to that stage, passed through a softplus
+(non-negative), multiplied back and by a learnable gain (:data:`GAIN_RATE`).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
@@ -28,6 +29,7 @@ from torch import nn
 from lfm_studio.engine.learned.models.common import (
     SmallUNet,
     adjoint_normaliser,
+    check_architecture,
     image_scale,
     projector_dtype,
 )
@@ -35,9 +37,18 @@ from lfm_studio.engine.learned.models.wiener_stage import WienerGeometry, check_
 from lfm_studio.engine.operators.protocol import FourierProjector, Projector
 from lfm_studio.engine.reconstruct.fourier_geometry import require_fourier_projector
 
+GAIN_RATE = 10.0
+"""The output gain is ``exp(GAIN_RATE * p)`` for a parameter ``p`` started at 0, so Adam at the default
+rate can move it by about 1 % per step (the Wiener stage's bead peaks are about 10 times too low
+and wide at the start; the U-Net sharpens them, the gain scales them)."""
+
 
 class MultiWienerNet(nn.Module):
     """Learnable per-depth Wiener filters (or normalised adjoint) + a U-Net of ``width`` features."""
+
+    ARCHITECTURE = 2
+    """Checkpoints of another architecture are refused (1: the U-Net saw the stage in photons
+    divided by the image's mean, without the output gain)."""
 
     def __init__(
         self,
@@ -47,11 +58,14 @@ class MultiWienerNet(nn.Module):
         bins: int = 8,
         width: int = 16,
         learn_filters: bool = True,
+        architecture: int = ARCHITECTURE,
     ) -> None:
         super().__init__()
+        check_architecture("multiwiener", architecture, self.ARCHITECTURE)
         self.projector = projector
         depths = int(projector.volume_shape[0])
-        self.config = {"snr": snr, "bins": bins, "width": width, "learn_filters": learn_filters}
+        self.config = {"snr": snr, "bins": bins, "width": width, "learn_filters": learn_filters,
+                       "architecture": architecture}  # fmt: skip
         self.fourier = isinstance(projector, FourierProjector)
         self._cached: tuple[object, torch.Tensor] | None = None
         if isinstance(projector, FourierProjector):
@@ -65,6 +79,7 @@ class MultiWienerNet(nn.Module):
             self.norm: torch.Tensor
             self.register_buffer("norm", adjoint_normaliser(projector), persistent=False)
         self.net = SmallUNet(depths, depths, width)
+        self.log_gain = nn.Parameter(torch.zeros(()))
         self.to(projector_dtype(projector))
 
     def _wiener(self, y: torch.Tensor) -> torch.Tensor:
@@ -94,4 +109,7 @@ class MultiWienerNet(nn.Module):
             stage = self._wiener(y)
         else:
             stage = self.projector.adjoint(y) / self.norm * self.depth_gain[:, None, None]
-        return nnf.softplus(stage + self.net(stage)) * scale
+        level = stage.detach().abs().amax().clamp_min(torch.finfo(stage.dtype).tiny)
+        unit = stage / level  # the U-Net sees the stage at its own scale: peak magnitude 1
+        gain = torch.exp(GAIN_RATE * self.log_gain)
+        return nnf.softplus(unit + self.net(unit)) * (level * gain * scale)
