@@ -139,6 +139,12 @@ def main() -> None:
         "--patience", type=int, default=20, help="validations without improvement before stopping"
     )
     parser.add_argument(
+        "--rl-best",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also score RL at its best iteration on the validation split (up to 100; the slowest baseline)",
+    )
+    parser.add_argument(
         "--config", default="{}", help="model config as JSON, e.g. '{\"width\": 24}' (one model)"
     )
     parser.add_argument(
