@@ -50,20 +50,26 @@ def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):
     torch.testing.assert_close(stage, reference, rtol=1e-6, atol=1e-7 * float(reference.abs().max()))
 
 
-@pytest.mark.parametrize("name", sorted(MODELS))
+@pytest.mark.parametrize(
+    ("name", "config"), [(name, {}) for name in sorted(MODELS)] + [("multiwiener", {"learn_filters": True})]
+)
 @pytest.mark.parametrize("system", ["fourier", "conventional"])
 def test_every_model_maps_an_image_to_a_non_negative_volume_and_learns_through_every_parameter(
-    name, system, request
+    name, config, system, request
 ):
     setup = request.getfixturevalue(system).setup
     sample = make_sample(TrainingDataSpec(seed=5, photons=(1e5,)), setup, "train", 0)
     torch.manual_seed(0)
-    model = build_model(name, setup.projector)
+    model = build_model(name, setup.projector, **config)
     assert parameter_count(model) <= 200_000
     volume = model(sample.image)
     assert volume.shape == tuple(setup.volume_shape) and float(volume.detach().min()) >= 0
     training_loss(volume, sample.truth).backward()
-    missing = [n for n, p in model.named_parameters() if p.grad is None or not bool(p.grad.abs().sum() > 0)]
+    trained = [(n, p) for n, p in model.named_parameters() if p.requires_grad]
+    missing = [n for n, p in trained if p.grad is None or not bool(p.grad.abs().sum() > 0)]
+    if name == "multiwiener" and system == "fourier":  # frozen filters get no gradient; learned ones do
+        frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
+        assert frozen == (set() if config.get("learn_filters") else {"log_snr", "radial_gain"})
     # Unrolled RL's first layers see a zero gradient until the zero-initialised last layers move.
     if name == "unrolled-rl":
         missing = [n for n in missing if not n.endswith(("inner.weight", "inner.bias"))]
@@ -77,6 +83,15 @@ def test_models_answer_in_proportion_to_the_photon_count(fourier, sample, name):
     with torch.no_grad():
         one, ten = model(sample.image), model(10.0 * sample.image)
     torch.testing.assert_close(ten, 10.0 * one, rtol=1e-4, atol=1e-4 * float(ten.abs().max()))
+
+
+def test_the_models_at_the_issues_size_stay_within_200k_parameters():
+    """512^2 x 32 depths needs no PSF: parameter counts depend only on the depth count and config."""
+    from lfm_studio.engine.learned.models.common import SmallUNet
+
+    unet = sum(p.numel() for p in SmallUNet(32, 32, 16).parameters())
+    assert unet + 1 <= 200_000  # multiwiener's default: U-Net + output gain (frozen filters)
+    assert unet + 1 + 32 + 32 * 8 <= 200_000  # learn_filters=True
 
 
 def test_unknown_model_is_named():
