@@ -10,11 +10,17 @@ transforms, :mod:`.wiener_stage`); without autograd its filters are built once p
 and kept, so inference is that adjoint plus the U-Net. By default (``learn_filters=False``)
 ``SNR_z`` and ``g_z`` stay at their start (not trained, not counted as parameters): a training step
 then has no gradient through the FFTs, only through the U-Net, and runs about 3x faster at
-512^2 x 32 depths (docs/learned.md); ``learn_filters=True`` trains them too (MultiWienerNet proper). Spatially varying (conventional) projector: the stage is the
-normalised adjoint ``A^T y / A^T 1`` with a learnable gain per depth (started at 1). A 2.5-D U-Net (depths as
-channels) then refines the stack divided by its largest magnitude (so it sees values of order 1 at
-any photon budget and sampling); its output is added to that stage, passed through a softplus
-(non-negative), multiplied back and by a learnable gain ``exp(log_gain)`` (started at 1).
+512^2 x 32 depths (docs/learned.md); ``learn_filters=True`` trains them too (MultiWienerNet
+proper).
+
+Spatially varying (conventional) projector: the stage is the normalised adjoint
+``A^T y / A^T 1`` with a learnable gain per depth (started at 1).
+
+A 2.5-D U-Net (depths as channels) then refines the stage divided by its largest magnitude (so it
+sees values of order 1 at any photon budget and sampling); its output is added to that stage,
+passed through a sharp softplus (non-negative, :data:`SHARPNESS`), multiplied back and by a
+learnable gain ``exp(log_gain)`` (started at 1). The output is in photons per voxel and
+proportional to the image.
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
 """
