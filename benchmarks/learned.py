@@ -20,6 +20,11 @@ Fourier lens focal lengths, NA and wavelength are each scaled by a factor in [0.
 models with that optics-mismatch augmentation (``TrainingDataSpec.optics_jitter``). Mean and
 spread (min..max) over the training seeds.
 
+Training validates on 8 samples every ``--validate-every`` steps (default 50; it was 10, which
+cost about a quarter of a fast model's steps) and stops early after ``--patience`` validations
+without improvement; ``--config`` passes a model config (JSON) to the one model trained;
+``--no-rl-best`` skips the slowest baseline.
+
 ``--quick``: a 256 px camera, 5 depths, 1 seed, 1 minute per model, 6 test phantoms.
 Goal (on this 2-core CPU, 512^2 x 32 depths): a model trained in <= 10 min with <= 200k
 parameters that matches or beats RL-30 on NCC and bead F1 at >= 10x less time per frame.
