@@ -105,20 +105,22 @@ def rl(setup, iterations: int, method: str = "rl") -> Method:
 
 
 def print_table(title: str, rows: dict[str, list[dict[str, float]]]) -> None:
+    """One row per method: the value, or over several training seeds ``mean (min..max)`` (never cut)."""
     keys = ("ncc", "f1", "loc_um", "psnr_db", "ssim", "s_per_frame")
+    width = 18 if all(len(runs) == 1 for runs in rows.values()) else 30
     print(f"\n{title}")
-    print(f"{'method':<22}" + "".join(f"{k:>18}" for k in keys))
+    print(f"{'method':<22}" + "".join(f"{k:>{width}}" for k in keys))
     for name, runs in rows.items():
         cells = []
         for key in keys:
             values = [r[key] for r in runs if not math.isnan(r[key])]
             if not values:
-                cells.append(f"{'-':>18}")
+                cells.append(f"{'-':>{width}}")
             elif len(values) == 1:
-                cells.append(f"{values[0]:>18.4g}")
+                cells.append(f"{values[0]:>{width}.4g}")
             else:
                 cells.append(
-                    f"{statistics.fmean(values):>9.4g} ({min(values):.3g}..{max(values):.3g})"[-18:].rjust(18)
+                    f"{statistics.fmean(values):.4g} ({min(values):.3g}..{max(values):.3g})".rjust(width)
                 )
         print(f"{name:<22}" + "".join(cells))
 
