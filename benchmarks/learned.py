@@ -3,8 +3,9 @@
     python benchmarks/learned.py [--quick] [--preset flfm_guo2019] [--pixels 512] [--depths 32]
         [--minutes 10] [--models unrolled-rl multiwiener unet] [--seeds 0 1 2] [--test 50]
         [--photons 1e4 1e5 1e6] [--threads 1] [--mismatch 0.05] [--train-jitter 0]
+        [--validate-every 50] [--patience 20] [--config '{"width": 24}'] [--no-rl-best]
 
-Every run prints its thread settings. For each model and training seed: train on the design's
+Every run prints its thread settings and the load average after each training and test set. For each model and training seed: train on the design's
 own forward model (beads, the photon budgets given, ``--minutes`` each), then score on
 ``--test`` held-out phantoms per photon budget (test split: seeds disjoint from training and
 validation) against RL-30 (plain Richardson-Lucy, 30 iterations), RL at its best iteration
@@ -19,6 +20,11 @@ Fourier lens focal lengths, NA and wavelength are each scaled by a factor in [0.
 models with that optics-mismatch augmentation (``TrainingDataSpec.optics_jitter``). Mean and
 spread (min..max) over the training seeds.
 
+Training validates on 8 samples every ``--validate-every`` steps (default 50; it was 10, which
+cost about a quarter of a fast model's steps) and stops early after ``--patience`` validations
+without improvement; ``--config`` passes a model config (JSON) to the one model trained;
+``--no-rl-best`` skips the slowest baseline.
+
 ``--quick``: a 256 px camera, 5 depths, 1 seed, 1 minute per model, 6 test phantoms.
 Goal (on this 2-core CPU, 512^2 x 32 depths): a model trained in <= 10 min with <= 200k
 parameters that matches or beats RL-30 on NCC and bead F1 at >= 10x less time per frame.
@@ -28,7 +34,9 @@ from __future__ import annotations
 
 import lfm_studio  # noqa: F401  # isort: skip  (first: sets OMP_WAIT_POLICY before torch loads, engine/threads.py)
 import argparse
+import json
 import math
+import os
 import statistics
 import time
 import warnings
@@ -97,20 +105,22 @@ def rl(setup, iterations: int, method: str = "rl") -> Method:
 
 
 def print_table(title: str, rows: dict[str, list[dict[str, float]]]) -> None:
+    """One row per method: the value, or over several training seeds ``mean (min..max)`` (never cut)."""
     keys = ("ncc", "f1", "loc_um", "psnr_db", "ssim", "s_per_frame")
+    width = 18 if all(len(runs) == 1 for runs in rows.values()) else 30
     print(f"\n{title}")
-    print(f"{'method':<22}" + "".join(f"{k:>18}" for k in keys))
+    print(f"{'method':<22}" + "".join(f"{k:>{width}}" for k in keys))
     for name, runs in rows.items():
         cells = []
         for key in keys:
             values = [r[key] for r in runs if not math.isnan(r[key])]
             if not values:
-                cells.append(f"{'-':>18}")
+                cells.append(f"{'-':>{width}}")
             elif len(values) == 1:
-                cells.append(f"{values[0]:>18.4g}")
+                cells.append(f"{values[0]:>{width}.4g}")
             else:
                 cells.append(
-                    f"{statistics.fmean(values):>9.4g} ({min(values):.3g}..{max(values):.3g})"[-18:].rjust(18)
+                    f"{statistics.fmean(values):.4g} ({min(values):.3g}..{max(values):.3g})".rjust(width)
                 )
         print(f"{name:<22}" + "".join(cells))
 
@@ -129,6 +139,21 @@ def main() -> None:
     parser.add_argument("--test", type=int, default=50)
     parser.add_argument("--photons", nargs="+", type=float, default=[1e4, 1e5, 1e6])
     parser.add_argument("--threads", type=int, default=1)
+    parser.add_argument(
+        "--validate-every", type=int, default=50, help="training steps between validations (8 samples each)"
+    )
+    parser.add_argument(
+        "--patience", type=int, default=20, help="validations without improvement before stopping"
+    )
+    parser.add_argument(
+        "--rl-best",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="also score RL at its best iteration on the validation split (up to 100; the slowest baseline)",
+    )
+    parser.add_argument(
+        "--config", default="{}", help="model config as JSON, e.g. '{\"width\": 24}' (one model)"
+    )
     parser.add_argument(
         "--mismatch", type=float, default=0.05, help="relative optics jitter of the mismatch test set"
     )
@@ -155,33 +180,41 @@ def main() -> None:
             "cells (unseen class)": make_samples(TrainingDataSpec(phantoms="cells", photons=tuple(args.photons), seed=99), setup, "test", per_budget),
             f"beads, {args.mismatch:.0%} optics mismatch": make_samples(TrainingDataSpec(phantoms="beads", photons=tuple(args.photons), seed=99), setup, "test", per_budget, imaging=mismatched),
         }  # fmt: skip
-        validation = make_samples(train_data, setup, "validation", 4)
-        best = best_rl_iteration(setup, validation)
         norm = adjoint_normaliser(setup.projector)
         baselines: dict[str, Method] = {
             "all-zero": lambda y: torch.zeros(setup.volume_shape),
             "back-projection": lambda y: setup.projector.adjoint(y) / norm,
             "RL-30": rl(setup, 30),
-            f"RL-best ({best} it.)": rl(setup, best),
-            "RL-accelerated-30": rl(setup, 30, "rl-accelerated"),
         }
+        if args.rl_best:
+            best = best_rl_iteration(setup, make_samples(train_data, setup, "validation", 4))
+            baselines[f"RL-best ({best} it.)"] = rl(setup, best)
+        baselines["RL-accelerated-30"] = rl(setup, 30, "rl-accelerated")
         models: dict[str, list] = {}
+        config = json.loads(args.config)
+        if config and len(args.models) != 1:
+            parser.error("--config applies to one model; give one --models name with it")
+        print(f"training: {args.minutes} min per model, validation every {args.validate_every} steps, "
+              f"patience {args.patience} validations, config {config or 'default'}")  # fmt: skip
         for name in args.models:
             for seed in args.seeds:
                 began = time.perf_counter()
                 data = TrainingDataSpec(
                     phantoms="beads", photons=tuple(args.photons), seed=seed, optics_jitter=args.train_jitter
                 )
-                result = train(setup, model=name, data=data, budget_minutes=args.minutes, seed=seed, threads=args.threads,
-                               design=design)  # fmt: skip
+                result = train(setup, model=name, config=config, data=data, budget_minutes=args.minutes, seed=seed,
+                               threads=args.threads, design=design, validate_every=args.validate_every,
+                               patience=args.patience)  # fmt: skip
                 print(f"trained {name} seed {seed}: {parameter_count(result.model)} parameters, "
                       f"{result.header.training['steps']} steps, {time.perf_counter() - began:.0f} s ({result.stop_reason})")  # fmt: skip
                 models.setdefault(name, []).append(result.model)
+                print(f"load average (1, 5, 15 min): {os.getloadavg()}")
         for title, samples in tests.items():
             rows = {label: [scores(samples, method, voxel)] for label, method in baselines.items()}
             for name, trained in models.items():
                 rows[name] = [scores(samples, model, voxel) for model in trained]
             print_table(f"{title}: {len(samples)} phantoms, photons {args.photons}", rows)
+            print(f"load average (1, 5, 15 min): {os.getloadavg()}")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ from safetensors.torch import save as save_tensors
 
 from lfm_studio import __version__
 from lfm_studio.engine.atomic_write import atomic_write
-from lfm_studio.engine.learned.models import build_model
+from lfm_studio.engine.learned.models import MODELS, build_model
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.simulation import ImagingSetup
 from lfm_studio.engine.types import JSONValue
@@ -175,6 +175,22 @@ def check_matches(
         )
 
 
+def check_architecture(header: CheckpointHeader, source: str) -> None:
+    """Refuse a checkpoint whose model was written with another architecture of its class.
+
+    A model class may declare ``ARCHITECTURE`` (an integer, 1 when absent) and record it as
+    ``config["architecture"]``; a checkpoint without the entry is architecture 1.
+    """
+    current = getattr(MODELS.get(header.model), "ARCHITECTURE", 1)
+    found = header.config.get("architecture", 1)
+    if found != current:
+        raise ValueError(
+            f"checkpoint {source} holds a {header.model!r} model of architecture {found!r} (written by lfm_studio "
+            f"{header.version}); this version builds architecture {current}. Fix: train it again "
+            f"(`lfm-studio train --model {header.model}`)."
+        )
+
+
 def load_model(
     path: str | os.PathLike,
     setup: ImagingSetup,
@@ -198,6 +214,7 @@ def load_model_for(
     """The model of checkpoint ``path`` rebuilt on ``projector``, in eval mode (checks as :func:`check_matches`)."""
     header, tensors = read_checkpoint(path)
     check_matches(header, projector, str(path), voxel_size=voxel_size, design_hash=design_hash, depths=depths)
+    check_architecture(header, str(path))
     model = build_model(header.model, projector, **header.config)
     dtype = next(iter(model.parameters())).dtype
     model.load_state_dict({k: v.to(dtype) if v.is_floating_point() else v for k, v in tensors.items()})

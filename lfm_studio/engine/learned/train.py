@@ -33,6 +33,7 @@ import torch
 from lfm_studio.engine.image_quality import ncc
 from lfm_studio.engine.learned.checkpoint import (
     CheckpointHeader,
+    check_architecture,
     header_for,
     read_checkpoint,
     save_checkpoint,
@@ -157,6 +158,12 @@ def train(
             previous, tensors = read_checkpoint(target)
             if previous.model != model:
                 raise ValueError(f"--resume: {target} holds a {previous.model!r} model, not {model!r}.")
+            check_architecture(previous, str(target))
+            if previous.config != model_config(network):
+                raise ValueError(
+                    f"--resume: {target} holds a {model!r} model with config {previous.config}, not "
+                    f"{model_config(network)}. Fix: resume with the same model config, or train afresh."
+                )
             network.load_state_dict(tensors)
             steps, best_validation = (
                 previous.training.get("steps", 0),

@@ -34,6 +34,15 @@ def differentiable_normaliser(projector: Projector) -> torch.Tensor:
     return torch.maximum(norm, norm.detach().max() * 1e-6)
 
 
+def check_architecture(model: str, architecture: int, current: int) -> None:
+    """Refuse an ``architecture`` number other than the ``current`` one of ``model`` (a ValueError naming both)."""
+    if architecture != current:
+        raise ValueError(
+            f"a {model!r} model of architecture {architecture!r} cannot be built by this version of lfm_studio "
+            f"(it builds architecture {current}). Fix: train a new model (`lfm-studio train --model {model}`)."
+        )
+
+
 class _DoubleConv(nn.Sequential):
     def __init__(self, inputs: int, outputs: int) -> None:
         super().__init__(
