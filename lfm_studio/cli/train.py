@@ -9,6 +9,7 @@ reconstruct --method learned --model`` applies to images of the same design.
 from __future__ import annotations
 
 import argparse
+import json
 
 from lfm_studio.cli.progress import progress_bar
 
@@ -34,6 +35,19 @@ def _optics_jitter(text: str) -> float:
         raise argparse.ArgumentTypeError(
             f"--optics-jitter must be a relative jitter between 0 and {JITTER_LIMIT:g}; got {text!r}. "
             f"Fix: give a fraction, e.g. --optics-jitter 0.03 for +-3 % (not a percentage)."
+        )
+    return value
+
+
+def _model_config(text: str) -> dict[str, object]:
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        value = error
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(
+            f"--config must be a JSON object of model options; got {text!r}. "
+            'Fix: e.g. --config \'{"learn_filters": true}\' for multiwiener (see docs/learned.md).'
         )
     return value
 
@@ -64,7 +78,7 @@ def run_train(args: argparse.Namespace) -> int:
     threads = args.torch_threads if args.torch_threads is not None else 1
     with progress_bar(f"training {args.model} ({args.minutes:g} min budget, {threads} thread)") as progress:
         result = train(
-            setup, model=args.model, data=data, budget_minutes=args.minutes, max_steps=args.steps, seed=args.seed,
+            setup, model=args.model, config=args.config, data=data, budget_minutes=args.minutes, max_steps=args.steps, seed=args.seed,
             design_hash=design_hash, depths=depths, design=stack.design, checkpoint=out, resume=args.resume, overwrite=args.overwrite,
             threads=threads, progress=progress,
         )  # fmt: skip
@@ -90,6 +104,11 @@ def add_train_parser(sub: argparse._SubParsersAction) -> None:
     train.add_argument("design", help="design file (.json) or preset name")
     train.add_argument("--out", required=True, help="checkpoint to write (.safetensors)")
     train.add_argument("--model", choices=sorted(MODELS), default=DEFAULT_MODEL)
+    train.add_argument(
+        "--config", type=_model_config, default=None, metavar="JSON",
+        help="the model's options as a JSON object, e.g. '{\"iterations\": 8}' for unrolled-rl or "
+        "'{\"learn_filters\": true}' for multiwiener (default: the model's defaults)",
+    )  # fmt: skip
     train.add_argument("--minutes", type=float, default=10.0, help="wall-clock training budget (default 10)")
     train.add_argument(
         "--steps", type=int, default=None, help="stop after this many steps (reproducible runs)"

@@ -87,3 +87,23 @@ def test_optics_jitter_is_validated_and_recorded(design_file, tmp_path, capsys):
                      "--out", str(out)])  # fmt: skip
     torch.set_num_threads(threads)
     assert code == 0 and read_checkpoint(out)[0].data["optics_jitter"] == 0.03
+
+
+def test_config_sets_the_model_options_and_refuses_unknown_ones(design_file, tmp_path, capsys):
+    out = tmp_path / "model.safetensors"
+    threads = torch.get_num_threads()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        args = ["--threads", "1", "train", str(design_file), "--steps", "1", "--out", str(out)]
+        assert main([*args, "--config", '{"iterations": 2}']) == 0
+        header, _ = read_checkpoint(out)
+        assert header.model == "unrolled-rl" and header.config["iterations"] == 2
+        with pytest.raises(SystemExit):  # argparse: not a JSON object
+            main([*args, "--overwrite", "--config", "[2]"])
+        assert "--config must be a JSON object" in capsys.readouterr().err
+        code = main([*args, "--overwrite", "--config", '{"iteratoins": 2}'])
+        assert code != 0
+        err = capsys.readouterr().err
+        assert "has no option 'iteratoins'" in err and "iterations" in err
+    assert read_checkpoint(out)[0].config["iterations"] == 2  # the refused run left the file as it was
+    torch.set_num_threads(threads)

@@ -8,6 +8,8 @@ config, and is rebuilt on the same design (:mod:`lfm_studio.engine.learned.check
 
 from __future__ import annotations
 
+import inspect
+
 import torch
 
 from lfm_studio.engine.learned.models.multiwiener import MultiWienerNet
@@ -25,10 +27,26 @@ MODELS: dict[str, type[torch.nn.Module]] = {
 DEFAULT_MODEL = "unrolled-rl"
 
 
+def model_options(name: str) -> tuple[str, ...] | None:
+    """The keyword options ``MODELS[name]`` takes after the projector (None: it takes any)."""
+    parameters = list(inspect.signature(MODELS[name]).parameters.values())[1:]  # after the projector
+    if any(p.kind is inspect.Parameter.VAR_KEYWORD for p in parameters):
+        return None
+    keyword = (inspect.Parameter.POSITIONAL_OR_KEYWORD, inspect.Parameter.KEYWORD_ONLY)
+    return tuple(p.name for p in parameters if p.kind in keyword)
+
+
 def build_model(name: str, projector: Projector, **config: JSONValue) -> torch.nn.Module:
-    """``MODELS[name](projector, **config)``, or a ValueError naming the choices."""
+    """``MODELS[name](projector, **config)``, or a ValueError naming the choices (model or option)."""
     if name not in MODELS:
         raise ValueError(f"model must be one of {sorted(MODELS)}; got {name!r}. Fix: e.g. {DEFAULT_MODEL!r}.")
+    options = model_options(name)
+    unknown = sorted(set(config) - set(options)) if options is not None else []
+    if unknown:
+        raise ValueError(
+            f"the {name!r} model has no option {', '.join(map(repr, unknown))}. "
+            f"Fix: use its options: {', '.join(options or ())}."
+        )
     return MODELS[name](projector, **config)
 
 
@@ -55,5 +73,6 @@ __all__ = [
     "UnrolledRL",
     "build_model",
     "model_config",
+    "model_options",
     "parameter_count",
 ]
