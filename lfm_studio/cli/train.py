@@ -47,7 +47,7 @@ def _model_config(text: str) -> dict[str, object]:
     if not isinstance(value, dict):
         raise argparse.ArgumentTypeError(
             f"--config must be a JSON object of model options; got {text!r}. "
-            'Fix: e.g. --config \'{"learn_filters": true}\' for multiwiener (see docs/learned.md).'
+            "Fix: e.g. --config '{\"learn_filters\": true}' for multiwiener (see docs/learned.md)."
         )
     return value
 
