@@ -2,6 +2,10 @@
 
 ``qapp`` (session)
     From ``tests/conftest.py`` (:func:`lfm_studio.widgets.viewer.napari_embed.prepare_qt_app`).
+``small_studio``
+    The studio window as ``lfm-studio gui`` builds it, on the small test design, with stand-in
+    MLA editor and PSF viewer and a long debounce (no PSF job during the test); closed after
+    it, unsaved or not, and checked gone.
 ``close_napari_viewers`` (autouse)
     After each test, closes any napari ``QtViewer`` still alive (e.g. a window the test
     forgot to close, or a failing test) and runs the pending deletions, so napari's
@@ -18,6 +22,33 @@ import sys
 import pytest
 
 from lfm_studio.widgets.viewer import napari_embed
+
+CLOSE_TIMEOUT_MS = 60_000
+
+
+@pytest.fixture
+def small_studio(qtbot, tmp_path):
+    from qtpy.QtCore import QSettings
+    from qtpy.QtWidgets import QApplication
+
+    from lfm_studio.ui.app import build_studio
+    from lfm_studio.ui.main_window import MainWindow
+    from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+
+    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
+    win = build_studio(
+        small_fourier_design(), settings=settings, debounce_ms=600_000,  # no PSF work during the test
+        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets), viewer_factory=FakePSFViewer,
+    )  # fmt: skip
+    win.show()
+    qtbot.waitExposed(win)
+    yield win
+    win.state.set_dirty(False)  # loaded candidates make the document unsaved: close without asking
+    with qtbot.waitSignal(win.destroyed, timeout=CLOSE_TIMEOUT_MS):
+        assert win.close()
+    QApplication.sendPostedEvents(None, 0)
+    gc.collect()
+    assert [w for w in QApplication.topLevelWidgets() if isinstance(w, MainWindow)] == []
 
 
 def collect_widgets() -> None:

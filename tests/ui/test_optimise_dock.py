@@ -5,14 +5,13 @@ designs' metrics and PSFs, a study file is resumed without re-evaluating, bad se
 
 from __future__ import annotations
 
-import gc
 import re
 import threading
 
 import numpy as np
 import pytest
 from qtpy.QtCore import QSettings, Qt
-from qtpy.QtWidgets import QApplication, QDockWidget
+from qtpy.QtWidgets import QDockWidget
 
 from lfm_studio.engine.design import list_presets, load_preset
 from lfm_studio.engine.optimize import DesignSpace, Parameter
@@ -21,7 +20,6 @@ from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.engine.performance import closed_form_metrics
 from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.edits import apply_changes
-from lfm_studio.ui.main_window import MainWindow
 from lfm_studio.ui.optimise_dock import JOB_NAME
 from lfm_studio.ui.optimise_model import freeable_fields
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
@@ -32,21 +30,8 @@ RELAYS_MM = (60.0, 70.0, 80.0, 90.0)  # 60 and 70 mm: sub-images leave the 256^2
 
 
 @pytest.fixture
-def window(qtbot, tmp_path):
-    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
-    win = build_studio(
-        small_fourier_design(), settings=settings, debounce_ms=600_000,  # no PSF work during the test
-        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets), viewer_factory=FakePSFViewer,
-    )  # fmt: skip
-    win.show()
-    qtbot.waitExposed(win)
-    yield win
-    win.state.set_dirty(False)  # loaded candidates make the document unsaved: close without asking
-    with qtbot.waitSignal(win.destroyed, timeout=TIMEOUT_MS):
-        assert win.close()
-    QApplication.sendPostedEvents(None, 0)
-    gc.collect()
-    assert [w for w in QApplication.topLevelWidgets() if isinstance(w, MainWindow)] == []
+def window(small_studio):
+    return small_studio
 
 
 def _lateral_um(design, relay_mm):

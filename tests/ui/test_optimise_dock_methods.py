@@ -5,15 +5,12 @@ bad option values are refused by name, and Cancel keeps the previous results."""
 
 from __future__ import annotations
 
-import gc
 import itertools
 import math
 import threading
 import warnings
 
 import pytest
-from qtpy.QtCore import QSettings
-from qtpy.QtWidgets import QApplication
 
 from lfm_studio.engine.design import load_preset
 from lfm_studio.engine.design.errors import DesignWarning
@@ -27,11 +24,9 @@ from lfm_studio.engine.optimize import (
 from lfm_studio.engine.optimize import objectives as objectives_module
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.objectives import ClosedForm
-from lfm_studio.ui.app import build_studio
-from lfm_studio.ui.main_window import MainWindow
 from lfm_studio.ui.optimise_dock import JOB_NAME
 from lfm_studio.ui.optimise_model import METHODS, FreeParameter, GradientRequest, run_gradient
-from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+from tests.ui.standins import small_fourier_design
 
 pytest.importorskip("optuna")
 
@@ -50,21 +45,8 @@ def _quiet(build):
 
 
 @pytest.fixture
-def window(qtbot, tmp_path):
-    settings = QSettings(str(tmp_path / "settings.ini"), QSettings.Format.IniFormat)
-    win = build_studio(
-        small_fourier_design(), settings=settings, debounce_ms=600_000,  # no PSF work during the test
-        editor_factory=lambda d: FakeMLAEditor(d.mla.lenslets), viewer_factory=FakePSFViewer,
-    )  # fmt: skip
-    win.show()
-    qtbot.waitExposed(win)
-    yield win
-    win.state.set_dirty(False)
-    with qtbot.waitSignal(win.destroyed, timeout=TIMEOUT_MS):
-        assert win.close()
-    QApplication.sendPostedEvents(None, 0)
-    gc.collect()
-    assert [w for w in QApplication.topLevelWidgets() if isinstance(w, MainWindow)] == []
+def window(small_studio):
+    return small_studio
 
 
 def _done(qtbot, window):
