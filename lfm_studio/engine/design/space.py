@@ -3,7 +3,8 @@
 A :class:`Parameter` names one value of a design (``objective.numerical_aperture``,
 ``relay.focal_length_mm``, ``mla.pitch_um``, ``mla.lenslets[3].center_um[0]``,
 ``mla.lattice``, ``pupil_phase.zernike_waves.4``: a Zernike coefficient of a design's
-pupil phase mask, in waves) and the values it may take: ``low``/``high`` with an optional ``step``
+pupil phase mask, in waves; a term the design does not list reads as 0 and is created when
+written) and the values it may take: ``low``/``high`` with an optional ``step``
 (a grid) or ``points`` (that many evenly spaced values), or a list of ``choices``.
 ``*`` as an index sets every item (``mla.lenslets[*].focal_length_mm``), a comma list sets
 those items together (``mla.lenslets[1,3,5].focal_length_mm``: a lenslet group, or lenslets
@@ -100,6 +101,22 @@ def _set(node: Any, parts: Sequence[str], value: Any) -> Any:
     for i in _indices(head, len(items)):
         items[i] = _set(items[i], rest, value)
     return items
+
+
+_ZERNIKE = ("pupil_phase", "zernike_waves")
+
+
+def _with_zernike_term(data: dict[str, Any], parts: Sequence[str]) -> dict[str, Any]:
+    """``data`` (a design's plain data) with the Zernike term ``parts`` names listed, at 0 waves if
+    it was not: a coefficient path reads as 0 (no mask) on a design without that term and creates
+    the term when written. Other paths: ``data`` unchanged."""
+    if len(parts) != 3 or tuple(parts[:2]) != _ZERNIKE or not parts[2].isdigit():
+        return data
+    phase = dict(data.get("pupil_phase") or {})
+    terms = dict(phase.get("zernike_waves") or {})
+    if parts[2] in terms:
+        return data
+    return {**data, "pupil_phase": {**phase, "zernike_waves": {**terms, parts[2]: 0.0}}}
 
 
 @dataclass(frozen=True)
@@ -251,12 +268,12 @@ class DesignSpace:
         """Raise ``ValueError`` naming any path that does not exist in ``design``."""
         data = design.model_dump(mode="json")
         for param in self.parameters:
-            _get(data, param.parts, param.path)
+            _get(_with_zernike_term(data, param.parts), param.parts, param.path)
 
     def values_of(self, design: Design) -> Point:
         """The design's current values at each path (a ``*`` path gives its first item's)."""
         data = design.model_dump(mode="json")
-        return {p.path: _get(data, p.parts, p.path)[0] for p in self.parameters}
+        return {p.path: _get(_with_zernike_term(data, p.parts), p.parts, p.path)[0] for p in self.parameters}
 
     def apply(self, design: Design, point: Mapping[str, Value]) -> Design:
         """``design`` with ``point`` written in and validated once.
@@ -270,6 +287,7 @@ class DesignSpace:
         data = design.model_dump(mode="json")
         for param in self.parameters:
             if param.path in point:
+                data = _with_zernike_term(data, param.parts)  # a new term is created at its value
                 _get(data, param.parts, param.path)  # the path exists (clear message if not)
                 data = _set(data, param.parts, point[param.path])
         return type(design).model_validate(data)

@@ -18,8 +18,9 @@ comma list, as everywhere in a design space):
   pitch when the design leaves ``lenslet_aperture_diameter_um`` unset) and ``mla.offset_um[0|1]``
   (every centre shifts). The lenslet count and lattice stay as they are.
 - ``pupil_phase.zernike_waves.<noll>``: a Zernike coefficient (waves) of the pupil phase mask
-  (thesis 5.2.2 PSF engineering), for a term the design's ``pupil_phase`` lists (list it at 0.0
-  to start from no mask); it overrides :attr:`FourierParameters.zernike_waves`.
+  (thesis 5.2.2 PSF engineering); a term the design's ``pupil_phase`` does not list starts at 0
+  waves (no mask) and is written in with the result; it overrides
+  :attr:`FourierParameters.zernike_waves`.
 
 A conventional LFM (:data:`CONVENTIONAL_PATHS`) is differentiable in ``objective.numerical_aperture``,
 ``mla_to_camera_distance_mm``, ``wavelength_nm``, ``mla.focal_length_mm`` and

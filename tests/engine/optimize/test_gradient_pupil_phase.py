@@ -78,9 +78,35 @@ def test_a_short_run_engineers_a_phase_mask_and_writes_it_into_the_design():
     assert result.start_design.pupil_phase.zernike_waves == {11: 0.0}
 
 
-def test_a_term_the_design_does_not_list_is_named():
+def test_a_term_the_design_does_not_list_starts_at_zero_and_is_written_in():
+    """Freeing Noll 11 on a design with no mask, or a mask without that term: it starts at 0 waves
+    (the PSF of the design as it is) and the result lists it."""
+    for design in (tiny_flfm(), _masked({4: 0.05})):
+        binding = bind_space(SPHERICAL, design)
+        assert binding.values_of(design).tolist() == [0.0]
+        through = binding.psf_stack(design, torch.tensor([0.0], dtype=torch.float64), F64).data
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DesignWarning)
+            listed = SPHERICAL.apply(design, {"pupil_phase.zernike_waves.11": 0.0})
+        assert listed.pupil_phase.zernike_waves == {
+            **(design.pupil_phase.zernike_waves if design.pupil_phase else {}),
+            11: 0.0,
+        }
+        plain = binding.psf_stack(listed, torch.tensor([0.0], dtype=torch.float64), F64).data
+        assert torch.equal(through, plain)  # an unlisted term is the listed 0.0 term
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DesignWarning)
+        result = optimize_psf(
+            tiny_flfm(), SPHERICAL, "axial_crb", steps=2, lr=0.05, settings=EvaluationSettings(crop=None),
+            constraints=(), check_float64=False,
+        )  # fmt: skip
+    assert result.start_design.pupil_phase.zernike_waves == {11: 0.0}
+    assert result.design.pupil_phase.zernike_waves[11] != 0.0
+
+
+def test_a_bad_zernike_parameter_is_named():
     with pytest.raises(ValueError, match="zernike_waves"):
-        bind_space(SPHERICAL, _masked({4: 0.0}))
+        bind_space(DesignSpace((Parameter("pupil_phase.zernike_waves.x", -1.0, 1.0),)), _masked({4: 0.0}))
     integer = DesignSpace((Parameter("pupil_phase.zernike_waves.4", 0.0, 1.0, integer=True),))
     with pytest.raises(NotDifferentiableError, match="discrete values"):
         bind_space(integer, _masked({4: 0.0}))

@@ -129,7 +129,7 @@ def test_unknown_paths_are_named(flfm):
 
 def test_a_zernike_coefficient_of_the_pupil_phase_is_a_parameter(flfm):
     """``pupil_phase.zernike_waves.4`` (or ``[4]``) frees the defocus coefficient of a Fourier design's
-    pupil phase mask, in waves; the term must be listed in the design (0 is fine)."""
+    pupil phase mask, in waves; a term the design does not list reads as 0 and is created when written."""
     masked = flfm.updated(pupil_phase={"zernike_waves": {"4": 0.0, "11": 0.02}})
     entry = {"path": "pupil_phase.zernike_waves.4", "low": -0.2, "high": 0.2, "points": 5, "unit": "waves"}
     space = space_from_json(json.dumps({"parameters": [entry]}))
@@ -141,7 +141,16 @@ def test_a_zernike_coefficient_of_the_pupil_phase_is_a_parameter(flfm):
     out = space.apply(masked, {"pupil_phase.zernike_waves.4": -0.1})
     assert out.pupil_phase.zernike_waves == {4: -0.1, 11: 0.02}
     assert masked.pupil_phase.zernike_waves == {4: 0.0, 11: 0.02}  # the base is untouched
-    with pytest.raises(ValueError, match=r"no field 'pupil_phase' here"):
-        space.check_paths(flfm)  # no mask in the design: nothing to free
-    with pytest.raises(ValueError, match=r"no field '7' here; known: \['11', '4'\]"):
-        DesignSpace((Parameter("pupil_phase.zernike_waves[7]", -0.1, 0.1, points=3),)).check_paths(masked)
+    space.check_paths(flfm)  # no mask in the design: the term starts at 0 waves
+    assert space.values_of(flfm) == {"pupil_phase.zernike_waves.4": 0.0}
+    assert space.apply(flfm, {"pupil_phase.zernike_waves.4": 0.1}).pupil_phase.zernike_waves == {4: 0.1}
+    assert flfm.pupil_phase is None  # the base is untouched
+    seventh = DesignSpace((Parameter("pupil_phase.zernike_waves[7]", -0.1, 0.1, points=3),))
+    assert seventh.values_of(masked) == {"pupil_phase.zernike_waves[7]": 0.0}
+    assert seventh.apply(masked, {"pupil_phase.zernike_waves[7]": 0.05}).pupil_phase.zernike_waves == {
+        4: 0.0,
+        7: 0.05,
+        11: 0.02,
+    }
+    with pytest.raises(ValueError, match=r"no field 'x' here"):
+        DesignSpace((Parameter("pupil_phase.zernike_waves.x", -0.1, 0.1, points=3),)).check_paths(masked)
