@@ -872,6 +872,11 @@ class OptimiseDock(QWidget):
         self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{reason}</span>")
 
     def _on_field_committed(self, *_: Any) -> None:
+        """Clear the refusal on show, unless another field still holds a refused number (then that one)."""
+        pending = next((f.error() for f in self.all_option_fields() if f.error() is not None), None)
+        if pending is not None:
+            self._on_field_refused(pending)
+            return
         if self._refusal is not None and self._refusal in self.message.text():
             self.message.setText("")
         self._refusal = None

@@ -303,3 +303,19 @@ def test_a_gradient_run_hands_over_each_step_as_it_is_stored():
         assert shown.params == pytest.approx(final.params) and shown.values == pytest.approx(final.values)
         assert shown.design() == final.design()  # the stored step's design is the step's point
     assert [p[:2] for p in progress] == [(0, 3), (1, 3), (2, 3), (3, 3)]
+
+
+def test_a_refusal_stays_shown_while_its_field_still_holds_the_refused_number(window, qtbot):
+    """Committing another option field does not hide a refusal that still stands."""
+    dock = window.optimise
+    dock.set_method("gradient-end-to-end")
+    dock.e_batch.setText("0")  # below the minimum of 1
+    dock.e_batch.commit()
+    refusal = dock.e_batch.error()
+    assert refusal is not None and refusal in dock.message.text()
+    dock.g_steps.setText("5")
+    dock.g_steps.commit()
+    assert refusal in dock.message.text()  # the batch field still holds "0"
+    dock.e_batch.setText("3")
+    dock.e_batch.commit()
+    assert dock.e_batch.error() is None and dock.message.text() == ""
