@@ -1,7 +1,18 @@
-"""keep_freed_memory: repeated projections stop page-faulting their buffers in again (counted, not timed)."""
+"""keep_freed_memory: large freed blocks stay in the heap instead of going back to the system.
+
+Checked on the mechanism, in a fresh process and with glibc's own counters (``mallinfo2``): a
+20 MB block (a per-depth spectrum's size) is served by ``mmap`` by default and returned on
+``free``, so every depth page-faults it in again; after :func:`keep_freed_memory` it comes from
+the heap and stays there after ``free``. Page-fault counts of whole projections were the earlier
+check; they depend on transparent huge pages and on what else the machine runs (a clean-clone
+run measured 9,394 faults without and 6,084 with, where 26,000-49,000 and 0-6,100 were usual),
+so they are not asserted.
+"""
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
 import os
 import subprocess
 import sys
@@ -11,27 +22,35 @@ import pytest
 from lfm_studio.engine.allocator import keep_freed_memory
 
 _SCRIPT = """
-import resource, sys
+import ctypes, ctypes.util, sys
+libc = ctypes.CDLL(ctypes.util.find_library("c"))
+names = ("arena", "ordblks", "smblks", "hblks", "hblkhd", "usmblks", "fsmblks", "uordblks", "fordblks", "keepcost")
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(name, ctypes.c_size_t) for name in names]
+libc.mallinfo2.restype = MallInfo2
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
 if sys.argv[1] == "kept":
     from lfm_studio.engine.allocator import keep_freed_memory
     assert keep_freed_memory()
-import torch
-torch.set_num_threads(1)
-from lfm_studio.engine.operators import ShiftInvariantProjector
-g = torch.Generator().manual_seed(0)
-projector = ShiftInvariantProjector(torch.rand(4, 1024, 1024, generator=g), (339, 339))
-x, y = torch.rand(4, 339, 339, generator=g), torch.rand(1024, 1024, generator=g)
-projector.forward(x), projector.adjoint(y)
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-for _ in range(6):
-    projector.forward(x), projector.adjoint(y)
-print(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+size = 20 * 2**20
+before = libc.mallinfo2()
+block = libc.malloc(size)
+ctypes.memset(block, 1, size)
+mapped = libc.mallinfo2().hblkhd - before.hblkhd
+libc.free(block)
+print(mapped, libc.mallinfo2().arena - before.arena)
 """
 
+_HAS_MALLINFO2 = (name := ctypes.util.find_library("c")) is not None and hasattr(
+    ctypes.CDLL(name), "mallinfo2"
+)
 
-def _faults(mode: str) -> int:
+
+def _counters(mode: str) -> tuple[int, int]:
+    """(bytes of the 20 MB block served by mmap, heap growth still held after freeing it) in a fresh process."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_"):
+    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_"):
         env.pop(name, None)
     result = subprocess.run(
         [sys.executable, "-c", _SCRIPT, mode],
@@ -39,18 +58,21 @@ def _faults(mode: str) -> int:
         capture_output=True,
         text=True,
         check=True,
-        timeout=300,
+        timeout=120,
     )
-    return int(result.stdout.strip().splitlines()[-1])
+    mapped, arena = result.stdout.split()[-2:]
+    return int(mapped), int(arena)
 
 
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc mallopt")
-def test_kept_memory_removes_most_page_faults_of_repeated_projections():
-    plain, kept = _faults("plain"), _faults("kept")
-    # Each projection frees and reallocates ~10 MB spectra per depth (2,400 pages each); with
-    # the heap kept only first touches of new heap remain. Measured with 3 rounds: 26,000-49,000
-    # faults without, 0-6,100 with.
-    assert kept * 3 < plain, (plain, kept)
+@pytest.mark.skipif(not _HAS_MALLINFO2, reason="needs glibc >= 2.33 (mallinfo2)")
+def test_kept_memory_serves_large_blocks_from_the_heap_and_keeps_them_after_free():
+    size = 20 * 2**20
+    mapped, held = _counters("plain")
+    assert mapped >= size and held == 0  # default: mmap, returned on free (pages faulted in again)
+    mapped, held = _counters("kept")
+    # kept: from the heap (grown by the block, less the free space it reused at the top; measured
+    # 20.9 of 21.0 MB), and still held after free
+    assert mapped == 0 and held > size // 2
 
 
 def test_keep_freed_memory_is_idempotent():
