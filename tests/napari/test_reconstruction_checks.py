@@ -40,7 +40,7 @@ def test_matching_inputs_are_accepted():
         (
             (3, 3, 3, 9, 9),
             LightFieldImage(torch.ones(16, 16), 6.5 * um),
-            {"method": "tikhonov"},
+            {"method": "wiener"},
             "Fourier LFM",
         ),
     ],

@@ -1,8 +1,8 @@
 """Volume reconstruction from a light-field image: Richardson-Lucy (plain, accelerated, TV), Wiener, Tikhonov.
 
 Every method takes a projector (``forward``/``adjoint``/``volume_shape``/``image_shape``;
-Richardson-Lucy works with any, Wiener and Tikhonov need the shift-invariant one with
-cached OTFs) and a camera image in counts, and runs in the projector's dtype and on
+Richardson-Lucy works with any, Wiener needs the shift-invariant one with cached OTFs,
+Tikhonov that or the conventional lenslet-lattice one) and a camera image in counts, and runs in the projector's dtype and on
 its device.
 
 Example::

@@ -1,7 +1,8 @@
 """The built-in reconstruction methods, registered in :mod:`.registry`: rl, rl-accelerated, wiener, tikhonov.
 
-Richardson-Lucy takes any projector and models the background; Wiener and Tikhonov take a
-shift-invariant (Fourier LFM) projector, subtract the background and clip at 0. "rl-accelerated"
+Richardson-Lucy takes any projector and models the background; Wiener takes a shift-invariant
+(Fourier LFM) projector and Tikhonov also a conventional-LFM lenslet-lattice one; both subtract
+the background and clip at 0. "rl-accelerated"
 is :func:`.accelerated_rl_options` (geometric extrapolation with a likelihood safeguard); its
 extrapolation step is not differentiable (a ``gradcheck`` through it fails), plain RL's is.
 Total-variation regularisation (:mod:`.total_variation`) is the RL option ``tv_weight``.
@@ -131,9 +132,8 @@ def _tikhonov_run(
     cancel: CancelToken,
 ) -> torch.Tensor:
     del progress, cancel  # one step (plus ``refine`` CG steps)
-    fourier = require_fourier_projector(projector, "Tikhonov reconstruction")
     refine = int(_number(options, "refine"))
-    return tikhonov(fourier, _signal(frame, options), mu=1.0 / _number(options, "snr"), refine=refine)
+    return tikhonov(projector, _signal(frame, options), mu=1.0 / _number(options, "snr"), refine=refine)
 
 
 BUILTIN = (
@@ -169,11 +169,12 @@ BUILTIN = (
     Method(
         "tikhonov",
         "Tikhonov (one step)",
-        "multi-depth Tikhonov per spatial frequency (shift-invariant Fourier LFM projectors)",
+        "multi-depth Tikhonov per spatial frequency (Fourier LFM) or per lenslet-lattice frequency "
+        "(conventional LFM)",
         (TIKHONOV_SNR, REFINE),
         _tikhonov_run,
         differentiable=True,
-        projectors="shift-invariant",
+        projectors="periodic",
     ),
 )
 

@@ -32,11 +32,12 @@ from typing import Protocol
 
 import torch
 
+from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.operators.protocol import FourierProjector, Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.types import OptionValue
 
-PROJECTOR_KINDS = ("any", "shift-invariant")
+PROJECTOR_KINDS = ("any", "shift-invariant", "periodic")
 DEVICES = ("cpu", "cuda")
 _KINDS: dict[type, str] = {
     int: "an integer",
@@ -217,7 +218,9 @@ class Method:
     options : the schema (:class:`Option`), without :data:`BACKGROUND` (added by :func:`register`).
     run : the callable (:class:`MethodRun`).
     differentiable : gradients reach the frame (and the projector's tensors) through ``run``.
-    projectors : ``"any"`` or ``"shift-invariant"`` (needs a projector with cached OTFs, ``otf``).
+    projectors : ``"any"``, ``"shift-invariant"`` (needs a projector with cached OTFs, ``otf``) or
+        ``"periodic"`` (shift-invariant, or periodic in the lenslet lattice: a conventional-LFM
+        :class:`~lfm_studio.engine.operators.lenslet_lattice.LensletLatticeProjector`).
     devices : where it runs, subset of ``("cpu", "cuda")``.
     iterative : ``run`` reports one progress step per iteration; the method then has an
         ``iterations`` option.
@@ -285,6 +288,8 @@ class Method:
 
     def supports(self, projector: Projector) -> bool:
         """Whether ``projector`` is a kind this method takes."""
+        if self.projectors == "periodic" and isinstance(projector, LensletLatticeProjector):
+            return True
         return self.projectors == "any" or isinstance(projector, FourierProjector)
 
     def steps(self, options: Mapping[str, OptionValue]) -> int:
@@ -309,9 +314,12 @@ class Method:
         """A ``ValueError`` naming the method and a fix when it cannot take ``projector``."""
         if not self.supports(projector):
             choices = ", ".join(m.name for m in methods() if m.projectors == "any")
+            needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
+            if self.projectors == "periodic":
+                needs += " or a conventional-LFM lenslet-lattice projector"
             raise ValueError(
-                f"method {self.name!r} ({self.label}) needs a laterally shift-invariant (Fourier LFM) projector "
-                f"with cached OTFs; got a {type(projector).__name__}. Fix: choose {choices}."
+                f"method {self.name!r} ({self.label}) needs a {needs}; got a {type(projector).__name__}. "
+                f"Fix: choose {choices}."
             )
 
 

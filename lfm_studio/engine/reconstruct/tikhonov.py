@@ -22,13 +22,23 @@ the window. ``refine=N`` runs ``N`` preconditioned conjugate-gradient steps on t
 normal equations of the projector, ``(A^T A + mu I) x = A^T y``, preconditioned by the
 per-frequency inverse ``(conj(H) H^T + mu)^-1 = (I - u u^H / (mu + |u|^2)) / mu`` (needs
 ``mu > 0``); it converges to the exact Tikhonov solution of the projector's model.
+
+A conventional-LFM projector (:class:`~lfm_studio.engine.operators.lenslet_lattice.LensletLatticeProjector`)
+is periodic in the lenslet lattice rather than shift-invariant: per lattice frequency it is a
+small matrix (:mod:`lfm_studio.engine.operators.lattice_spectra`), and the same closed form is a
+small linear solve per frequency (``mu > 0``, relative to ``max ||G(w)||_2^2``); ``refine``
+preconditions with that per-frequency inverse.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 
-from lfm_studio.engine.operators.protocol import FourierProjector, PrunedFourierProjector
+from lfm_studio.engine.operators.lattice_spectra import lattice_tikhonov
+from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
+from lfm_studio.engine.operators.protocol import FourierProjector, Projector, PrunedFourierProjector
 from lfm_studio.engine.reconstruct.fourier_geometry import (
     depth_chunks,
     filter_to_volume,
@@ -70,15 +80,14 @@ def check_mu(mu: float, *, refine: int) -> float:
     return value
 
 
-def tikhonov(
-    projector: FourierProjector, image: TensorLike, *, mu: float = 1e-3, refine: int = 0
-) -> torch.Tensor:
-    """Multi-depth Tikhonov reconstruction ``(Z, Vy, Vx)`` of ``image`` for a shift-invariant projector.
+def tikhonov(projector: Projector, image: TensorLike, *, mu: float = 1e-3, refine: int = 0) -> torch.Tensor:
+    """Multi-depth Tikhonov reconstruction ``(Z, Vy, Vx)`` of ``image``.
 
     Parameters
     ----------
-    projector : FourierProjector
-        Cached OTFs (e.g. ShiftInvariantProjector); any other projector raises ``NotImplementedError``.
+    projector : FourierProjector or LensletLatticeProjector
+        Cached OTFs (e.g. ShiftInvariantProjector), or a conventional-LFM lattice projector (then
+        ``mu > 0``); any other projector raises ``NotImplementedError``.
     image : tensor or array ``(Py, Px)``, counts (finite; negative noise values are fine)
     mu : float
         Regularisation weight relative to ``max_k |H_k|^2`` (>= 0).
@@ -86,9 +95,16 @@ def tikhonov(
         Conjugate-gradient steps on the projector's exact normal equations (0: closed form only).
         Each costs about two RL iterations and keeps ``Z`` spectra in memory.
     """
-    projector = require_fourier_projector(projector, "Tikhonov reconstruction")
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
         raise ValueError(f"refine must be an int >= 0 (conjugate-gradient steps); got {refine!r}.")
+    if isinstance(projector, LensletLatticeProjector):
+        solver = lattice_tikhonov(projector, mu)  # mu > 0, checked there
+        y = check_image(
+            image, projector.image_shape, dtype=projector.dtype, device=projector.device, non_negative=False
+        )
+        x = solver(y)
+        return _refine(projector, y, x, solver.weight, solver.precondition, refine) if refine else x
+    projector = require_fourier_projector(projector, "Tikhonov reconstruction")
     mu = check_mu(mu, refine=refine)
     otf = projector.otf
     dtype = otf.real.dtype
@@ -102,7 +118,7 @@ def tikhonov(
     spectrum = image_spectrum(projector, y) * gain
     x = filter_to_volume(projector, spectrum, lambda part: otf[part].conj())
     if refine:
-        x = _refine(projector, y, x, mu_abs, power, refine)
+        x = _refine(projector, y, x, mu_abs, lambda r: _precondition(projector, r, mu_abs, power), refine)
     return x
 
 
@@ -118,9 +134,14 @@ def _precondition(
 
 
 def _refine(
-    projector: FourierProjector, y: torch.Tensor, x: torch.Tensor, mu: float, power: torch.Tensor, steps: int
+    projector: Projector,
+    y: torch.Tensor,
+    x: torch.Tensor,
+    mu: float,
+    precondition: Callable[[torch.Tensor], torch.Tensor],
+    steps: int,
 ) -> torch.Tensor:
-    """Preconditioned CG on ``(A^T A + mu I) x = A^T y`` from ``x``."""
+    """CG on ``(A^T A + mu I) x = A^T y`` from ``x``, preconditioned by ``precondition`` (volume -> volume)."""
 
     def normal(v: torch.Tensor) -> torch.Tensor:
         return projector.adjoint(projector.forward(v)) + mu * v
@@ -130,7 +151,7 @@ def _refine(
 
     rhs = projector.adjoint(y)
     residual = rhs - normal(x)
-    z = _precondition(projector, residual, mu, power)
+    z = precondition(residual)
     direction, rz = z, dot(residual, z)
     stop = (relative_floor(x.dtype) * float(torch.linalg.vector_norm(rhs.double()))) ** 2
     for _ in range(steps):
@@ -140,7 +161,7 @@ def _refine(
         step = rz / dot(direction, applied)
         x = x + step * direction
         residual = residual - step * applied
-        z = _precondition(projector, residual, mu, power)
+        z = precondition(residual)
         rz, previous = dot(residual, z), rz
         direction = z + (rz / previous) * direction
     return x

@@ -138,8 +138,11 @@ def test_richardson_lucy_runs_on_every_projector_through_the_protocol(make):
     assert poisson_nll(projector, estimate, image) < poisson_nll(projector, start, image)
 
 
-@pytest.mark.parametrize("method", ["wiener", "tikhonov"])
-@pytest.mark.parametrize("make", [lenslet_lattice, binned], ids=["lenslet-lattice", "binned"])
+@pytest.mark.parametrize(
+    ("make", "method"),
+    [(lenslet_lattice, "wiener"), (binned, "wiener"), (binned, "tikhonov")],
+    ids=["lenslet-lattice-wiener", "binned-wiener", "binned-tikhonov"],
+)  # Tikhonov also takes the lenslet lattice (per lattice frequency: test_lattice_tikhonov.py)
 def test_fourier_methods_name_what_a_non_fourier_projector_lacks(make, method):
     projector = make()
     image = torch.ones(projector.image_shape, dtype=torch.float64)
