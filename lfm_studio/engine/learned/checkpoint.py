@@ -175,15 +175,20 @@ def check_matches(
         )
 
 
-def check_architecture(header: CheckpointHeader, source: str) -> None:
+def check_architecture(header: CheckpointHeader, source: str, projector: Projector | None = None) -> None:
     """Refuse a checkpoint whose model was written with another architecture of its class.
 
     A model class may declare ``ARCHITECTURE`` (an integer, 1 when absent) and record it as
-    ``config["architecture"]``; a checkpoint without the entry is architecture 1.
+    ``config["architecture"]``; a checkpoint without the entry is architecture 1. A class with a
+    ``builds(architecture, projector)`` classmethod says itself which older ones it still builds
+    on ``projector``.
     """
-    current = getattr(MODELS.get(header.model), "ARCHITECTURE", 1)
+    model_class = MODELS.get(header.model)
+    current = getattr(model_class, "ARCHITECTURE", 1)
     found = header.config.get("architecture", 1)
-    if found != current:
+    builds = getattr(model_class, "builds", None)
+    accepted = builds(found, projector) if builds is not None and projector is not None else found == current
+    if not accepted:
         raise ValueError(
             f"checkpoint {source} holds a {header.model!r} model of architecture {found!r} (written by lfm_studio "
             f"{header.version}); this version builds architecture {current}. Fix: train it again "
@@ -214,7 +219,7 @@ def load_model_for(
     """The model of checkpoint ``path`` rebuilt on ``projector``, in eval mode (checks as :func:`check_matches`)."""
     header, tensors = read_checkpoint(path)
     check_matches(header, projector, str(path), voxel_size=voxel_size, design_hash=design_hash, depths=depths)
-    check_architecture(header, str(path))
+    check_architecture(header, str(path), projector)
     model = build_model(header.model, projector, **header.config)
     dtype = next(iter(model.parameters())).dtype
     model.load_state_dict({k: v.to(dtype) if v.is_floating_point() else v for k, v in tensors.items()})

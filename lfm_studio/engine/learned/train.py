@@ -158,7 +158,7 @@ def train(
             previous, tensors = read_checkpoint(target)
             if previous.model != model:
                 raise ValueError(f"--resume: {target} holds a {previous.model!r} model, not {model!r}.")
-            check_architecture(previous, str(target))
+            check_architecture(previous, str(target), setup.projector)
             if previous.config != model_config(network):
                 raise ValueError(
                     f"--resume: {target} holds a {model!r} model with config {previous.config}, not "

@@ -146,9 +146,9 @@ def test_a_checkpoint_of_an_older_architecture_or_another_config_is_refused_by_n
     old = save_checkpoint(  # what MultiWienerNet architecture 1 wrote: no "architecture" entry
         tmp_path / "old.safetensors", model, header_for("multiwiener", old_config, setup, None, ())
     )
-    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 2.*Fix: train it again"):
+    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 3.*Fix: train it again"):
         load_model(old, setup)
-    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 2"):
+    with pytest.raises(ValueError, match=r"architecture 1 .*builds architecture 3"):
         train(setup, model="multiwiener", data=DATA, max_steps=1, checkpoint=old, resume=True)
     with pytest.raises(ValueError, match="architecture 7 cannot be built"):
         build_model("multiwiener", setup.projector, architecture=7)
@@ -162,6 +162,29 @@ def test_a_checkpoint_of_an_older_architecture_or_another_config_is_refused_by_n
     ):
         train(setup, model="multiwiener", config={"width": 16}, data=DATA, max_steps=1, checkpoint=current,
               resume=True)  # fmt: skip
+
+
+def test_multiwiener_architecture_2_still_loads_off_the_lenslet_lattice_only(fourier, conventional, tmp_path):
+    # Architecture 3 changed only the conventional stage (normalised adjoint -> lattice Tikhonov).
+    for system, loads in ((fourier, True), (conventional, False)):
+        setup = system.setup
+        model = build_model("multiwiener", setup.projector, width=8, architecture=2) if loads else None
+        if model is None:
+            with pytest.raises(ValueError, match=r"architecture 2 cannot be built .*builds architecture 3"):
+                build_model("multiwiener", setup.projector, width=8, architecture=2)
+            model = build_model("multiwiener", setup.projector, width=8)
+        config = {**model.config, "architecture": 2}
+        path = save_checkpoint(
+            tmp_path / f"{loads}.safetensors", model, header_for("multiwiener", config, setup, None, ())
+        )
+        if loads:
+            loaded, _ = load_model(path, setup)
+            assert loaded.config["architecture"] == 2
+        else:
+            with pytest.raises(
+                ValueError, match=r"architecture 2 .*builds architecture 3.*Fix: train it again"
+            ):
+                load_model(path, setup)
 
 
 def test_a_short_multiwiener_training_is_not_trivial_and_moves_away_from_its_start(fourier):

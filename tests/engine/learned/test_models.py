@@ -9,6 +9,7 @@ import torch
 from lfm_studio.engine.learned.data import TrainingDataSpec, make_sample
 from lfm_studio.engine.learned.losses import training_loss
 from lfm_studio.engine.learned.models import MODELS, build_model, parameter_count
+from lfm_studio.engine.reconstruct.tikhonov import tikhonov
 from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 from lfm_studio.engine.reconstruct.wiener import wiener
 
@@ -50,6 +51,18 @@ def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):
         stage = model._wiener(image)
     reference = wiener(setup.projector, image, snr=30.0)
     torch.testing.assert_close(stage, reference, rtol=1e-6, atol=1e-7 * float(reference.abs().max()))
+
+
+def test_an_untrained_conventional_multiwiener_stage_is_the_engines_lattice_tikhonov(conventional):
+    setup = conventional.setup64
+    image = make_sample(TrainingDataSpec(seed=1, photons=(1e5,)), setup, "test", 2).image.double()
+    model = build_model("multiwiener", setup.projector)
+    assert model.config["snr"] == 1000.0  # the registry's Tikhonov default on this kind
+    with torch.no_grad():
+        stage = model.lattice(image / image.mean())
+    reference = tikhonov(setup.projector, image, mu=1e-3) / image.mean()
+    torch.testing.assert_close(stage, reference, rtol=1e-9, atol=1e-9 * float(reference.abs().max()))
+    assert build_model("multiwiener", setup.projector, snr=50.0).lattice.mu == pytest.approx(0.02)
 
 
 @pytest.mark.parametrize(
