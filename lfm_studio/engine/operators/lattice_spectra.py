@@ -39,7 +39,7 @@ from lfm_studio.engine.memory import MemoryBudgetError, format_bytes, require_me
 from lfm_studio.engine.operators.fft_sizes import next_fast_length
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 
-MAX_BYTES = 2 * 2**30
+MAX_BYTES = 8 * 2**30
 """Largest per-frequency matrix stack built by default (bytes); larger ones are refused."""
 
 
