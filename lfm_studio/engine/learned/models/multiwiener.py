@@ -97,6 +97,12 @@ class MultiWienerNet(nn.Module):
         lattice = isinstance(projector, LensletLatticeProjector)
         if snr is None:
             snr = SNR["lattice" if lattice else "fourier"]
+        if learn_filters and not isinstance(projector, FourierProjector):
+            raise ValueError(
+                f"learn_filters=True needs a shift-invariant (Fourier LFM) projector; got a "
+                f"{type(projector).__name__}, whose stage is fixed (the lattice Tikhonov operator costs a solve "
+                "per lattice frequency to rebuild). Fix: leave learn_filters false; the per-depth gain is learnt."
+            )
         self.config = {"snr": snr, "bins": bins, "width": width, "learn_filters": learn_filters,
                        "architecture": architecture}  # fmt: skip
         self.fourier = isinstance(projector, FourierProjector)
