@@ -23,14 +23,16 @@ matrices): the same scale as the Fourier projector's ``max_k sum_z |H_z(k)|^2``.
 As for the shift-invariant closed form (:mod:`lfm_studio.engine.reconstruct.tikhonov`), the
 FFT grid is treated as the whole world: the camera only sees ``Ly x Lx`` lenslets of it.
 
-Memory: ``G`` and the Tikhonov operator each hold ``Fy (Fx//2+1) Q^2 C`` complex numbers
-(e.g. 0.1 GB at 13 x 13 lenslets, 19 px per lenslet, 5 depths, 5 x 5 voxels per lenslet);
-they are refused beyond ``max_bytes`` with the size and the fix.
+Memory: ``G`` and the Tikhonov operator each hold ``Fy (Fx//2+1) Q^2 C`` complex numbers, the
+inverses ``Fy (Fx//2+1) min(Q^2, C)^2`` (0.1 GB each at 13 x 13 lenslets, 19 px per lenslet, 5
+depths, 5 x 5 voxels per lenslet; 3.9 GB together at 26 x 26 lenslets and 32 depths); more than
+``max_bytes`` is refused with the size and the fix.
 """
 
 from __future__ import annotations
 
 import weakref
+from dataclasses import dataclass
 
 import torch
 from torch.nn import functional as nnf
@@ -48,6 +50,18 @@ def complex_dtype(dtype: torch.dtype) -> torch.dtype:
     return torch.complex128 if dtype == torch.float64 else torch.complex64
 
 
+@dataclass(frozen=True)
+class LatticeLayout:
+    """What the transforms need of a lattice projector: ``Q``, ``S``, ``Z``, ``(Ly, Lx)``, device, real dtype."""
+
+    q: int
+    s: int
+    depths: int
+    lenslets: tuple[int, int]
+    device: torch.device
+    dtype: torch.dtype
+
+
 class LatticeSpectra:
     """The matrices ``G(w)`` of a :class:`LensletLatticeProjector` on an rfft lattice grid.
 
@@ -58,7 +72,10 @@ class LatticeSpectra:
     """
 
     def __init__(self, projector: LensletLatticeProjector, *, max_bytes: int = MAX_BYTES) -> None:
-        self.projector = projector
+        # The layout, not the projector: a solver kept per projector (weak key) must not hold it.
+        self.layout = LatticeLayout(
+            projector.q, projector.s, projector.depths, projector.lenslets, projector.device, projector.dtype
+        )
         q2 = projector.q * projector.q
         channels = projector.depths * projector.s * projector.s
         reach = max(int(weight.shape[-1]) // 2 for _, weight in projector.groups)
@@ -67,9 +84,12 @@ class LatticeSpectra:
         fy, fx = self.grid
         self.complex = complex_dtype(projector.dtype)
         shape = (fy, fx // 2 + 1, q2, channels)
-        needed = 2 * tensor_bytes(shape, self.complex)
+        smaller = min(q2, channels)
+        needed = 2 * tensor_bytes(shape, self.complex) + tensor_bytes(
+            (*shape[:2], smaller, smaller), self.complex
+        )
         what = (f"the per-frequency matrices of the conventional projector {shape} (and as many for the "
-                "Tikhonov operator)")  # fmt: skip
+                f"Tikhonov operator, and its {smaller} x {smaller} inverses)")  # fmt: skip
         fix = ("fewer depths or a smaller camera (pixel_count) for this one-step reconstruction, or "
                "Richardson-Lucy, which needs no per-frequency matrices")  # fmt: skip
         if needed > max_bytes:
@@ -105,13 +125,13 @@ class LatticeSpectra:
 
     def image_spectrum(self, image: torch.Tensor) -> torch.Tensor:
         """Image ``(Ly Q, Lx Q)`` -> channel spectra ``(Fy, Fx//2+1, Q^2)``."""
-        p = self.projector
+        p = self.layout
         y = nnf.pixel_unshuffle(image.to(p.device, p.dtype)[None, None], p.q)[0]
         return torch.fft.rfft2(y, s=self.grid).permute(1, 2, 0).contiguous()
 
     def volume_spectrum(self, volume: torch.Tensor) -> torch.Tensor:
         """Volume ``(Z, Ly S, Lx S)`` -> channel spectra ``(Fy, Fx//2+1, C)`` (the projector's 180-degree turn included)."""
-        p = self.projector
+        p = self.layout
         x = nnf.pixel_unshuffle(volume.to(p.device, p.dtype).flip(-2, -1)[None], p.s)[0]
         return (
             torch.fft.rfft2(x.reshape(self.channels, *p.lenslets), s=self.grid).permute(1, 2, 0).contiguous()
@@ -119,7 +139,7 @@ class LatticeSpectra:
 
     def to_volume(self, spectra: torch.Tensor) -> torch.Tensor:
         """Channel spectra ``(Fy, Fx//2+1, C)`` -> volume ``(Z, Ly S, Lx S)`` (cropped to the lenslets)."""
-        p = self.projector
+        p = self.layout
         ly, lx = p.lenslets
         x = torch.fft.irfft2(spectra.permute(2, 0, 1), s=self.grid)[:, :ly, :lx]
         x = x.reshape(p.depths, p.s * p.s, ly, lx)
@@ -127,7 +147,7 @@ class LatticeSpectra:
 
     def forward(self, volume: torch.Tensor) -> torch.Tensor:
         """``A x`` evaluated per frequency (equals the projector's convolution; for checks)."""
-        p = self.projector
+        p = self.layout
         spectra = (self.matrices @ self.volume_spectrum(volume)[..., None])[..., 0]
         ly, lx = p.lenslets
         y = torch.fft.irfft2(spectra.permute(2, 0, 1), s=self.grid)[:, :ly, :lx]

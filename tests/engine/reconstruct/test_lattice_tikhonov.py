@@ -6,6 +6,9 @@ equations built column by column from ``forward``, the all-zero and back-project
 
 from __future__ import annotations
 
+import gc
+import weakref
+
 import pytest
 import torch
 
@@ -81,12 +84,16 @@ def test_refined_tikhonov_reaches_the_dense_solution_and_the_closed_form_is_near
     assert error(tikhonov(projector, image, mu=mu, refine=3)) < error(closed) / 10  # measured 0.034
 
 
-def test_the_solver_is_kept_per_projector_and_mu():
+def test_the_solver_is_kept_per_projector_and_mu_and_freed_with_the_projector():
     projector = _random_lattice(3, 1, 2)
     first = lattice_tikhonov(projector, 1e-3)
     assert lattice_tikhonov(projector, 1e-3) is first
     other = lattice_tikhonov(projector, 1e-2)
     assert other is not first and other.mu == 1e-2 and other.spectra is first.spectra
+    kept = weakref.ref(other)
+    del projector, first, other
+    gc.collect()
+    assert kept() is None  # the cache holds the projector weakly, and the solver does not hold it
 
 
 def test_bad_mu_and_too_large_matrices_are_refused_by_name():
