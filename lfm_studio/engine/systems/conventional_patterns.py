@@ -220,7 +220,7 @@ def sub_samples(system: ConventionalLFMSystem, oversampling: float = OUTPUT_OVER
 
     A lenslet's sub-image intensity is band-limited to ``2 P / (lambda d)``; its field is
     sampled ``oversampling`` times finer than that Nyquist interval ``lambda d / (2 P)``
-    before the midpoint-rule pixel integration (convergence study in the tests).
+    before the pixel integration (midpoint rule or exact box integral; convergence studies in the tests).
     """
     nyquist = system.wavelength * system.mla_to_camera / (2.0 * system.pitch)
     count = math.ceil(system.pixel_size * oversampling / nyquist)
