@@ -35,7 +35,6 @@ NOT_APPLICABLE: dict[SystemKind, dict[str, str]] = {
         "padding": "fixed: the canvas plus at least half a pitch each side (conventional_patterns.fft_pitches)",
         "light_margin": "every lenslet within the reach is propagated (one FFT carries them all)",
         "per_lenslet": "lenslets are always summed coherently on one sensor grid",
-        "pixel_integration": "always the midpoint rule with m sub-samples: the pixel_oversampling rows",
     },
 }
 """Knobs that do not reach a system kind's computation, with the reason."""
@@ -206,6 +205,18 @@ def conventional_settings(case: BenchCase, *, quick: bool = False) -> list[KnobS
     """One-knob-at-a-time conventional settings around the standard preset."""
     base = preset_options(case, "standard")
     settings = _vary(base, "pixel_oversampling", (0.7,) if quick else (0.7, 1.4, 2.8, 4.2))
+    # The midpoint rule at the standard sub-samples and at 5 (the standard preset before the
+    # exact integral; sub_samples counts ceil(pixel * oversampling / nyquist), made odd).
+    from lfm_studio.engine.systems.conventional_patterns import sub_samples
+    from lfm_studio.engine.systems.from_design import conventional_system_of
+
+    system = conventional_system_of(case.design)
+    nyquist_ratio = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
+    midpoint = dataclasses.replace(base, pixel_integration="midpoint")
+    standard = sub_samples(system, base.pixel_oversampling)
+    for m in (standard,) if quick else (standard, 5):
+        options = dataclasses.replace(midpoint, pixel_oversampling=(m - 0.5) * nyquist_ratio)
+        settings.append(KnobSetting("pixel_integration", f"midpoint, m={m}", options))
     settings += _vary(base, "nip_oversampling", (2.0,) if quick else (1.0, 1.5, 2.0))
     settings += _vary(base, "dtype", (torch.float64,))
     settings += _vary(base, "objective_model", ("paraxial",), field="model")

@@ -117,7 +117,13 @@ def test_conventional_knobs_reach_the_patterns():
     depths = (10e-6,)
     base = ConventionalAccuracy(dtype=torch.float64)
     ref = conventional_psf_stack(system, depths, accuracy=base).data
-    for change in (dict(model="paraxial"), dict(pixel_oversampling=2.8), dict(nip_oversampling=1.5)):
+    changes = (
+        dict(model="paraxial"),
+        dict(pixel_oversampling=2.8),
+        dict(nip_oversampling=1.5),
+        dict(pixel_integration="fourier"),
+    )
+    for change in changes:
         other = conventional_psf_stack(system, depths, accuracy=dataclasses.replace(base, **change)).data
         assert float((other - ref).norm() / ref.norm()) > 1e-4, change
     with pytest.warns(SamplingWarning, match="n_quadrature = 16"):
@@ -127,6 +133,22 @@ def test_conventional_knobs_reach_the_patterns():
     chunked = conventional_psf_stack(system, pair, accuracy=dataclasses.replace(base, depth_chunk=1)).data
     # Chunks only batch the Debye NIP fields; every depth is transformed alone either way.
     assert float((chunked - whole).norm() / whole.norm()) < 1e-12
+
+
+def test_conventional_presets_take_the_exact_pixel_integral_at_fewer_sub_samples():
+    from lfm_studio.engine.systems.conventional_patterns import sub_samples
+    from lfm_studio.engine.systems.from_design import conventional_accuracy_of, conventional_system_of
+
+    for name in ("lfm_10x_na03", "lfm_prevedel2014"):
+        design = load_preset(name)
+        system = conventional_system_of(design)
+        for integration, counts in (("fourier", (3, 3, 5)), ("midpoint", (3, 5, 9))):
+            for preset, count in zip(ACCURACY_PRESETS, counts, strict=True):
+                spec = design.updated(accuracy={"preset": preset, "pixel_integration": integration})
+                acc = conventional_accuracy_of(spec)
+                assert acc.pixel_integration == integration
+                assert sub_samples(system, acc.pixel_oversampling) == count, (name, integration, preset)
+    assert {knobs["pixel_integration"] for knobs in ACCURACY_PRESETS.values()} == {"fourier"}
 
 
 def test_preset_descriptions_state_the_knobs_and_the_tested_bounds():

@@ -68,11 +68,13 @@ class AccuracySpec(SpecModel):
         Free-space propagation method ("auto" chooses from the Fresnel number and sampling).
     oversampling : int
         Simulation grid points per camera pixel along each axis (>= 1). Conventional LFM:
-        ``2^o + 1`` sensor-field sub-samples per pixel.
+        sensor-field sub-samples per pixel, ``2^o + 1`` with the midpoint rule, those of 1.4
+        (o <= 2) or 2.8 (o = 3) samples per intensity Nyquist interval with the exact integral
+        (:func:`~lfm_studio.engine.systems.from_design.conventional_accuracy_of`).
     pixel_integration : "fourier" or "midpoint"
-        Fourier LFM: how a pixel's power is taken from its sub-samples: the exact box integral
-        of the band-limited intensity ("fourier") or their sum ("midpoint", error ~ 1/s^2).
-        Conventional LFM: always the midpoint rule.
+        How a pixel's power is taken from its sub-samples (Fourier and conventional LFM): the
+        exact box integral of the band-limited intensity ("fourier") or their sum ("midpoint",
+        error ~ 1/s^2).
     padding : float
         Grid size factor applied before propagating (>= 1; 2 avoids wrap-around).
     dtype : "float32" or "float64"

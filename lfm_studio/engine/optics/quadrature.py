@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 from functools import lru_cache
 
+import numpy as np
 import torch
 
 Scalar = float | torch.Tensor
@@ -22,26 +23,31 @@ _MAX_ORDER = 100_000
 
 @lru_cache(maxsize=64)
 def _legendre_rule(n: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Nodes (ascending) and weights on ``[-1, 1]``, float64 on the CPU."""
-    i = torch.arange(1, n + 1, dtype=torch.float64)
-    x = torch.cos(math.pi * (i - 0.25) / (n + 0.5))
-    derivative = torch.ones_like(x)
-    for _ in range(100):
-        p_prev, p = torch.ones_like(x), x.clone()
+    """Nodes (ascending) and weights on ``[-1, 1]``, float64 on the CPU.
+
+    The recurrence runs on numpy arrays: it is ``n`` tiny vector steps per Newton iteration, and
+    torch's per-operation overhead made it 0.11 s of a 2.3 s conventional build (8 orders)."""
+    i = np.arange(1, n + 1, dtype=np.float64)
+    x = np.cos(math.pi * (i - 0.25) / (n + 0.5))
+
+    def legendre(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``P_n(x)`` and ``P_n'(x)`` by the three-term recurrence."""
+        p_prev, p = np.ones_like(x), x.copy()
         for k in range(2, n + 1):
             p_prev, p = p, ((2 * k - 1) * x * p - (k - 1) * p_prev) / k
-        derivative = n * (x * p - p_prev) / (x * x - 1.0)
+        with np.errstate(divide="ignore", invalid="ignore"):  # n = 1: x = 0 is no pole
+            return p, n * (x * p - p_prev) / (x * x - 1.0)
+
+    for _ in range(100):
+        p, derivative = legendre(x)
         step = p / derivative
         x = x - step
-        if float(step.abs().max()) < 1e-15:
+        if float(np.abs(step).max()) < 1e-15:
             break
     # One more evaluation of P_n' at the converged roots for the weights.
-    p_prev, p = torch.ones_like(x), x.clone()
-    for k in range(2, n + 1):
-        p_prev, p = p, ((2 * k - 1) * x * p - (k - 1) * p_prev) / k
-    derivative = n * (x * p - p_prev) / (x * x - 1.0)
+    derivative = legendre(x)[1]
     weights = 2.0 / ((1.0 - x * x) * derivative * derivative)
-    return x.flip(0).contiguous(), weights.flip(0).contiguous()
+    return torch.from_numpy(x[::-1].copy()), torch.from_numpy(weights[::-1].copy())
 
 
 def gauss_legendre(

@@ -12,8 +12,10 @@ lenslets' fields add as *complex fields*: a lenslet's light interferes with its 
 diffraction tails, and adding intensities instead is off by 5-10 % at defocus (measured
 against a full-field simulation; tests). The inverse transform lands on the sensor's sub-pixel
 centres (a band-limited resampling when the NIP grid is not the sub-sample grid), and
-``|U|^2`` is integrated on the rectified pixels. Both the lens phase and the transfer
-function are separable, so the transform is a row pass and a column pass of 1-D FFTs.
+``|U|^2`` is integrated on the rectified pixels (the midpoint rule on the sub-samples, or the
+exact box integral of the sampled intensity in Fourier space: ``pixel_integration``). Both the
+lens phase and the transfer function are separable, so the transform is a row pass and a column
+pass of 1-D FFTs.
 
 A lenslet's clear aperture (``system.lenslet_aperture``, default the pitch) is applied to its
 patch as an antialiased coverage; the grid is planned from the pitch whatever the aperture.
@@ -44,6 +46,7 @@ from lfm_studio.engine.optics.debye import debye_psf
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import _value
 from lfm_studio.engine.optics.phase_kernels import aperture_coverage, lens_phase, unit_phasor, wavenumber
+from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS, integrate_pixels
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 
@@ -217,7 +220,7 @@ def sub_samples(system: ConventionalLFMSystem, oversampling: float = OUTPUT_OVER
 
     A lenslet's sub-image intensity is band-limited to ``2 P / (lambda d)``; its field is
     sampled ``oversampling`` times finer than that Nyquist interval ``lambda d / (2 P)``
-    before the midpoint-rule pixel integration (convergence study in the tests).
+    before the pixel integration (midpoint rule or exact box integral; convergence studies in the tests).
     """
     nyquist = system.wavelength * system.mla_to_camera / (2.0 * system.pitch)
     count = math.ceil(system.pixel_size * oversampling / nyquist)
@@ -253,42 +256,32 @@ def _fresnel_transfer(
     return unit_phasor(phase, cdtype)
 
 
-def _spectrum_indices(
-    n_in: int, n_out: int, device: torch.device
-) -> tuple[torch.Tensor, torch.Tensor] | None:
-    """Where the frequencies common to DFT lengths ``n_in`` and ``n_out`` (``|k| < min / 2``) sit in
-    each spectrum; ``None`` when the lengths are equal (nothing to move)."""
-    if n_in == n_out:
-        return None
-    half = (min(n_in, n_out) - 1) // 2
-    k = torch.arange(-half, half + 1, device=device)
-    return k % n_in, k % n_out
+def _propagate(x: torch.Tensor, transfer: torch.Tensor, n_out: int, canvas: int) -> torch.Tensor:
+    """Fresnel propagation of ``x`` along its last axis: zero-padded DFT of length ``len(transfer)``,
+    times ``transfer`` (:func:`_fresnel_transfer`, with the factor ``n_out / len(transfer)`` of a
+    resampling folded in), inverse DFT of length ``n_out``, first ``canvas`` samples.
 
-
-def _propagate(
-    x: torch.Tensor,
-    dim: int,
-    transfer: torch.Tensor,
-    n_out: int,
-    canvas: int,
-    moved: tuple[torch.Tensor, torch.Tensor] | None,
-) -> torch.Tensor:
-    """Fresnel propagation of ``x`` along ``dim``: zero-padded DFT of length ``len(transfer)``, times
-    ``transfer`` (:func:`_fresnel_transfer`), inverse DFT of length ``n_out`` (the common frequencies
-    ``moved`` across when the lengths differ: a band-limited resampling), first ``canvas`` samples."""
+    When the lengths differ, the frequencies common to both (``|k| <= (min - 1) // 2``) are carried
+    across and the rest of the ``n_out`` spectrum is zero: a band-limited resampling. The two
+    blocks of common frequencies are multiplied straight into the new spectrum (an index gather
+    and scatter of the same copy took 0.45 s of a 3 s build)."""
     n_in = transfer.shape[0]
-    shape = [1] * x.dim()
-    shape[dim] = n_in
-    spectrum = _times(torch.fft.fft(x, n=n_in, dim=dim), transfer.reshape(shape))
-    if moved is not None:
-        src, dst = moved
-        shape = list(spectrum.shape)
-        shape[dim] = n_out
-        resampled = spectrum.new_zeros(shape)
-        resampled.index_copy_(dim, dst, spectrum.index_select(dim, src))
-        del spectrum
-        spectrum = _times(resampled, n_out / n_in)
-    return torch.fft.ifft(spectrum, dim=dim).narrow(dim, 0, canvas)
+    spectrum = torch.fft.fft(x, n=n_in, dim=-1)
+    if n_in == n_out:
+        return torch.fft.ifft(_times(spectrum, transfer), dim=-1).narrow(-1, 0, canvas)
+    half = (min(n_in, n_out) - 1) // 2
+    low, high = slice(0, half + 1), slice(n_in - half, n_in)
+    if torch.is_grad_enabled() and (spectrum.requires_grad or transfer.requires_grad):
+        gap = spectrum.new_zeros((*spectrum.shape[:-1], n_out - 2 * half - 1))
+        parts = (spectrum[..., low] * transfer[low], gap, spectrum[..., high] * transfer[high])
+        resampled = torch.cat(parts, dim=-1)
+    else:
+        resampled = spectrum.new_empty((*spectrum.shape[:-1], n_out))
+        torch.mul(spectrum[..., low], transfer[low], out=resampled[..., : half + 1])
+        resampled[..., half + 1 : n_out - half].zero_()
+        torch.mul(spectrum[..., high], transfer[high], out=resampled[..., n_out - half :])
+    del spectrum
+    return torch.fft.ifft(resampled, dim=-1).narrow(-1, 0, canvas)
 
 
 def _times(x: torch.Tensor, factor: torch.Tensor | float) -> torch.Tensor:
@@ -312,6 +305,7 @@ def conventional_patterns(
     nip_field: torch.Tensor | None = None,
     nip_oversampling: float = 1.0,
     pixel_oversampling: float = OUTPUT_OVERSAMPLING,
+    pixel_integration: str = "midpoint",
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
@@ -334,6 +328,10 @@ def conventional_patterns(
     nip_oversampling, pixel_oversampling : accuracy knobs: the NIP grid factor
         (:func:`samples_per_pitch`) and the sensor-field samples per intensity Nyquist interval
         (:func:`sub_samples`).
+    pixel_integration : ``"midpoint"`` (the sum of each pixel's ``m x m`` sub-samples, error
+        ``~ 1/m^2``) or ``"fourier"`` (the exact box integral of the sampled intensity,
+        :func:`~lfm_studio.engine.optics.pixel_integration.integrate_pixels`; exact once the
+        intensity is sampled without aliasing).
     lenslet_focal_length, mla_to_camera : optional 0-d tensors (metres) overriding the
         system's values in the lens phase and the Fresnel transfer function, for gradients; the
         sampling is planned from the system's floats, so pass a system holding the same values.
@@ -380,6 +378,7 @@ def conventional_patterns(
         result = out
     lattice = LatticeTransform(
         system, reach, dtype=dtype, device=base.device, oversampling=pixel_oversampling,
+        pixel_integration=pixel_integration,
         nip_oversampling=nip_oversampling, lenslet_focal_length=lenslet_focal_length,
         mla_to_camera=mla_to_camera, wavelength=wavelength, lenslet_aperture=lenslet_aperture,
     )  # fmt: skip
@@ -403,6 +402,7 @@ def offset_pattern(
     dtype: torch.dtype,
     oversampling: float = OUTPUT_OVERSAMPLING,
     nip_oversampling: float = 1.0,
+    pixel_integration: str = "midpoint",
     lenslet_focal_length: Scalar | None = None,
     mla_to_camera: Scalar | None = None,
     wavelength: Scalar | None = None,
@@ -414,11 +414,13 @@ def offset_pattern(
     ``base`` is the on-axis NIP field ``(Z, N, N)`` with ``N = nip_field_size(system, reach)``.
     ``oversampling``: the sensor-field samples per intensity Nyquist interval (:func:`sub_samples`);
     ``nip_oversampling``: the NIP grid factor ``base`` was computed with (:func:`nip_fields`);
+    ``pixel_integration``: as for :func:`conventional_patterns`;
     ``lenslet_focal_length``, ``mla_to_camera``, ``wavelength``, ``lenslet_aperture``: tensor
     overrides for gradients (:func:`conventional_patterns`).
     """
     lattice = LatticeTransform(
         system, reach, dtype=dtype, device=base.device, oversampling=oversampling,
+        pixel_integration=pixel_integration,
         nip_oversampling=nip_oversampling, lenslet_focal_length=lenslet_focal_length,
         mla_to_camera=mla_to_camera, wavelength=wavelength, lenslet_aperture=lenslet_aperture,
     )  # fmt: skip
@@ -435,7 +437,8 @@ class LatticeTransform:
     :func:`fft_pitches` pitches: the lenslets' fields add coherently on the sensor by
     construction. The inverse DFT has ``Q m`` samples per pitch (the sensor sub-samples: a
     band-limited resampling when ``Ns != Q m``, exact when they are equal), ``|U|^2`` is
-    integrated on the pixels (midpoint rule, :func:`sub_samples`).
+    integrated on the pixels (``pixel_integration``: the midpoint rule on the ``m x m``
+    sub-samples, :func:`sub_samples`, or the exact box integral of the sampled intensity).
 
     Both the lens phase and the transfer function are separable, so the 2-D transform is a
     1-D transform along the rows and one along the columns. Square lenslets: the sources
@@ -453,13 +456,20 @@ class LatticeTransform:
         dtype: torch.dtype,
         device: torch.device | str = "cpu",
         oversampling: float = OUTPUT_OVERSAMPLING,
+        pixel_integration: str = "midpoint",
         nip_oversampling: float = 1.0,
         lenslet_focal_length: Scalar | None = None,
         mla_to_camera: Scalar | None = None,
         wavelength: Scalar | None = None,
         lenslet_aperture: Scalar | None = None,
     ) -> None:
+        if pixel_integration not in PIXEL_INTEGRATIONS:
+            raise ValueError(
+                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {pixel_integration!r}. "
+                "Fix: 'fourier' (exact box integral) or 'midpoint'."
+            )
         self.system, self.reach, self.dtype = system, reach, dtype
+        self.pixel_integration = pixel_integration
         self.cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
         self.m = sub_samples(system, oversampling)
         self.ns = ns = samples_per_pitch(system, nip_oversampling)
@@ -478,7 +488,8 @@ class LatticeTransform:
         # first sample (canvas // 2) out_step before it: the transfer function moves the output.
         shift = (self.span // 2) * dx - (self.canvas // 2) * self.out_step
         self.transfer = _fresnel_transfer(pitches * ns, dx, shift, lam, d, self.cdtype, device)
-        self.moved = _spectrum_indices(pitches * ns, self.n_out, device)
+        if self.n_out != pitches * ns:  # the resampling's factor, applied once with the transfer
+            self.transfer = self.transfer * (self.n_out / (pitches * ns))
         x = (torch.arange(ns, dtype=torch.float64, device=device) - ns // 2) * dx
         lens = unit_phasor(lens_phase(x, 0.0, f, wavenumber(lam)), self.cdtype)  # per axis
         aperture = system.lenslet_aperture if lenslet_aperture is None else lenslet_aperture
@@ -494,7 +505,7 @@ class LatticeTransform:
 
     def _rows(self, region: torch.Tensor) -> torch.Tensor:
         """Row pass: each row of ``region (..., span)`` weighted and carried to the sensor columns."""
-        return _propagate(region * self.weights, -1, self.transfer, self.n_out, self.canvas, self.moved)
+        return _propagate(region * self.weights, self.transfer, self.n_out, self.canvas)
 
     def _columns(self, rows: torch.Tensor) -> torch.Tensor:
         """Column pass and pixels: ``rows (span, canvas)`` -> pattern ``(H, H)``. The pass runs on the
@@ -504,10 +515,14 @@ class LatticeTransform:
         else:
             columns = rows.new_empty(rows.mT.shape)  # contiguous: the weighted copy is one pass
             torch.mul(rows.mT, self.weights, out=columns)
-        field = _propagate(columns, -1, self.transfer, self.n_out, self.canvas, self.moved)  # U^T
+        field = _propagate(columns, self.transfer, self.n_out, self.canvas)  # U^T
         power = field.real**2 + field.imag**2
         del field
-        return (_bin(power, self.m) * (self.out_step * self.out_step)).mT.to(self.dtype)
+        if self.pixel_integration == "midpoint":
+            pixels = _bin(power, self.m)
+        else:  # the canvas is dark at its edges, so its periodic box filter is the pixels' integral
+            pixels = integrate_pixels(power, self.m, self.pixel_integration)
+        return (pixels * (self.out_step * self.out_step)).mT.to(self.dtype)
 
     def patterns(self, field: torch.Tensor, offsets: list[tuple[int, int]]) -> list[torch.Tensor]:
         """Patterns ``(H, H)`` of the sources ``offsets`` ``[(a, b), ...]`` (sub-positions below and

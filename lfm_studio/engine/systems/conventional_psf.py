@@ -9,6 +9,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
+from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.systems.conventional_patterns import (
@@ -36,7 +37,10 @@ class ConventionalAccuracy:
         converged order for the phase excursion (:func:`debye.quadrature_order`).
     nip_oversampling : factor (>= 1) on the NIP samples per pitch (:func:`samples_per_pitch`).
     pixel_oversampling : sensor-field samples per intensity Nyquist interval before the
-        midpoint-rule pixel integration (:func:`sub_samples`; > 0).
+        pixel integration (:func:`sub_samples`; > 0).
+    pixel_integration : ``"midpoint"`` (sum of the ``m x m`` sub-samples, error ``~ 1/m^2``) or
+        ``"fourier"`` (exact box integral of the sampled intensity; at 3 sub-samples per pixel
+        0.04-0.28 % relative L2 on 10x/0.3 patterns at 15 px per lenslet, the midpoint rule 0.4-2.8 %).
     radial_sampling : radial-table oversampling of the Debye field, or ``"exact"``.
     depth_chunk : depths per Debye NIP-field batch (bounds memory; >= 1; the patterns do not depend on it).
     """
@@ -46,6 +50,7 @@ class ConventionalAccuracy:
     debye_points: int | None = None
     nip_oversampling: float = 1.0
     pixel_oversampling: float = OUTPUT_OVERSAMPLING
+    pixel_integration: str = "midpoint"
     radial_sampling: int | str = 8
     depth_chunk: int = 64
 
@@ -59,6 +64,11 @@ class ConventionalAccuracy:
         if not self.pixel_oversampling > 0.0:
             raise ValueError(
                 f"pixel_oversampling must be > 0; got {self.pixel_oversampling!r}. Fix: use {OUTPUT_OVERSAMPLING}."
+            )
+        if self.pixel_integration not in PIXEL_INTEGRATIONS:
+            raise ValueError(
+                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {self.pixel_integration!r}. "
+                "Fix: use 'fourier' or 'midpoint'."
             )
         if self.depth_chunk < 1:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
@@ -139,6 +149,7 @@ def conventional_psf_stack(
                 system, (depths[i],), reach=reach, dtype=dtype, device=device, cancel=cancel,
                 nip_field=mirrored(quadrants[position : position + 1], field_n),
                 nip_oversampling=acc.nip_oversampling, pixel_oversampling=acc.pixel_oversampling,
+                pixel_integration=acc.pixel_integration,
                 lenslet_focal_length=lenslet_focal_length, mla_to_camera=mla_to_camera, wavelength=wavelength,
                 lenslet_aperture=lenslet_aperture, out=data[:, :, i : i + 1, start : start + h, start : start + h],
             )  # fmt: skip

@@ -10,11 +10,13 @@ knob                Fourier LFM (:class:`FourierAccuracy`)      conventional LFM
 ==================  ==========================================  ==========================================
 propagator          full-field path only                        n/a: always the Fresnel transfer function of
                                                                 the whole lenslet region on one FFT grid
-oversampling        sub-samples per pixel                       ``2^o + 1`` sensor-field sub-samples per
-                                                                pixel (midpoint rule); NIP grid factor
-                                                                ``clip(o, 1, 1.5)``
-pixel_integration   exact box integral ("fourier") or the       n/a: midpoint rule
-                    sub-sample sum ("midpoint")
+oversampling        sub-samples per pixel                       sensor-field sub-samples per pixel: ``2^o + 1``
+                                                                (midpoint rule); for the exact ("fourier")
+                                                                integral 1.4 (o <= 2) or 2.8 (o = 3) samples
+                                                                per intensity Nyquist interval; NIP grid
+                                                                factor ``clip(o, 1, 1.5)``
+pixel_integration   exact box integral ("fourier") or the       the same two methods on the sensor-field
+                    sub-sample sum ("midpoint")                 sub-samples (:class:`LatticeTransform`)
 padding             full-field propagation padding               n/a: fixed (canvas + >= half a pitch a side)
 dtype               field precision                             field precision
 debye_points        n/a: the pupil-plane field is closed-form   not used: the engine's converged order for the
@@ -36,6 +38,7 @@ from lfm_studio.engine.design import Design, RegularMLASpec
 from lfm_studio.engine.dtypes import real_dtype_named
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
+from lfm_studio.engine.systems.conventional_patterns import OUTPUT_OVERSAMPLING
 from lfm_studio.engine.systems.conventional_psf import ConventionalAccuracy
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy
@@ -117,21 +120,30 @@ def conventional_accuracy_of(
 ) -> ConventionalAccuracy:
     """The conventional-LFM accuracy knobs of ``design.accuracy`` (see the module table).
 
-    ``oversampling`` ``o`` gives ``2^o + 1`` sensor-field sub-samples per rectified pixel
-    (odd, one on the pixel centre: 3, 5, 9 for the presets; 3 is the engine's default)
-    and the NIP grid factor ``clip(o, 1, 1.5)`` (1 for preview; 1.5 for standard and
-    reference: it cut the standard preset's error by 40 % for 1.2-1.3x the time, docs/benchmarks.md).
+    ``oversampling`` ``o`` gives the sensor-field sub-samples per rectified pixel (odd, one on
+    the pixel centre): with ``pixel_integration`` ``"midpoint"`` ``2^o + 1`` (3, 5, 9 for
+    o = 1, 2, 3); with ``"fourier"`` (the presets) the sub-samples of ``pixel_oversampling`` 1.4
+    (the engine's default, o <= 2) or 2.8 (o = 3) per intensity Nyquist interval
+    (:func:`sub_samples`: 3 and 5 on the shipped 10x/0.3 and Prevedel designs): the exact box
+    integral at 3 sub-samples per pixel is more accurate than the midpoint rule at 5 there
+    (docs/benchmarks.md), and the count follows the system's band, not its pixel. The NIP grid factor
+    is ``clip(o, 1, 1.5)`` (1 for preview; 1.5 for standard and reference: it cut the standard
+    preset's error by 40 % for 1.2-1.3x the time, docs/benchmarks.md).
     """
     spec = design.accuracy
     system = system or conventional_system_of(design)  # (the caller's, when it has built it)
     # sub_samples() counts ceil(pixel * pixel_oversampling / nyquist), made odd: aim inside the bin.
     nyquist_per_pixel = system.wavelength * system.mla_to_camera / (2.0 * system.pitch) / system.pixel_size
-    samples = 2 ** int(spec.oversampling) + 1
+    if spec.pixel_integration == "midpoint":
+        pixel_oversampling = (2 ** int(spec.oversampling) + 1 - 0.5) * nyquist_per_pixel
+    else:
+        pixel_oversampling = OUTPUT_OVERSAMPLING * max(1, 2 ** (int(spec.oversampling) - 2))
     return ConventionalAccuracy(
         dtype=real_dtype_named(spec.dtype),
         model=spec.objective_model,
         debye_points=None,
-        pixel_oversampling=(samples - 0.5) * nyquist_per_pixel,
+        pixel_oversampling=pixel_oversampling,
+        pixel_integration=spec.pixel_integration,
         nip_oversampling=max(1.0, min(1.5, float(spec.oversampling))),
         depth_chunk=spec.depth_chunk,
     )
