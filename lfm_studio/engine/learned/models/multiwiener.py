@@ -57,9 +57,11 @@ SHARPNESS = 50.0
 of the peak (a plain softplus put 69 % of the peak on every empty voxel, and training collapsed)."""
 
 
-SNR = {"fourier": 100.0, "lattice": 1000.0}
-"""Default ``snr`` of the stage: Wiener per depth (Fourier LFM), Tikhonov per lattice frequency
-(conventional LFM; the registry's Tikhonov default)."""
+WIENER_SNR = 100.0
+"""Default ``snr`` of the Wiener stage per depth (shift-invariant projector)."""
+LATTICE_SNR = 1000.0
+"""Default ``snr`` of the Tikhonov stage per lattice frequency (lenslet-lattice projector; the
+registry's Tikhonov default)."""
 
 
 class MultiWienerNet(nn.Module):
@@ -96,7 +98,7 @@ class MultiWienerNet(nn.Module):
         depths = int(projector.volume_shape[0])
         lattice = isinstance(projector, LensletLatticeProjector)
         if snr is None:
-            snr = SNR["lattice" if lattice else "fourier"]
+            snr = LATTICE_SNR if lattice else WIENER_SNR
         if learn_filters and not isinstance(projector, FourierProjector):
             raise ValueError(
                 f"learn_filters=True needs a shift-invariant (Fourier LFM) projector; got a "
