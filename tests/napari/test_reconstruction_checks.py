@@ -31,6 +31,13 @@ def test_matching_inputs_are_accepted():
     assert request.settings.method == "wiener" and request.image_name == "frame"
 
 
+def test_tikhonov_takes_a_conventional_pattern_stack_and_wiener_does_not():
+    conventional, image = _stack(3, 3, 3, 9, 9), LightFieldImage(torch.ones(6, 6), 6.5 * um)
+    assert _prepare(conventional, image, method="tikhonov").settings.method == "tikhonov"
+    with pytest.raises(ValueError, match="needs a laterally shift-invariant"):
+        _prepare(conventional, image, method="wiener")
+
+
 @pytest.mark.parametrize(
     ("stack", "image", "settings", "expected"),
     [
