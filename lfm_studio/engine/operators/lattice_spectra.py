@@ -23,9 +23,9 @@ matrices): the same scale as the Fourier projector's ``max_k sum_z |H_z(k)|^2``.
 As for the shift-invariant closed form (:mod:`lfm_studio.engine.reconstruct.tikhonov`), the
 FFT grid is treated as the whole world: the camera only sees ``Ly x Lx`` lenslets of it.
 
-Memory: ``G`` and the Tikhonov operator each hold ``Fy (Fx//2+1) Q^2 C`` complex numbers, the
-inverses ``Fy (Fx//2+1) min(Q^2, C)^2`` (0.1 GB each at 13 x 13 lenslets, 19 px per lenslet, 5
-depths, 5 x 5 voxels per lenslet; 3.9 GB together at 26 x 26 lenslets and 32 depths); more than
+Memory: ``G`` holds ``Fy (Fx//2+1) Q^2 C`` complex numbers, the Tikhonov solver's inverses
+``Fy (Fx//2+1) min(Q^2, C)^2`` (0.1 GB and 0.04 GB at 13 x 13 lenslets, 19 px per lenslet, 5
+depths, 5 x 5 voxels per lenslet; 2.3 GB together at 26 x 26 lenslets and 32 depths); more than
 ``max_bytes`` is refused with the size and the fix.
 """
 
@@ -85,11 +85,11 @@ class LatticeSpectra:
         self.complex = complex_dtype(projector.dtype)
         shape = (fy, fx // 2 + 1, q2, channels)
         smaller = min(q2, channels)
-        needed = 2 * tensor_bytes(shape, self.complex) + tensor_bytes(
+        needed = tensor_bytes(shape, self.complex) + tensor_bytes(
             (*shape[:2], smaller, smaller), self.complex
         )
-        what = (f"the per-frequency matrices of the conventional projector {shape} (and as many for the "
-                f"Tikhonov operator, and its {smaller} x {smaller} inverses)")  # fmt: skip
+        what = (f"the per-frequency matrices of the conventional projector {shape} (and the Tikhonov "
+                f"solver's {smaller} x {smaller} inverses)")  # fmt: skip
         fix = ("fewer depths or a smaller camera (pixel_count) for this one-step reconstruction, or "
                "Richardson-Lucy, which needs no per-frequency matrices")  # fmt: skip
         if needed > max_bytes:
@@ -104,15 +104,13 @@ class LatticeSpectra:
             k = int(weight.shape[-1])
             r = k // 2
             # conv2d correlates: out[j] = sum_t w[t] x[j + t - r], i.e. kernel g[u] = w[r - u].
-            kernel = torch.zeros(
-                (q2, weight.shape[1], fy, fx), dtype=projector.dtype, device=projector.device
-            )
             rows = (r - torch.arange(k, device=projector.device)) % fy
             cols = (r - torch.arange(k, device=projector.device)) % fx
-            kernel[:, :, rows[:, None], cols[None, :]] = weight
-            spectra = torch.fft.rfft2(kernel).permute(2, 3, 0, 1)  # (fy, fx//2+1, q2, Zg s2)
-            for slot, depth in enumerate(indices.tolist()):
-                self.matrices[..., depth * s2 : (depth + 1) * s2] = spectra[..., slot * s2 : (slot + 1) * s2]
+            for slot, depth in enumerate(indices.tolist()):  # one depth at a time: small temporaries
+                kernel = torch.zeros((q2, s2, fy, fx), dtype=projector.dtype, device=projector.device)
+                kernel[:, :, rows[:, None], cols[None, :]] = weight[:, slot * s2 : (slot + 1) * s2]
+                spectra = torch.fft.rfft2(kernel).permute(2, 3, 0, 1)  # (fy, fx//2+1, q2, s2)
+                self.matrices[..., depth * s2 : (depth + 1) * s2] = spectra
 
     @property
     def channels(self) -> int:
@@ -164,7 +162,9 @@ class LatticeTikhonov:
     Attributes
     ----------
     weight : ``mu'`` in the projector's units (photons^2 per unit volume^2).
-    operator : ``(Fy, Fx//2+1, C, Q^2)`` complex, the closed form per frequency.
+
+    The closed form is applied as ``(G^H G + mu')^-1 (G^H y)`` or ``G^H ((G G^H + mu')^-1 y)``:
+    only ``G`` and the smaller inverses are held, never a ``C x Q^2`` operator.
     """
 
     def __init__(self, spectra: LatticeSpectra, mu: float) -> None:
@@ -178,23 +178,24 @@ class LatticeTikhonov:
         self.weight = self.mu * spectra.peak_gain2()
         g = spectra.matrices
         q2, channels = g.shape[-2:]
-        adjoint = g.conj().transpose(-1, -2)
         self._small_volume = channels <= q2
-        if self._small_volume:  # (G^H G + mu')^-1, C x C
-            self._core = torch.linalg.inv(
-                adjoint @ g + self.weight * torch.eye(channels, dtype=g.dtype, device=g.device)
-            )
-            self.operator = self._core @ adjoint
-        else:  # (G G^H + mu')^-1, Q^2 x Q^2 (push-through identity)
-            self._core = torch.linalg.inv(
-                g @ adjoint + self.weight * torch.eye(q2, dtype=g.dtype, device=g.device)
-            )
-            self.operator = adjoint @ self._core
+        n = channels if self._small_volume else q2
+        eye = self.weight * torch.eye(n, dtype=g.dtype, device=g.device)
+        rows = []
+        for block in g:  # one row of lattice frequencies at a time: bounded temporaries
+            gram = adjoint_times(block, block) if self._small_volume else block @ block.mH
+            rows.append(torch.linalg.inv(gram + eye))
+        self._core = torch.stack(rows)
+        """``(G^H G + mu')^-1`` (``C x C``) when ``C <= Q^2``, else ``(G G^H + mu')^-1`` (``Q^2 x Q^2``)."""
 
     def __call__(self, image: torch.Tensor) -> torch.Tensor:
         """The closed-form volume ``(Z, Ly S, Lx S)`` of ``image`` ``(Ly Q, Lx Q)``."""
         spectra = self.spectra
-        return spectra.to_volume((self.operator @ spectra.image_spectrum(image)[..., None])[..., 0])
+        y = spectra.image_spectrum(image)[..., None]
+        g = spectra.matrices
+        # (G^H G + mu')^-1 G^H y, or G^H (G G^H + mu')^-1 y (the push-through identity)
+        x = self._core @ adjoint_times(g, y) if self._small_volume else adjoint_times(g, self._core @ y)
+        return spectra.to_volume(x[..., 0])
 
     def precondition(self, volume: torch.Tensor) -> torch.Tensor:
         """``E^T (G^H G + mu')^-1 E v`` on a volume (conjugate-gradient preconditioner; Woodbury when ``C > Q^2``)."""
@@ -203,8 +204,13 @@ class LatticeTikhonov:
         if self._small_volume:
             return spectra.to_volume((self._core @ v)[..., 0])
         g = spectra.matrices
-        inner = g.conj().transpose(-1, -2) @ (self._core @ (g @ v))
+        inner = adjoint_times(g, self._core @ (g @ v))
         return spectra.to_volume(((v - inner) / self.weight)[..., 0])
+
+
+def adjoint_times(g: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
+    """``G^H v`` as ``conj(G^T conj(v))``: the transpose is a view, so ``G`` is never copied conjugated."""
+    return (g.transpose(-1, -2) @ v.conj()).conj()
 
 
 _SOLVERS: weakref.WeakKeyDictionary[LensletLatticeProjector, LatticeTikhonov] = weakref.WeakKeyDictionary()
