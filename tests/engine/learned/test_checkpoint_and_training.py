@@ -209,3 +209,19 @@ def test_a_short_multiwiener_training_is_not_trivial_and_moves_away_from_its_sta
         floor,
         untrained,
     )
+
+
+def test_a_short_conventional_multiwiener_training_beats_the_back_projection_floor(conventional):
+    # Architecture 3's lattice Tikhonov stage: the normalised adjoint of architecture 2 stayed near
+    # this floor on the benchmark's conventional preset (docs/learned.md).
+    setup = conventional.setup
+    data = TrainingDataSpec(seed=3, phantoms="beads")
+    torch.manual_seed(0)
+    result = train(setup, model="multiwiener", data=data, max_steps=60, validate_every=20)
+    test = make_samples(data, setup, "test", 4)
+    norm = adjoint_normaliser(setup.projector)
+    with torch.no_grad():
+        trained = [float(ncc(s.truth, result.model(s.image))) for s in test]
+        floor = [float(ncc(s.truth, setup.projector.adjoint(s.image) / norm)) for s in test]
+        assert all(trivial_reason(result.model(s.image)) is None for s in test)
+    assert min(t - f for t, f in zip(trained, floor, strict=True)) > 0.1, (trained, floor)
