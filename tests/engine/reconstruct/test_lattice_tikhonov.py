@@ -29,6 +29,11 @@ def _random_lattice(q: int, s: int, depths: int, lenslets=(5, 4), seed: int = 0)
     return LensletLatticeProjector([([0], near), (list(range(1, depths)), far)], depths, lenslets, q)
 
 
+def _seeded(shape, seed: int) -> torch.Tensor:
+    """Uniform [0, 1) float64 values of ``shape`` from ``seed``."""
+    return torch.rand(shape, dtype=torch.float64, generator=torch.Generator().manual_seed(seed))
+
+
 def _dense(projector: LensletLatticeProjector) -> torch.Tensor:
     """``A`` as a dense matrix (image pixels x voxels), column by column from ``forward``."""
     count = int(torch.tensor(projector.volume_shape).prod())
@@ -45,9 +50,7 @@ SHAPES = [(3, 1, 2), (2, 2, 3)]
 def test_per_frequency_matrices_reproduce_the_projector(q, s, depths):
     projector = _random_lattice(q, s, depths)
     spectra = LatticeSpectra(projector)
-    volume = torch.rand(
-        projector.volume_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(1)
-    )
+    volume = _seeded(projector.volume_shape, 1)
     expected = projector.forward(volume)
     assert torch.allclose(spectra.forward(volume), expected, rtol=0, atol=1e-12 * float(expected.abs().max()))
     assert torch.allclose(spectra.to_volume(spectra.volume_spectrum(volume)), volume, atol=1e-13)
@@ -61,9 +64,7 @@ def test_per_frequency_matrices_reproduce_the_projector(q, s, depths):
 def test_refined_tikhonov_reaches_the_dense_solution_and_the_closed_form_is_near_it(q, s, depths):
     projector = _random_lattice(q, s, depths)
     dense = _dense(projector)
-    truth = torch.rand(
-        projector.volume_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(2)
-    )
+    truth = _seeded(projector.volume_shape, 2)
     image = projector.forward(truth)
     mu = 1e-2
     weight = lattice_tikhonov(projector, mu).weight
@@ -109,10 +110,8 @@ def test_bad_mu_and_too_large_matrices_are_refused_by_name():
 
 def test_gradients_reach_the_frame_through_the_lattice_closed_form():
     projector = _random_lattice(2, 2, 3, lenslets=(3, 3))
-    weights = torch.rand(
-        projector.volume_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(3)
-    )
-    frame = torch.rand(projector.image_shape, dtype=torch.float64, generator=torch.Generator().manual_seed(4))
+    weights = _seeded(projector.volume_shape, 3)
+    frame = _seeded(projector.image_shape, 4)
     method = registry.get("tikhonov")
 
     def loss(y):
