@@ -37,17 +37,13 @@ from dataclasses import dataclass
 import torch
 from torch.nn import functional as nnf
 
+from lfm_studio.engine.dtypes import complex_dtype
 from lfm_studio.engine.memory import MemoryBudgetError, format_bytes, require_memory, tensor_bytes
 from lfm_studio.engine.operators.fft_sizes import next_fast_length
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 
 MAX_BYTES = 8 * 2**30
 """Largest per-frequency matrix stack built by default (bytes); larger ones are refused."""
-
-
-def complex_dtype(dtype: torch.dtype) -> torch.dtype:
-    """The complex dtype of a real ``dtype`` (float32 -> complex64, float64 -> complex128)."""
-    return torch.complex128 if dtype == torch.float64 else torch.complex64
 
 
 @dataclass(frozen=True)
