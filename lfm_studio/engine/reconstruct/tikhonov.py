@@ -98,10 +98,10 @@ def tikhonov(projector: Projector, image: TensorLike, *, mu: float = 1e-3, refin
     if isinstance(refine, bool) or not isinstance(refine, int) or refine < 0:
         raise ValueError(f"refine must be an int >= 0 (conjugate-gradient steps); got {refine!r}.")
     if isinstance(projector, LensletLatticeProjector):
-        solver = lattice_tikhonov(projector, mu)  # mu > 0, checked there
         y = check_image(
             image, projector.image_shape, dtype=projector.dtype, device=projector.device, non_negative=False
-        )
+        )  # before the solver: a bad image costs no per-frequency solves
+        solver = lattice_tikhonov(projector, mu)  # mu > 0, checked there
         x = solver(y)
         return _refine(projector, y, x, solver.weight, solver.precondition, refine) if refine else x
     projector = require_fourier_projector(projector, "Tikhonov reconstruction")

@@ -96,9 +96,9 @@ class MultiWienerNet(nn.Module):
             check_architecture("multiwiener", architecture, self.ARCHITECTURE)
         self.projector = projector
         depths = int(projector.volume_shape[0])
-        lattice = isinstance(projector, LensletLatticeProjector)
+        lattice = projector if isinstance(projector, LensletLatticeProjector) else None
         if snr is None:
-            snr = LATTICE_SNR if lattice else WIENER_SNR
+            snr = LATTICE_SNR if lattice is not None else WIENER_SNR
         if learn_filters and not isinstance(projector, FourierProjector):
             raise ValueError(
                 f"learn_filters=True needs a shift-invariant (Fourier LFM) projector; got a "
@@ -118,11 +118,10 @@ class MultiWienerNet(nn.Module):
             self.radial_gain.requires_grad_(learn_filters)
         else:
             self.depth_gain = nn.Parameter(torch.ones(depths))
-            self.norm: torch.Tensor
-            if isinstance(projector, LensletLatticeProjector) and architecture == self.ARCHITECTURE:
-                self.lattice = lattice_tikhonov(projector, 1.0 / float(snr))
-                self.register_buffer("norm", torch.ones(()), persistent=False)
+            if lattice is not None:  # architecture 3 (builds() refused another one on the lattice)
+                self.lattice = lattice_tikhonov(lattice, 1.0 / float(snr))
             else:
+                self.norm: torch.Tensor
                 self.register_buffer("norm", adjoint_normaliser(projector), persistent=False)
         self.net = SmallUNet(depths, depths, width)
         self.log_gain = nn.Parameter(torch.zeros(()))
