@@ -176,6 +176,22 @@ def _check(text: str, tip: str, checked: bool = False) -> QCheckBox:
     return box
 
 
+def _form_line(form: QFormLayout, label: str, *items: QWidget | tuple[QWidget, int] | str | None) -> None:
+    """Add a form row of ``items`` side by side: a widget, ``(widget, stretch)``, a text (a label) or
+    ``None`` (a stretch)."""
+    line = QHBoxLayout()
+    for item in items:
+        if item is None:
+            line.addStretch(1)
+        elif isinstance(item, str):
+            line.addWidget(QLabel(item))
+        elif isinstance(item, tuple):
+            line.addWidget(*item)
+        else:
+            line.addWidget(item)
+    form.addRow(label, line)
+
+
 def _form_box() -> tuple[QWidget, QFormLayout]:
     box = QWidget()
     form = QFormLayout(box)
@@ -299,10 +315,7 @@ class OptimiseDock(QWidget):
         self.budget = NumericField(
             NumberRule("Budget", 1, 100_000, unit="candidates", integer=True), 9, step=1
         )
-        line = QHBoxLayout()
-        line.addWidget(self.sampler)
-        line.addWidget(self.budget, 1)
-        form.addRow("Sampler, budget", line)
+        _form_line(form, "Sampler, budget", self.sampler, (self.budget, 1))
         self.study_path = QLineEdit()
         self.study_path.setPlaceholderText("none: not stored")
         browse = QPushButton("…")
@@ -310,11 +323,7 @@ class OptimiseDock(QWidget):
         browse.setToolTip("Choose a SQLite study file to store the candidates in (and resume later)")
         browse.clicked.connect(self._browse_study)
         self.resume = QCheckBox("Resume")
-        line = QHBoxLayout()
-        line.addWidget(self.study_path, 1)
-        line.addWidget(browse)
-        line.addWidget(self.resume)
-        form.addRow("Study file", line)
+        _form_line(form, "Study file", (self.study_path, 1), browse, self.resume)
         column.addWidget(self.grid_box)
         column.addWidget(self._build_algorithm2_box())
         column.addWidget(self._build_gradient_box())
@@ -361,10 +370,7 @@ class OptimiseDock(QWidget):
         )  # fmt: skip
         self.a2_min_lenslet.committed.connect(self._on_min_lenslet_committed)
         self.a2_cells = QLabel("")
-        line = QHBoxLayout()
-        line.addWidget(self.a2_min_lenslet, 1)
-        line.addWidget(self.a2_cells)
-        form.addRow("Min. lenslet", line)
+        _form_line(form, "Min. lenslet", (self.a2_min_lenslet, 1), self.a2_cells)
         self.a2_symmetry = _combo(
             SYMMETRIES, "none",
             "Every merge is applied to the block's symmetric images: none; mirror (x → −x); mirror-xy "
@@ -397,10 +403,7 @@ class OptimiseDock(QWidget):
             "adam: Adam; lbfgs: L-BFGS with one evaluation per step (curvature kept across steps). "
             "CLI --optimizer (default adam).",
         )  # fmt: skip
-        line = QHBoxLayout()
-        line.addWidget(self.g_steps, 1)
-        line.addWidget(self.g_optimizer)
-        form.addRow("Steps, optimiser", line)
+        _form_line(form, "Steps, optimiser", (self.g_steps, 1), self.g_optimizer)
         self.g_lr = _field(
             "Learning rate", 1e-9, 10.0, 0.05, step=0.01,
             tip="Optics step per update, as a fraction of each parameter's range (high − low); unitless. "
@@ -411,10 +414,7 @@ class OptimiseDock(QWidget):
             "Factor on the learning rate per step: constant; cosine (to 5 %); exponential (to 10 %); step "
             "(halved every third of the run). CLI --schedule (default constant).",
         )  # fmt: skip
-        line = QHBoxLayout()
-        line.addWidget(self.g_lr, 1)
-        line.addWidget(self.g_schedule)
-        form.addRow("Learning rate", line)
+        _form_line(form, "Learning rate", (self.g_lr, 1), self.g_schedule)
         self.g_crop = _field(
             "PSF crop", 0, 100_000, CLI_CROP, unit="px", integer=True, special="whole sensor", step=64,
             tip="Camera pixels simulated about the axis (px; 0 = the whole sensor). CLI --crop (default 256).",
@@ -425,10 +425,7 @@ class OptimiseDock(QWidget):
             "one extra gradient in each precision. CLI: on unless --no-float64-check.",
             checked=True,
         )
-        line = QHBoxLayout()
-        line.addWidget(self.g_crop, 1)
-        line.addWidget(self.g_check)
-        form.addRow("PSF crop", line)
+        _form_line(form, "PSF crop", (self.g_crop, 1), self.g_check)
         return self.gradient_box
 
     def _build_psf_box(self) -> QWidget:
@@ -443,10 +440,7 @@ class OptimiseDock(QWidget):
             "keep last point",
             "The final design is the point after the last update, not the best point evaluated. CLI --keep-last.",
         )
-        line = QHBoxLayout()
-        line.addWidget(self.g_objective, 1)
-        line.addWidget(self.g_keep_last)
-        form.addRow("Objective", line)
+        _form_line(form, "Objective", (self.g_objective, 1), self.g_keep_last)
         self.g_photons = _field(
             "Photons", 1.0, 1e15, 1e5, log_step=True,
             tip="Expected photons per image for axial_crb (Poisson noise). CLI --photons (default 1e5).",
@@ -455,10 +449,7 @@ class OptimiseDock(QWidget):
             "Background", 0.0, 1e12, 1.0, unit="ph/px", step=1.0,
             tip="Background of axial_crb, photons per pixel. CLI --background (default 1).",
         )  # fmt: skip
-        line = QHBoxLayout()
-        line.addWidget(self.g_photons, 1)
-        line.addWidget(self.g_background, 1)
-        form.addRow("Photons, background", line)
+        _form_line(form, "Photons, background", (self.g_photons, 1), (self.g_background, 1))
         return self.psf_box
 
     def _build_end_to_end_box(self) -> QWidget:
@@ -473,21 +464,14 @@ class OptimiseDock(QWidget):
             "beads",
             "Training and held-out phantoms (4-10 objects each). CLI --phantom (default beads).",
         )
-        line = QHBoxLayout()
-        line.addWidget(self.e_reconstruction, 1)
-        line.addWidget(self.e_phantom)
-        form.addRow("Reconstruction", line)
+        _form_line(form, "Reconstruction", (self.e_reconstruction, 1), self.e_phantom)
         self.e_freeze_optics = _check(
             "freeze optics", "Train the reconstruction only (the design stays). CLI --freeze-optics."
         )
         self.e_freeze_reconstruction = _check(
             "freeze reconstruction", "Train the optics only. CLI --freeze-reconstruction."
         )
-        line = QHBoxLayout()
-        line.addWidget(self.e_freeze_optics)
-        line.addWidget(self.e_freeze_reconstruction)
-        line.addStretch(1)
-        form.addRow("Freeze", line)
+        _form_line(form, "Freeze", self.e_freeze_optics, self.e_freeze_reconstruction, None)
         self.e_lr = _field(
             "Reconstruction learning rate", 1e-9, 10.0, 0.01, step=0.01,
             tip="Adam learning rate of the reconstruction weights. CLI --lr-reconstruction (default 0.01).",
@@ -496,11 +480,7 @@ class OptimiseDock(QWidget):
             "Unrolled iterations", 1, 1000, 4, integer=True, step=1,
             tip="Richardson-Lucy iterations unrolled in the reconstruction. CLI --unrolled-iterations (default 4).",
         )  # fmt: skip
-        line = QHBoxLayout()
-        line.addWidget(self.e_lr, 1)
-        line.addWidget(QLabel("iterations"))
-        line.addWidget(self.e_iterations, 1)
-        form.addRow("Recon. learning rate", line)
+        _form_line(form, "Recon. learning rate", (self.e_lr, 1), "iterations", (self.e_iterations, 1))
         self.e_batch = _field(
             "Batch", 1, 10_000, 2, integer=True, step=1,
             tip="Training phantoms per step (a new batch every step). CLI --batch (default 2).",
@@ -509,11 +489,7 @@ class OptimiseDock(QWidget):
             "Held-out phantoms", 1, 10_000, 4, integer=True, step=1,
             tip="Test phantoms scored at the start and the end (never trained on). CLI --held-out (default 4).",
         )  # fmt: skip
-        line = QHBoxLayout()
-        line.addWidget(self.e_batch, 1)
-        line.addWidget(QLabel("held out"))
-        line.addWidget(self.e_held_out, 1)
-        form.addRow("Batch", line)
+        _form_line(form, "Batch", (self.e_batch, 1), "held out", (self.e_held_out, 1))
         self.e_photons = _field(
             "Photons", 1.0, 1e15, 1e5, log_step=True,
             tip="Expected photons per image of the phantoms (Poisson noise). CLI --photons (default 1e5).",
