@@ -46,7 +46,7 @@ from lfm_studio.engine.optics.debye import debye_psf
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.objective import _value
 from lfm_studio.engine.optics.phase_kernels import aperture_coverage, lens_phase, unit_phasor, wavenumber
-from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS, integrate_pixels
+from lfm_studio.engine.optics.pixel_integration import check_pixel_integration, integrate_pixels
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 
@@ -463,13 +463,8 @@ class LatticeTransform:
         wavelength: Scalar | None = None,
         lenslet_aperture: Scalar | None = None,
     ) -> None:
-        if pixel_integration not in PIXEL_INTEGRATIONS:
-            raise ValueError(
-                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {pixel_integration!r}. "
-                "Fix: 'fourier' (exact box integral) or 'midpoint'."
-            )
         self.system, self.reach, self.dtype = system, reach, dtype
-        self.pixel_integration = pixel_integration
+        self.pixel_integration = check_pixel_integration(pixel_integration)
         self.cdtype = torch.complex64 if dtype == torch.float32 else torch.complex128
         self.m = sub_samples(system, oversampling)
         self.ns = ns = samples_per_pitch(system, nip_oversampling)
@@ -518,10 +513,8 @@ class LatticeTransform:
         field = _propagate(columns, self.transfer, self.n_out, self.canvas)  # U^T
         power = field.real**2 + field.imag**2
         del field
-        if self.pixel_integration == "midpoint":
-            pixels = _bin(power, self.m)
-        else:  # the canvas is dark at its edges, so its periodic box filter is the pixels' integral
-            pixels = integrate_pixels(power, self.m, self.pixel_integration)
+        # The canvas is dark at its edges, so the exact integral's periodic box filter is the pixels'.
+        pixels = integrate_pixels(power, self.m, self.pixel_integration)
         return (pixels * (self.out_step * self.out_step)).mT.to(self.dtype)
 
     def patterns(self, field: torch.Tensor, offsets: list[tuple[int, int]]) -> list[torch.Tensor]:
@@ -561,14 +554,6 @@ def lenslet_aperture_weights(
     if system.lenslet_shape == "circle":
         return aperture_coverage("circle", x[None, :], y[:, None], aperture, (dx, dx), antialias=True)
     return aperture_coverage("square", x, x.new_zeros(()), aperture, (dx, dx), antialias=True)
-
-
-def _bin(power: torch.Tensor, factor: int) -> torch.Tensor:
-    """Sum ``factor x factor`` blocks of ``power (H factor, H factor)`` (sub-samples centred in each
-    pixel: midpoint rule); along the rows first (2.4x faster than one reshape summed over two axes)."""
-    ny, nx = power.shape
-    across = power.reshape(ny, nx // factor, factor).sum(-1)
-    return across.reshape(ny // factor, factor, nx // factor).sum(1)
 
 
 def _place_symmetric(out: torch.Tensor, z: int, a: int, b: int, pattern: torch.Tensor) -> None:

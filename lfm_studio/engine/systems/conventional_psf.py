@@ -9,7 +9,7 @@ import torch
 
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
-from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS
+from lfm_studio.engine.optics.pixel_integration import check_pixel_integration
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.engine.systems.conventional_patterns import (
@@ -65,11 +65,7 @@ class ConventionalAccuracy:
             raise ValueError(
                 f"pixel_oversampling must be > 0; got {self.pixel_oversampling!r}. Fix: use {OUTPUT_OVERSAMPLING}."
             )
-        if self.pixel_integration not in PIXEL_INTEGRATIONS:
-            raise ValueError(
-                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {self.pixel_integration!r}. "
-                "Fix: use 'fourier' or 'midpoint'."
-            )
+        check_pixel_integration(self.pixel_integration)
         if self.depth_chunk < 1:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
 

@@ -37,7 +37,7 @@ from lfm_studio.engine.dtypes import complex_dtype
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla import mla_transmission
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
-from lfm_studio.engine.optics.pixel_integration import PIXEL_INTEGRATIONS, integrate_pixels
+from lfm_studio.engine.optics.pixel_integration import check_pixel_integration, integrate_pixels
 from lfm_studio.engine.optics.propagation import propagate
 from lfm_studio.engine.optics.pupil_field import pupil_field
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
@@ -112,11 +112,7 @@ class FourierAccuracy:
             raise ValueError(f"depth_chunk must be >= 1; got {self.depth_chunk!r}.")
         if not self.padding >= 1.0:
             raise ValueError(f"padding must be >= 1 (1 = none); got {self.padding!r}. Fix: use 2.")
-        if self.pixel_integration not in PIXEL_INTEGRATIONS:
-            raise ValueError(
-                f"pixel_integration must be one of {PIXEL_INTEGRATIONS}; got {self.pixel_integration!r}. "
-                "Fix: use 'fourier'."
-            )
+        check_pixel_integration(self.pixel_integration)
 
 
 @dataclass
