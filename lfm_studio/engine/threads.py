@@ -16,6 +16,11 @@ The policy:
   quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
 - the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
+- work that splits into independent pieces (the projector's column blocks, the conventional
+  build's depths): :func:`run_in_workers`, that many Python threads taking the next piece when
+  free, each running torch ops on 1 intra-op thread. A core held by another job then just
+  takes fewer pieces, where a 2-thread op waits at every barrier for its slower half
+  (the conventional build: 2 intra-op threads were slower than 1 even on a quiet machine);
 - tests: a fixed count, whatever the load (``scripts/test.sh`` exports
   ``LFM_STUDIO_THREADS=2`` unless set), so that in-process CLI calls never change the thread
   count between two tests; benchmarks state theirs and print :func:`describe_threads`.
@@ -31,9 +36,14 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
 
 import torch
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
 
 WAIT_POLICY = "PASSIVE"  # what the CLI puts in OMP_WAIT_POLICY before torch loads
 THREADS_VARIABLE = "LFM_STUDIO_THREADS"
@@ -138,3 +148,40 @@ def describe_threads() -> str:
         f"threads: torch {torch.get_num_threads()} intra-op, {available_cores()} core(s) available, "
         f"OMP_WAIT_POLICY={policy}"
     )
+
+
+def _one_intra_op_thread() -> None:
+    """Pool initializer: this worker thread's torch ops run on 1 intra-op thread."""
+    torch.set_num_threads(1)
+
+
+def run_in_workers(task: Callable[[Item], Result], items: Sequence[Item], workers: int) -> list[Result]:
+    """``[task(item) for item in items]``, in order, on ``workers`` Python threads.
+
+    Each thread takes the next item when it is free (a core shared with another job takes
+    fewer), and runs torch ops on 1 intra-op thread (torch releases the GIL inside its ops).
+    ``workers`` 1, or a single item, runs inline on the caller's threads. The first exception is
+    raised once the items already started have ended; the others are dropped. ``task`` must not
+    write where another item writes.
+
+    Torch's thread count is per thread (OpenMP); a new thread starts with the process default,
+    which the workers set to 1 and the caller's count is put back into at the end (threads
+    started elsewhere meanwhile may start with 1).
+    """
+    workers = min(check_threads(workers, "workers"), len(items))
+    if workers <= 1:
+        return [task(item) for item in items]
+    caller = torch.get_num_threads()
+    try:
+        with ThreadPoolExecutor(
+            workers, thread_name_prefix="lfm-worker", initializer=_one_intra_op_thread
+        ) as pool:
+            futures = [pool.submit(task, item) for item in items]
+            try:
+                return [future.result() for future in futures]
+            except BaseException:
+                for future in futures:
+                    future.cancel()
+                raise
+    finally:
+        torch.set_num_threads(caller)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 
 import pytest
 import torch
@@ -18,6 +19,7 @@ from lfm_studio.engine.threads import (
     default_threads,
     describe_threads,
     idle_cores,
+    run_in_workers,
     torch_threads,
     wait_policy_in_effect,
 )
@@ -104,3 +106,65 @@ def test_importing_the_package_sets_a_passive_wait_policy_unless_the_user_chose_
     env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)
     assert _wait_policy_in_fresh_interpreter(env) == "PASSIVE"
     assert _wait_policy_in_fresh_interpreter({**env, "OMP_WAIT_POLICY": "ACTIVE"}) == "ACTIVE"
+
+
+def test_workers_return_every_result_in_order_each_on_one_torch_thread_and_restore_the_count():
+    torch.set_num_threads(2)
+    seen: list[tuple[int, str, int]] = []
+
+    def task(item: int) -> int:
+        seen.append((item, threading.current_thread().name, torch.get_num_threads()))
+        return item * item
+
+    assert run_in_workers(task, list(range(9)), 2) == [i * i for i in range(9)]
+    assert sorted(i for i, _, _ in seen) == list(range(9))
+    assert {threads for _, _, threads in seen} == {1}
+    assert all(name.startswith("lfm-worker") for _, name, _ in seen)
+    assert torch.get_num_threads() == 2
+    inline: list[str] = []
+    assert run_in_workers(lambda i: inline.append(threading.current_thread().name) or i, [5], 2) == [5]
+    assert inline == [threading.current_thread().name]  # one item: no pool, the caller's threads
+    with pytest.raises(ValueError, match="workers must be a positive integer; got 0"):
+        run_in_workers(task, [1], 0)
+
+
+def test_a_failing_item_is_raised_and_the_items_not_started_are_dropped():
+    torch.set_num_threads(2)
+    started: list[int] = []
+    release = threading.Event()
+
+    def task(item: int) -> int:
+        started.append(item)
+        if item == 0:
+            raise RuntimeError("item 0 failed")
+        release.wait(5.0)  # item 1 holds the second worker until the failure is seen
+        return item
+
+    def fail_then_release(item: int) -> int:
+        try:
+            return task(item)
+        finally:
+            if item == 0:
+                release.set()
+
+    with pytest.raises(RuntimeError, match="item 0 failed"):
+        run_in_workers(fail_then_release, list(range(50)), 2)
+    assert len(started) < 50
+    assert torch.get_num_threads() == 2
+
+
+def test_workers_called_from_two_threads_at_once_leave_each_callers_count_as_it_was():
+    counts, results = {}, {}
+
+    def caller(name: str, threads: int) -> None:
+        torch.set_num_threads(threads)
+        results[name] = run_in_workers(lambda i: float(torch.ones(64, 64).sum()) + i, list(range(20)), 2)
+        counts[name] = torch.get_num_threads()
+
+    callers = [threading.Thread(target=caller, args=(name, t)) for name, t in (("a", 2), ("b", 1))]
+    for thread in callers:
+        thread.start()
+    for thread in callers:
+        thread.join(30.0)
+    assert results == {"a": [4096.0 + i for i in range(20)], "b": [4096.0 + i for i in range(20)]}
+    assert counts == {"a": 2, "b": 1}
