@@ -29,7 +29,9 @@ Every run prints its thread settings (torch threads, cores, OMP_WAIT_POLICY).
     lockstep (one iteration each in turn, same load); time = back-projector build +
     iterations x the method's median iteration time. Goal: <= 1/4 of plain RL's time for the
     100-iteration target (1/3 of the 30-iteration one with ``--quick``).
-(c) With CUDA: the (a) iteration on the GPU (goal <= 20 ms on an H100).
+(c) With CUDA: the (a) iteration on the GPU (goal <= 20 ms on an H100), after checking its
+    ``A x`` against the CPU projector's. ``--cuda-only`` skips the CPU timings of (a) (the device
+    machine's run, ``scripts/gpu_check.sh``).
 
 ``--quick`` (about a minute): (a) with 4 depths, (b) with a 256 px camera and the 30-iteration target.
 """
@@ -234,6 +236,12 @@ def section_iteration(args) -> None:
         f"volume {tuple(setup.volume_shape)}, FFT window {tuple(projector.fft_shape)}, float32; "
         f"PSF stack {t_psf:.1f} s, projector set-up {t_setup:.2f} s; threads {args.threads} (interleaved)"
     )
+    if args.cuda_only:
+        if torch.cuda.is_available():
+            section_cuda(stack, setup, image, volume)
+        else:
+            print("(c) CUDA: not available here (torch.cuda.is_available() is False); nothing timed")
+        return
     y, x = image.numpy(), volume.numpy()
     loops = {
         "pruned": ScipyPrunedLoop(projector, 1),
@@ -301,6 +309,12 @@ def section_cuda(stack, setup, image, volume) -> None:
     from lfm_studio.engine.operators import ShiftInvariantProjector
 
     projector = ShiftInvariantProjector(stack.data.cuda(), setup.volume_shape[1:])
+    on_cpu = setup.projector.forward(volume)  # the same operator on the CPU: the CUDA path must agree
+    on_gpu = projector.forward(volume.cuda()).cpu()
+    print(
+        f"(c) CUDA A x against the CPU projector: max relative difference "
+        f"{float((on_gpu - on_cpu).abs().max() / on_cpu.abs().max()):.1e} (float32)"
+    )
     iterates = richardson_lucy_iterates(projector, image.cuda(), initial=volume.cuda(), iterations=10**6)
     for _ in range(3):
         next(iterates)
@@ -445,6 +459,9 @@ def main() -> None:
     )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--skip-iteration", action="store_true")
+    parser.add_argument(
+        "--cuda-only", action="store_true", help="(a) time only the CUDA iteration (scripts/gpu_check.sh)"
+    )
     parser.add_argument("--skip-quality", action="store_true")
     args = parser.parse_args()
     keep_freed_memory()  # as the CLI does
