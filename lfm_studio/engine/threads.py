@@ -17,10 +17,12 @@ The policy:
 - the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
 - work that splits into independent pieces (the projector's column blocks, the conventional
-  build's depths): :func:`run_in_workers`, that many Python threads taking the next piece when
-  free, each running torch ops on 1 intra-op thread. A core held by another job then just
-  takes fewer pieces, where a 2-thread op waits at every barrier for its slower half
-  (the conventional build: 2 intra-op threads were slower than 1 even on a quiet machine);
+  build's Debye chunks and depths): :func:`run_in_workers`, that many Python threads taking the
+  next piece when free, each running torch ops on 1 intra-op thread, with progress and cancel
+  checks on the caller's thread as each piece finishes (``on_result``). A core held by another
+  job then just takes fewer pieces, where a 2-thread op waits at every barrier for its slower
+  half (the conventional build of docs/benchmarks.md: 2 intra-op threads 2.95-3.76 s against
+  2.30-2.89 s on 1; 2 workers 1.44-1.88 s, and 2.41-2.77 s against 2.46-3.41 s on 1 with a CPU hog);
 - tests: a fixed count, whatever the load (``scripts/test.sh`` exports
   ``LFM_STUDIO_THREADS=2`` unless set), so that in-process CLI calls never change the thread
   count between two tests; benchmarks state theirs and print :func:`describe_threads`.
