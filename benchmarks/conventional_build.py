@@ -32,8 +32,8 @@ resident set size"), ours, the reference and pyolaf alternately, for each thread
 (``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` and torch's threads; ours
 runs ``threads`` workers of 1 intra-op thread each, ``conventional_psf_stack(workers=...)``); the
 table gives build seconds, peak GB and the ratios other / ours from the same run. ``--busy``
-starts one CPU hog (a Python busy loop in its own process) before the first build and kills it
-after the last, to show the builds when another job holds a core. The agreement
+starts one CPU hog (a Python busy loop in its own process and session) before the first build and
+kills it after the last, to show the builds when another job holds a core. The agreement
 of our stack with the reference (worst-depth relative L2) is printed once. Nothing here asserts a
 time: the machine is shared.
 """
@@ -173,8 +173,11 @@ def _run(which: str, threads: int, depths: int, pyolaf_python: str | None = None
 
 
 def _start_hog() -> subprocess.Popen:
-    """One process that keeps a core busy (a Python busy loop) until :func:`_stop_hog`."""
-    return subprocess.Popen([sys.executable, "-c", "while True: pass"])
+    """One process that keeps a core busy (a Python busy loop) until :func:`_stop_hog`, in its own
+    session, like another user's job: with Linux's autogroup scheduling (``sched_autogroup_enabled``)
+    each session gets a fair share of the cores, so a hog in the benchmark's own session would take
+    only a third of them from a 2-worker build, one in its own session takes a core."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
 
 
 def _stop_hog(hog: subprocess.Popen | None) -> str:
