@@ -1,7 +1,7 @@
 """Conventional-LFM build: ours against pyolaf itself and a pyolaf-style numpy reference, time and peak memory.
 
     python benchmarks/conventional_build.py [--depths 31] [--threads 1 2] [--repeats 1] [--quick]
-        [--pyolaf-python /path/to/python-with-pyolaf]
+        [--pyolaf-python /path/to/python-with-pyolaf] [--no-reference] [--busy]
 
 Configuration of issue 17: preset ``lfm_10x_na03`` (10x/0.3, 125 um / 1.875 mm lenslets),
 41 x 41 lenslets, 15 px and 5 voxels per lenslet, ``--depths`` depths over +-150 um, the
@@ -29,8 +29,11 @@ sensor-field samples per pixel and the exact (Fourier) pixel integral since bran
 
 Each build runs in a fresh process under ``/usr/bin/time -v`` (peak RSS = "Maximum
 resident set size"), ours, the reference and pyolaf alternately, for each thread count
-(``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` and torch's threads); the
-table gives build seconds, peak GB and the ratios other / ours from the same run. The agreement
+(``OMP_NUM_THREADS`` / ``MKL_NUM_THREADS`` / ``OPENBLAS_NUM_THREADS`` and torch's threads; ours
+runs ``threads`` workers of 1 intra-op thread each, ``conventional_psf_stack(workers=...)``); the
+table gives build seconds, peak GB and the ratios other / ours from the same run. ``--busy``
+starts one CPU hog (a Python busy loop in its own process and session) before the first build and
+kills it after the last, to show the builds when another job holds a core. The agreement
 of our stack with the reference (worst-depth relative L2) is printed once. Nothing here asserts a
 time: the machine is shared.
 """
@@ -67,12 +70,12 @@ def _depths(count: int) -> tuple[float, ...]:
     return tuple((-150.0 + 300.0 * i / max(1, count - 1)) * 1e-6 for i in range(count))
 
 
-def build_ours(depths: tuple[float, ...]) -> np.ndarray:
-    """Our pattern stack ``(S, S, Z, H, H)``."""
+def build_ours(depths: tuple[float, ...], workers: int | None = None) -> np.ndarray:
+    """Our pattern stack ``(S, S, Z, H, H)`` on ``workers`` threads (default torch's thread count)."""
     from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack
 
     system, accuracy = _system_and_accuracy()
-    return conventional_psf_stack(system, depths, accuracy=accuracy).data.numpy()
+    return conventional_psf_stack(system, depths, accuracy=accuracy, workers=workers).data.numpy()
 
 
 def build_reference(depths: tuple[float, ...]) -> np.ndarray:
@@ -138,7 +141,7 @@ def _child(args) -> None:
     torch.set_num_threads(args.threads[0])
     depths = _depths(args.depths)
     start = time.perf_counter()
-    data = (build_ours if args.child == "ours" else build_reference)(depths)
+    data = build_ours(depths, args.threads[0]) if args.child == "ours" else build_reference(depths)
     seconds = time.perf_counter() - start
     if args.save:
         np.save(args.save, data)
@@ -169,6 +172,35 @@ def _run(which: str, threads: int, depths: int, pyolaf_python: str | None = None
     return seconds, peak_kb / 2**20
 
 
+def _start_hog() -> subprocess.Popen:
+    """One process that keeps a core busy (a Python busy loop) until :func:`_stop_hog`, in its own
+    session, like another user's job: with Linux's autogroup scheduling (``sched_autogroup_enabled``)
+    each session gets a fair share of the cores, so a hog in the benchmark's own session would take
+    only a third of them from a 2-worker build, one in its own session takes a core."""
+    return subprocess.Popen([sys.executable, "-c", "while True: pass"], start_new_session=True)
+
+
+def _stop_hog(hog: subprocess.Popen | None) -> str:
+    """Kill the hog; say whether it ran (alive until the end) and its CPU seconds."""
+    if hog is None:
+        return "none"
+    alive = hog.poll() is None
+    cpu = _cpu_seconds(hog.pid)
+    hog.kill()
+    hog.wait()
+    return f"ran to the end ({cpu:.0f} CPU s)" if alive else f"died early (exit {hog.returncode})"
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a running process (Linux ``/proc``; NaN elsewhere)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return math.nan
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--depths", type=int, default=31)
@@ -179,6 +211,7 @@ def main() -> None:
         "--pyolaf-python", help="an interpreter with pyolaf installed: time pyolaf itself too"
     )
     parser.add_argument("--no-reference", action="store_true", help="skip the numpy pyolaf-style reference")
+    parser.add_argument("--busy", action="store_true", help="one CPU-hog process runs during the builds")
     parser.add_argument("--child", choices=("ours", "reference"), help=argparse.SUPPRESS)
     parser.add_argument("--save", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -191,23 +224,29 @@ def main() -> None:
 
     print(
         f"# {PRESET}, 41 x 41 lenslets, 15 px / 5 voxels per lenslet, {args.depths} depths over +-150 um, "
-        f"standard preset; threads {args.threads} of {available_cores()} cores, "
+        f"standard preset; threads {args.threads} of {available_cores()} cores (ours: that many workers "
+        f"of 1 intra-op thread), "
         f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}; fresh process per build; "
         f"load average {os.getloadavg()[0]:.2f} at the start"
     )
     others = ([] if args.no_reference else ["reference"]) + (["pyolaf"] if args.pyolaf_python else [])
     results: dict[tuple[str, int], list[tuple[float, float]]] = {}
-    for _ in range(args.repeats):
-        for threads in args.threads:
-            for which in ["ours", *others]:
-                results.setdefault((which, threads), []).append(
-                    _run(which, threads, args.depths, args.pyolaf_python)
-                )
+    hog = _start_hog() if args.busy else None
+    try:
+        for _ in range(args.repeats):
+            for threads in args.threads:
+                for which in ["ours", *others]:
+                    results.setdefault((which, threads), []).append(
+                        _run(which, threads, args.depths, args.pyolaf_python)
+                    )
+    finally:
+        hog_ran = _stop_hog(hog)
     print(f"# load average {os.getloadavg()[0]:.2f} at the end; times: median of {args.repeats}; peak: max")
-    header = "| threads | ours s | " + " | ".join(f"{o} s | {o} / ours" for o in others)
-    header += " | ours peak GB | " + " | ".join(f"{o} peak GB" for o in others) + " |"
-    print(header)
-    print("|" + "---|" * (header.count("|") - 1))
+    print(f"# CPU hog during the builds: {hog_ran}")
+    columns = ["threads", "ours s", *(f"{o} {c}" for o in others for c in ("s", "/ ours")), "ours peak GB"]
+    columns += [f"{o} peak GB" for o in others]
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "---|" * len(columns))
     for threads in args.threads:
         ours = results[("ours", threads)]
         t_ours, m_ours = statistics.median(r[0] for r in ours), max(r[1] for r in ours)

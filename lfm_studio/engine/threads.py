@@ -17,10 +17,12 @@ The policy:
 - the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
 - work that splits into independent pieces (the projector's column blocks, the conventional
-  build's depths): :func:`run_in_workers`, that many Python threads taking the next piece when
-  free, each running torch ops on 1 intra-op thread. A core held by another job then just
-  takes fewer pieces, where a 2-thread op waits at every barrier for its slower half
-  (the conventional build: 2 intra-op threads were slower than 1 even on a quiet machine);
+  build's Debye chunks and depths): :func:`run_in_workers`, that many Python threads taking the
+  next piece when free, each running torch ops on 1 intra-op thread, with progress and cancel
+  checks on the caller's thread as each piece finishes (``on_result``). A core held by another
+  job then just takes fewer pieces, where a 2-thread op waits at every barrier for its slower
+  half (the conventional build of docs/benchmarks.md: 2 intra-op threads 2.95-3.76 s against
+  2.30-2.89 s on 1; 2 workers 1.44-1.88 s, and 2.41-2.77 s against 2.46-3.41 s on 1 with a CPU hog);
 - tests: a fixed count, whatever the load (``scripts/test.sh`` exports
   ``LFM_STUDIO_THREADS=2`` unless set), so that in-process CLI calls never change the thread
   count between two tests; benchmarks state theirs and print :func:`describe_threads`.
@@ -37,7 +39,7 @@ from __future__ import annotations
 import contextlib
 import os
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from typing import TypeVar
 
 import torch
@@ -155,33 +157,67 @@ def _one_intra_op_thread() -> None:
     torch.set_num_threads(1)
 
 
-def run_in_workers(task: Callable[[Item], Result], items: Sequence[Item], workers: int) -> list[Result]:
+def _with_grad_mode(task: Callable[[Item], Result], enabled: bool) -> Callable[[Item], Result]:
+    """``task`` run under autograd mode ``enabled`` (the mode is per thread: a worker starts enabled)."""
+
+    def run(item: Item) -> Result:
+        with torch.set_grad_enabled(enabled):
+            return task(item)
+
+    return run
+
+
+def run_in_workers(
+    task: Callable[[Item], Result],
+    items: Sequence[Item],
+    workers: int,
+    *,
+    on_result: Callable[[int, Result], None] | None = None,
+) -> list[Result]:
     """``[task(item) for item in items]``, in order, on ``workers`` Python threads.
 
     Each thread takes the next item when it is free (a core shared with another job takes
-    fewer), and runs torch ops on 1 intra-op thread (torch releases the GIL inside its ops).
-    ``workers`` 1, or a single item, runs inline on the caller's threads. The first exception is
-    raised once the items already started have ended; the others are dropped. ``task`` must not
-    write where another item writes.
+    fewer), and runs torch ops on 1 intra-op thread (torch releases the GIL inside its ops) in the
+    caller's autograd mode. ``workers`` 1, or a single item, runs inline on the caller's threads.
+    ``task`` must not write where another item writes.
+
+    ``on_result(index, result)``, when given, runs on the *caller's* thread as each item finishes
+    (in finishing order; in item order inline): progress reports and cancel checks belong there.
+    If it raises, or ``task`` does, the items not started are dropped and the exception is raised
+    once the items already started have ended (the first one; the others are dropped).
 
     Torch's thread count is per thread (OpenMP); a new thread starts with the process default,
     which the workers set to 1 and the caller's count is put back into at the end (threads
     started elsewhere meanwhile may start with 1).
     """
     workers = min(check_threads(workers, "workers"), len(items))
+    report = on_result or (lambda index, result: None)
     if workers <= 1:
-        return [task(item) for item in items]
+        return [_inline(task, item, index, report) for index, item in enumerate(items)]
     caller = torch.get_num_threads()
     try:
         with ThreadPoolExecutor(
             workers, thread_name_prefix="lfm-worker", initializer=_one_intra_op_thread
         ) as pool:
-            futures = [pool.submit(task, item) for item in items]
+            run = _with_grad_mode(task, torch.is_grad_enabled())
+            futures = [pool.submit(run, item) for item in items]
+            index_of = {future: index for index, future in enumerate(futures)}
             try:
-                return [future.result() for future in futures]
+                for future in as_completed(futures):
+                    report(index_of[future], future.result())
             except BaseException:
                 for future in futures:
                     future.cancel()
                 raise
+            return [future.result() for future in futures]
     finally:
         torch.set_num_threads(caller)
+
+
+def _inline(
+    task: Callable[[Item], Result], item: Item, index: int, report: Callable[[int, Result], None]
+) -> Result:
+    """One item on the caller's thread, reported as soon as it is done."""
+    result = task(item)
+    report(index, result)
+    return result

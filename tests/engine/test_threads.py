@@ -6,6 +6,7 @@ import os
 import subprocess
 import sys
 import threading
+import time
 
 import pytest
 import torch
@@ -168,3 +169,47 @@ def test_workers_called_from_two_threads_at_once_leave_each_callers_count_as_it_
         thread.join(30.0)
     assert results == {"a": [4096.0 + i for i in range(20)], "b": [4096.0 + i for i in range(20)]}
     assert counts == {"a": 2, "b": 1}
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_each_result_is_reported_on_the_callers_thread_as_it_finishes(workers):
+    caller = threading.current_thread().name
+    reported: list[tuple[int, int, str]] = []
+
+    def report(index: int, result: int) -> None:
+        reported.append((index, result, threading.current_thread().name))
+
+    assert run_in_workers(lambda i: i + 10, list(range(7)), workers, on_result=report) == list(range(10, 17))
+    assert sorted((i, r) for i, r, _ in reported) == [(i, i + 10) for i in range(7)]
+    assert {name for _, _, name in reported} == {caller}
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_failing_report_stops_the_items_not_started(workers):
+    started: list[int] = []
+
+    def task(item: int) -> int:
+        started.append(item)
+        if item:
+            time.sleep(0.05)  # the others take a while: the first report stops them
+        return item
+
+    def stop(index: int, result: int) -> None:
+        raise KeyboardInterrupt("stop") if index == 0 else RuntimeError(f"reported {index}")
+
+    with pytest.raises((KeyboardInterrupt, RuntimeError)):
+        run_in_workers(task, list(range(200)), workers, on_result=stop)
+    assert len(started) < 10 if workers == 2 else started == [0]
+
+
+def test_workers_run_in_the_callers_autograd_mode():
+    modes: list[bool] = []
+
+    def task(item: int) -> int:
+        modes.append(torch.is_grad_enabled())
+        return item
+
+    with torch.no_grad():
+        run_in_workers(task, list(range(4)), 2)
+    run_in_workers(task, list(range(4)), 2)
+    assert modes == [False] * 4 + [True] * 4
