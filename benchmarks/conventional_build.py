@@ -70,12 +70,14 @@ def _depths(count: int) -> tuple[float, ...]:
     return tuple((-150.0 + 300.0 * i / max(1, count - 1)) * 1e-6 for i in range(count))
 
 
-def build_ours(depths: tuple[float, ...], workers: int | None = None) -> np.ndarray:
-    """Our pattern stack ``(S, S, Z, H, H)`` on ``workers`` threads (default torch's thread count)."""
+def build_ours(depths: tuple[float, ...], workers: int | None = None, device: str = "cpu") -> np.ndarray:
+    """Our pattern stack ``(S, S, Z, H, H)`` on ``workers`` threads (default torch's thread count) or
+    on ``device`` (``"cuda"``: one item at a time on the GPU), copied back to the host."""
     from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack
 
     system, accuracy = _system_and_accuracy()
-    return conventional_psf_stack(system, depths, accuracy=accuracy, workers=workers).data.numpy()
+    stack = conventional_psf_stack(system, depths, accuracy=accuracy, workers=workers, device=device)
+    return stack.data.cpu().numpy()
 
 
 def build_reference(depths: tuple[float, ...]) -> np.ndarray:
@@ -140,36 +142,42 @@ def _child(args) -> None:
     keep_freed_memory()  # as the CLI does
     torch.set_num_threads(args.threads[0])
     depths = _depths(args.depths)
+    gpu = args.device != "cpu"
+    if gpu:  # CUDA context and FFT plans are set up once per process: not part of a build
+        build_ours(_depths(3), args.threads[0], args.device)
+        torch.cuda.synchronize()
+        torch.cuda.reset_peak_memory_stats()
     start = time.perf_counter()
-    data = build_ours(depths, args.threads[0]) if args.child == "ours" else build_reference(depths)
+    if args.child == "ours":
+        data = build_ours(depths, args.threads[0], args.device)  # ends with the copy to the host
+    else:
+        data = build_reference(depths)
     seconds = time.perf_counter() - start
     if args.save:
         np.save(args.save, data)
-    print(json.dumps({"seconds": seconds}))
+    gpu_peak = torch.cuda.max_memory_allocated() / 2**30 if gpu else None
+    print(json.dumps({"seconds": seconds, "gpu_peak_gb": gpu_peak}))
 
 
-def _run(which: str, threads: int, depths: int, pyolaf_python: str | None = None) -> tuple[float, float]:
+def _run(
+    which: str, threads: int, depths: int, pyolaf_python: str | None = None, device: str = "cpu"
+) -> tuple[float, float, float | None]:
+    """Seconds, peak RSS (GB; NaN without ``/usr/bin/time``) and GPU peak (GB, or None) of one build in a
+    fresh process."""
+    timer = ["/usr/bin/time", "-v"] if os.path.exists("/usr/bin/time") else []
     if which == "pyolaf":
         script = os.path.join(os.path.dirname(os.path.abspath(__file__)), "pyolaf_build.py")
-        command = ["/usr/bin/time", "-v", pyolaf_python, script, "--depths", str(depths)]
+        command = [*timer, pyolaf_python, script, "--depths", str(depths)]
     else:
-        command = [
-            "/usr/bin/time",
-            "-v",
-            sys.executable,
-            __file__,
-            "--child",
-            which,
-            "--threads",
-            str(threads),
-        ]
-        command += ["--depths", str(depths)]
+        command = [*timer, sys.executable, __file__, "--child", which, "--threads", str(threads)]
+        command += ["--depths", str(depths), "--device", device]
     count = str(threads)
     env = {**os.environ, "OMP_NUM_THREADS": count, "MKL_NUM_THREADS": count, "OPENBLAS_NUM_THREADS": count}
     result = subprocess.run(command, capture_output=True, text=True, check=True, env=env)
-    seconds = json.loads(result.stdout.strip().splitlines()[-1])["seconds"]
-    peak_kb = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", result.stderr).group(1))
-    return seconds, peak_kb / 2**20
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    peak = re.search(r"Maximum resident set size \(kbytes\): (\d+)", result.stderr)
+    peak_gb = int(peak.group(1)) / 2**20 if peak else math.nan
+    return report["seconds"], peak_gb, report.get("gpu_peak_gb")
 
 
 def _start_hog() -> subprocess.Popen:
@@ -212,6 +220,11 @@ def main() -> None:
     )
     parser.add_argument("--no-reference", action="store_true", help="skip the numpy pyolaf-style reference")
     parser.add_argument("--busy", action="store_true", help="one CPU-hog process runs during the builds")
+    parser.add_argument(
+        "--device",
+        default="cpu",
+        help="where ours builds (cuda: after a warm-up build; scripts/gpu_check.sh)",
+    )
     parser.add_argument("--child", choices=("ours", "reference"), help=argparse.SUPPRESS)
     parser.add_argument("--save", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -220,24 +233,29 @@ def main() -> None:
         return
     if args.quick:
         args.depths, args.threads = 7, [1]
+    if args.device != "cpu" and not torch.cuda.is_available():
+        print(
+            f"# --device {args.device}: CUDA is not available here (torch.cuda.is_available() is False); nothing timed"
+        )
+        return
     from lfm_studio.engine.threads import available_cores
 
     print(
         f"# {PRESET}, 41 x 41 lenslets, 15 px / 5 voxels per lenslet, {args.depths} depths over +-150 um, "
-        f"standard preset; threads {args.threads} of {available_cores()} cores (ours: that many workers "
-        f"of 1 intra-op thread), "
+        f"standard preset; ours on {args.device}; threads {args.threads} of {available_cores()} cores (ours "
+        f"on the CPU: that many workers of 1 intra-op thread), "
         f"OMP_WAIT_POLICY={os.environ.get('OMP_WAIT_POLICY', 'unset')}; fresh process per build; "
         f"load average {os.getloadavg()[0]:.2f} at the start"
     )
     others = ([] if args.no_reference else ["reference"]) + (["pyolaf"] if args.pyolaf_python else [])
-    results: dict[tuple[str, int], list[tuple[float, float]]] = {}
+    results: dict[tuple[str, int], list[tuple[float, float, float | None]]] = {}
     hog = _start_hog() if args.busy else None
     try:
         for _ in range(args.repeats):
             for threads in args.threads:
                 for which in ["ours", *others]:
                     results.setdefault((which, threads), []).append(
-                        _run(which, threads, args.depths, args.pyolaf_python)
+                        _run(which, threads, args.depths, args.pyolaf_python, args.device)
                     )
     finally:
         hog_ran = _stop_hog(hog)
@@ -245,6 +263,8 @@ def main() -> None:
     print(f"# CPU hog during the builds: {hog_ran}")
     columns = ["threads", "ours s", *(f"{o} {c}" for o in others for c in ("s", "/ ours")), "ours peak GB"]
     columns += [f"{o} peak GB" for o in others]
+    gpu = args.device != "cpu"
+    columns += ["ours GPU peak GB"] if gpu else []
     print("| " + " | ".join(columns) + " |")
     print("|" + "---|" * len(columns))
     for threads in args.threads:
@@ -257,17 +277,22 @@ def main() -> None:
             t_other = statistics.median(r[0] for r in rows)
             cells += [f"{t_other:.2f}", f"{t_other / t_ours:.2f}"]
             peaks.append(f"{max(r[1] for r in rows):.3f}")
+        peaks += [f"{max(r[2] or 0.0 for r in ours):.3f}"] if gpu else []
         print("| " + " | ".join(cells + peaks) + " |")
+    if gpu:  # the same build on the GPU and on the CPU
+        a, b = build_ours(_depths(args.depths), device=args.device), build_ours(_depths(args.depths))
+        print(f"agreement ours on {args.device} vs ours on the CPU: {_worst_depth_error(a, b)}")
     if not args.no_reference:
         a, b = build_ours(_depths(args.depths)), build_reference(_depths(args.depths))
-        errors = [
-            float(np.linalg.norm(a[:, :, z] - b[:, :, z]) / np.linalg.norm(b[:, :, z]))
-            for z in range(a.shape[2])
-        ]
-        print(
-            f"agreement ours vs reference: worst-depth relative L2 {max(errors):.2e} "
-            f"(median {np.median(errors):.2e})"
-        )
+        print(f"agreement ours vs reference: {_worst_depth_error(a, b)}")
+
+
+def _worst_depth_error(a: np.ndarray, b: np.ndarray) -> str:
+    """Worst and median over depths of the relative L2 error of stack ``a`` against ``b`` ``(S, S, Z, H, H)``."""
+    errors = [
+        float(np.linalg.norm(a[:, :, z] - b[:, :, z]) / np.linalg.norm(b[:, :, z])) for z in range(a.shape[2])
+    ]
+    return f"worst-depth relative L2 {max(errors):.2e} (median {np.median(errors):.2e})"
 
 
 if __name__ == "__main__":

@@ -35,3 +35,7 @@ timeout 200 "$python" -m pytest -q -rs -p no:cacheprovider -p no:randomly -o add
 
 echo "## 2. XLFM RL iteration, 2048^2 camera x 64 depths, on the GPU"
 timeout 180 "$python" benchmarks/reconstruct.py --cuda-only --skip-quality --depths 64 2>&1 | tee "$out/xlfm_cuda.txt"
+
+echo "## 3. Conventional build (10x/0.3, 41 x 41 lenslets, 31 depths, standard preset) on the GPU and on 1 and 8 CPU workers"
+timeout 120 "$python" benchmarks/conventional_build.py --device cuda --threads 1 --no-reference 2>&1 | tee "$out/conventional_cuda.txt"
+timeout 60 "$python" benchmarks/conventional_build.py --threads 1 8 --no-reference 2>&1 | tee "$out/conventional_cpu.txt"
