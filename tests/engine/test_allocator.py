@@ -77,3 +77,46 @@ def test_kept_memory_serves_large_blocks_from_the_heap_and_keeps_them_after_free
 
 def test_keep_freed_memory_is_idempotent():
     assert keep_freed_memory() == keep_freed_memory()
+
+
+_ARENA_SCRIPT = """
+import ctypes, ctypes.util, sys, threading
+libc = ctypes.CDLL(ctypes.util.find_library("c"))
+libc.malloc.restype, libc.malloc.argtypes = ctypes.c_void_p, [ctypes.c_size_t]
+libc.free.argtypes = [ctypes.c_void_p]
+if sys.argv[1] == "kept":
+    from lfm_studio.engine.allocator import keep_freed_memory
+    assert keep_freed_memory()
+def work():
+    block = libc.malloc(2**20)
+    ctypes.memset(block, 1, 2**20)
+    libc.free(block)
+workers = [threading.Thread(target=work) for _ in range(2)]
+for thread in workers:
+    thread.start()
+for thread in workers:
+    thread.join()
+libc.malloc_stats()  # one "Arena N:" block per arena, on stderr
+"""
+
+
+def _arenas(mode: str) -> int:
+    """Malloc arenas in use after two threads each allocated and freed 1 MB, in a fresh process."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    env.pop("MALLOC_ARENA_MAX", None)
+    result = subprocess.run(
+        [sys.executable, "-c", _ARENA_SCRIPT, mode],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+        timeout=120,
+    )
+    return result.stderr.count("Arena ")
+
+
+@pytest.mark.skipif(not _HAS_MALLINFO2, reason="needs glibc (malloc_stats)")
+def test_kept_memory_shares_one_arena_between_threads():
+    """Worker threads would otherwise each keep their freed temporaries in an arena of their own."""
+    assert _arenas("plain") >= 2  # glibc's default: new threads get arenas of their own
+    assert _arenas("kept") == 1

@@ -21,6 +21,7 @@ from lfm_studio.engine.systems.conventional_psf import (
     conventional_projector,
     conventional_psf_stack,
 )
+from lfm_studio.engine.threads import torch_threads
 from lfm_studio.engine.units import mm, um
 from tests.engine.systems.test_conventional import SYSTEM
 
@@ -30,10 +31,8 @@ ACCURACY = ConventionalAccuracy(depth_chunk=2)
 
 @pytest.fixture(autouse=True)
 def _two_threads():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(2)
-    yield
-    torch.set_num_threads(threads)
+    with torch_threads(2):
+        yield
 
 
 @pytest.fixture
