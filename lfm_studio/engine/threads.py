@@ -16,8 +16,8 @@ The policy:
   quiet 2-core machine, 1 when other jobs keep it busy), with ``OMP_WAIT_POLICY=PASSIVE``;
 - the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
-- work that splits into independent pieces (the projector's column blocks, the conventional
-  build's Debye chunks and depths): :func:`run_in_workers`, that many Python threads taking the
+- work that splits into independent pieces (the conventional build's Debye chunks and
+  depths): :func:`run_in_workers`, that many Python threads taking the
   next piece when free, each running torch ops on 1 intra-op thread, with progress and cancel
   checks on the caller's thread as each piece finishes (``on_result``). A core held by another
   job then just takes fewer pieces, where a 2-thread op waits at every barrier for its slower
