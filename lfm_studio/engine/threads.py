@@ -173,6 +173,8 @@ def run_in_workers(
     workers: int,
     *,
     on_result: Callable[[int, Result], None] | None = None,
+    collect: bool = True,
+    in_order: bool = False,
 ) -> list[Result]:
     """``[task(item) for item in items]``, in order, on ``workers`` Python threads.
 
@@ -185,6 +187,11 @@ def run_in_workers(
     (in finishing order; in item order inline): progress reports and cancel checks belong there.
     If it raises, or ``task`` does, the items not started are dropped and the exception is raised
     once the items already started have ended (the first one; the others are dropped).
+    ``collect=False`` returns ``[]`` and lets each result go once ``on_result`` has taken it (large
+    results that ``on_result`` stores elsewhere are then not all held at once). ``in_order=True``
+    calls ``on_result`` in item order (a result that finishes early waits for the ones before it):
+    for ``on_result`` whose effect depends on the order (sums in floating point, a cache that keeps
+    the first entry), so the outcome does not depend on which thread was faster.
 
     Torch's thread count is per thread (OpenMP); a new thread starts with the process default,
     which the workers set to 1 and the caller's count is put back into at the end (threads
@@ -193,23 +200,42 @@ def run_in_workers(
     workers = min(check_threads(workers, "workers"), len(items))
     report = on_result or (lambda index, result: None)
     if workers <= 1:
-        return [_inline(task, item, index, report) for index, item in enumerate(items)]
+        kept = []
+        for index, item in enumerate(items):
+            result = _inline(task, item, index, report)
+            if collect:
+                kept.append(result)
+        return kept
     caller = torch.get_num_threads()
+    results: dict[int, Result] = {}
     try:
         with ThreadPoolExecutor(
             workers, thread_name_prefix="lfm-worker", initializer=_one_intra_op_thread
         ) as pool:
             run = _with_grad_mode(task, torch.is_grad_enabled())
-            futures = [pool.submit(run, item) for item in items]
-            index_of = {future: index for index, future in enumerate(futures)}
+            pending = {pool.submit(run, item): index for index, item in enumerate(items)}
+            waiting: dict[int, Result] = {}  # finished, not yet reported (in_order)
+            following = 0  # the next index to report in order
             try:
-                for future in as_completed(futures):
-                    report(index_of[future], future.result())
+                for future in as_completed(list(pending)):
+                    waiting[pending.pop(future)] = future.result()
+                    del future  # with collect=False nothing else holds the result once it is reported
+                    ready = [following] if in_order else list(waiting)
+                    while ready and ready[0] in waiting:
+                        index = ready.pop(0)
+                        result = waiting.pop(index)
+                        report(index, result)
+                        if collect:
+                            results[index] = result
+                        del result
+                        if in_order:
+                            following += 1
+                            ready = [following]
             except BaseException:
-                for future in futures:
+                for future in pending:
                     future.cancel()
                 raise
-            return [future.result() for future in futures]
+            return [results[index] for index in range(len(items))] if collect else []
     finally:
         torch.set_num_threads(caller)
 

@@ -213,3 +213,27 @@ def test_workers_run_in_the_callers_autograd_mode():
         run_in_workers(task, list(range(4)), 2)
     run_in_workers(task, list(range(4)), 2)
     assert modes == [False] * 4 + [True] * 4
+
+
+def test_in_order_results_are_reported_in_item_order_whatever_finishes_first_and_can_be_let_go():
+    torch.set_num_threads(2)
+    second_done = threading.Event()
+    finished: list[int] = []
+
+    def task(item: int) -> int:
+        if item == 0:
+            assert second_done.wait(10.0)  # item 1, on the other worker, ends first
+        finished.append(item)
+        if item == 1:
+            second_done.set()
+        return item
+
+    reported: list[int] = []
+    results = run_in_workers(task, [0, 1, 2, 3], 2, on_result=lambda i, r: reported.append(i), in_order=True)
+    assert finished[0] == 1 and results == [0, 1, 2, 3]
+    assert reported == [0, 1, 2, 3]  # item order, though item 1 ended first
+    second_done.clear()
+    finished.clear()
+    unordered: list[int] = []
+    assert run_in_workers(task, [0, 1], 2, on_result=lambda i, r: unordered.append(i), collect=False) == []
+    assert sorted(unordered) == [0, 1]

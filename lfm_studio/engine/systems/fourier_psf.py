@@ -57,6 +57,7 @@ from lfm_studio.engine.systems.fourier_windows import (
     windows_overlap,
 )
 from lfm_studio.engine.systems.lenslet_cache import LensletCache, spec_parts, stable_key
+from lfm_studio.engine.threads import run_in_workers
 
 _METHODS = ("auto", "per_lenslet", "per_lenslet_coherent", "full_field")
 EXACT_PROPAGATORS = ("asm", "bandlimited_asm")
@@ -398,6 +399,7 @@ def _per_lenslet(
     PSF is zero."""
     out = torch.zeros((len(depths), *system.sensor_shape), dtype=acc.dtype, device=device)
     total = len(windows)
+    todo: list[tuple[int, str]] = []  # lone lenslets to compute: (index, cache key)
     with cache.stack_round() if cache is not None else nullcontext():  # closed even when a lenslet raises
         done = skipped = 0
         s, sensor = acc.oversampling, system.sensor_shape
@@ -421,26 +423,48 @@ def _per_lenslet(
                 done += 1
                 skipped += 1
                 continue
-            checkpoint(cancel, progress, done, total, f"lenslet {done + 1}/{total}")
             key = lenslet_key(system, lens, depths, acc, device) if cache is not None else ""
             patch = cache.get(key) if cache is not None else None
-            first = _origin_on_sensor(window.first_pixel, system.sensor_shape)
             if patch is None:
-                patch = lenslet_psf(
-                    system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
-                    antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
-                    pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
-                )  # fmt: skip
-                report.lenslets_computed.append(index)
-                # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
-                patch = _on_sensor(patch, window.first_pixel, system.sensor_shape)
-                if cache is not None:
-                    cache.put(key, patch)
-            else:
-                report.lenslets_cached.append(index)
-            assert isinstance(patch, torch.Tensor)
-            _place(out, patch, first)
+                todo.append((index, key))
+                continue
+            report.lenslets_cached.append(index)
+            _place(out, patch, _origin_on_sensor(window.first_pixel, sensor))
             done += 1
+            checkpoint(cancel, progress, done, total, f"lenslet {done}/{total} (cached)")
+
+        def compute(item: tuple[int, str]) -> torch.Tensor:
+            index, _ = item
+            lens, window = system.mla.lenslets[index], windows[index]
+            patch = lenslet_psf(
+                system, lens, window, z, oversampling=acc.oversampling, model=acc.model,
+                antialias=acc.antialias, dtype=acc.dtype, source_position=source, depth_chunk=acc.depth_chunk,
+                pixel_integration=acc.pixel_integration, optics=_optics(system, parameters, index),
+            )  # fmt: skip
+            # Only the sensor's part is ever used (the key holds the sensor shape): store just that.
+            return _on_sensor(patch, window.first_pixel, sensor)
+
+        def place(position: int, patch: torch.Tensor) -> None:  # on the caller's thread
+            nonlocal done
+            index, key = todo[position]
+            if cache is not None:
+                cache.put(key, patch)
+            _place(out, patch, _origin_on_sensor(windows[index].first_pixel, sensor))
+            done += 1
+            checkpoint(cancel, progress, done, total, f"lenslet {done}/{total}")
+
+        gradients = torch.is_grad_enabled() and (
+            parameters is not None or parameters_require_grad(None, system)
+        )
+        # Lone lenslets on worker threads (each patch placed on this thread); in turn on a GPU or
+        # when a graph is recorded.
+        workers = 1 if out.device.type != "cpu" or gradients else torch.get_num_threads()
+        checkpoint(cancel, progress, done, total, f"lenslets {done}/{total}")
+        # In lenslet order: patches add into shared pixels (float sums) and the cache keeps the first ones.
+        run_in_workers(compute, todo, workers, on_result=place, collect=False, in_order=True)
+        report.lenslets_computed.extend(
+            index for index, _ in todo
+        )  # in lenslet order, whatever finished first
     if total and skipped == total:
         warnings.warn(
             f"no lenslet's light reaches the {sensor[0]} x {sensor[1]} px sensor (crop); the PSF is "

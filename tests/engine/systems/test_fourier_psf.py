@@ -193,3 +193,27 @@ def test_named_errors():
         FourierAccuracy(oversampling=0)
     with pytest.raises(ValueError, match="depths is empty"):
         fourier_psf_stack(_system(), ())
+
+
+def test_lone_lenslets_on_two_workers_give_the_one_thread_stack(monkeypatch):
+    """The per-lenslet path runs its lenslets on run_in_workers threads (placed in lenslet order on
+    the caller's thread); the stack must not depend on the worker count."""
+    from lfm_studio.engine.systems import fourier_psf
+    from lfm_studio.engine.threads import run_in_workers, torch_threads
+
+    asked: list[int] = []
+
+    def recording(task, items, workers, **options):
+        asked.append(workers)
+        return run_in_workers(task, items, workers, **options)
+
+    monkeypatch.setattr(fourier_psf, "run_in_workers", recording)
+    accuracy = FourierAccuracy(oversampling=1, margin_airy=8)
+    with torch_threads(1):
+        one = fourier_psf_stack(_system(), (-5 * um, 0.0, 5 * um), accuracy=accuracy).data
+    report = FourierPSFReport()
+    with torch_threads(2):
+        two = fourier_psf_stack(_system(), (-5 * um, 0.0, 5 * um), accuracy=accuracy, report=report).data
+    assert asked == [1, 2] and report.lenslets_computed == [0, 1, 2]
+    assert float(one.max()) > 0.0
+    torch.testing.assert_close(two, one, rtol=1e-6, atol=1e-7 * float(one.max()))
