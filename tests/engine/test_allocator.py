@@ -47,20 +47,19 @@ _HAS_MALLINFO2 = (name := ctypes.util.find_library("c")) is not None and hasattr
 )
 
 
+def _fresh_process(script: str, mode: str) -> subprocess.CompletedProcess:
+    """``script`` run with ``mode`` in a fresh interpreter, without glibc's MALLOC_* settings."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
+    for name in [name for name in env if name.startswith("MALLOC_")]:
+        del env[name]
+    return subprocess.run(
+        [sys.executable, "-c", script, mode], env=env, capture_output=True, text=True, check=True, timeout=120
+    )
+
+
 def _counters(mode: str) -> tuple[int, int]:
     """(bytes of the 20 MB block served by mmap, heap growth still held after freeing it) in a fresh process."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    for name in ("MALLOC_MMAP_THRESHOLD_", "MALLOC_TRIM_THRESHOLD_", "MALLOC_TOP_PAD_"):
-        env.pop(name, None)
-    result = subprocess.run(
-        [sys.executable, "-c", _SCRIPT, mode],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=120,
-    )
-    mapped, arena = result.stdout.split()[-2:]
+    mapped, arena = _fresh_process(_SCRIPT, mode).stdout.split()[-2:]
     return int(mapped), int(arena)
 
 
@@ -102,17 +101,7 @@ libc.malloc_stats()  # one "Arena N:" block per arena, on stderr
 
 def _arenas(mode: str) -> int:
     """Malloc arenas in use after two threads each allocated and freed 1 MB, in a fresh process."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-    env.pop("MALLOC_ARENA_MAX", None)
-    result = subprocess.run(
-        [sys.executable, "-c", _ARENA_SCRIPT, mode],
-        env=env,
-        capture_output=True,
-        text=True,
-        check=True,
-        timeout=120,
-    )
-    return result.stderr.count("Arena ")
+    return _fresh_process(_ARENA_SCRIPT, mode).stderr.count("Arena ")
 
 
 @pytest.mark.skipif(not _HAS_MALLINFO2, reason="needs glibc (malloc_stats)")
