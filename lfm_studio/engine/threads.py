@@ -17,7 +17,7 @@ The policy:
 - the studio's workers: that count less one core, left for the GUI (``ui/app.py``);
 - small-kernel work (training, tiny convolutions): 1 thread (``workload="small"``);
 - work that splits into independent pieces (the conventional build's Debye chunks and
-  depths): :func:`run_in_workers`, that many Python threads taking the
+  depths, the Fourier per-lenslet path's lone lenslets): :func:`run_in_workers`, that many Python threads taking the
   next piece when free, each running torch ops on 1 intra-op thread, with progress and cancel
   checks on the caller's thread as each piece finishes (``on_result``). A core held by another
   job then just takes fewer pieces, where a 2-thread op waits at every barrier for its slower
