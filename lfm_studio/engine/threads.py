@@ -152,6 +152,14 @@ def describe_threads() -> str:
     )
 
 
+def worker_count(workers: int | None, device: torch.device | str, records_graph: bool) -> int:
+    """Workers for :func:`run_in_workers`: ``workers`` (checked; default the caller's torch thread
+    count, which the policy chose) on the CPU, 1 on other devices (a GPU runs one item's kernels at
+    a time anyway) or when an autograd graph is recorded (it is built on the caller's thread)."""
+    count = torch.get_num_threads() if workers is None else check_threads(workers, "workers")
+    return 1 if torch.device(device).type != "cpu" or records_graph else count
+
+
 def _one_intra_op_thread() -> None:
     """Pool initializer: this worker thread's torch ops run on 1 intra-op thread."""
     torch.set_num_threads(1)
@@ -214,23 +222,19 @@ def run_in_workers(
         ) as pool:
             run = _with_grad_mode(task, torch.is_grad_enabled())
             pending = {pool.submit(run, item): index for index, item in enumerate(items)}
-            waiting: dict[int, Result] = {}  # finished, not yet reported (in_order)
-            following = 0  # the next index to report in order
+            waiting: dict[int, Result] = {}  # finished, not yet reported
+            following = 0  # the next index to report, with in_order
             try:
                 for future in as_completed(list(pending)):
                     waiting[pending.pop(future)] = future.result()
                     del future  # with collect=False nothing else holds the result once it is reported
-                    ready = [following] if in_order else list(waiting)
-                    while ready and ready[0] in waiting:
-                        index = ready.pop(0)
+                    while (index := following if in_order else next(iter(waiting), -1)) in waiting:
                         result = waiting.pop(index)
                         report(index, result)
                         if collect:
                             results[index] = result
                         del result
-                        if in_order:
-                            following += 1
-                            ready = [following]
+                        following += 1
             except BaseException:
                 for future in pending:
                     future.cancel()

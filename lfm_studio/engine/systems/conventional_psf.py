@@ -22,7 +22,7 @@ from lfm_studio.engine.systems.conventional_patterns import (
     nip_quadrants,
 )
 from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
-from lfm_studio.engine.threads import check_threads, run_in_workers
+from lfm_studio.engine.threads import run_in_workers, worker_count
 
 _MODELS = ("debye", "paraxial")
 
@@ -115,23 +115,22 @@ def conventional_psf_stack(
     first). ``workers`` (default ``torch.get_num_threads()``, the thread policy's count) Python
     threads take the next item when free, each on 1 torch intra-op thread
     (:func:`~lfm_studio.engine.threads.run_in_workers`), on the CPU when no gradient is recorded
-    (:func:`_parallel_workers`); otherwise the items run in turn on the caller's threads. The
+    (:func:`~lfm_studio.engine.threads.worker_count`); otherwise the items run in turn on the caller's threads. The
     patterns do not depend on ``workers``. ``progress`` and ``cancel`` are called on the caller's
     thread after each item; a cancel drops the items not started and raises
     :class:`~lfm_studio.engine.progress.CancelledError` once the running ones end.
     """
-    workers = torch.get_num_threads() if workers is None else check_threads(workers, "workers")
     acc = accuracy or ConventionalAccuracy()
     dtype = dtype or acc.dtype
     depths = tuple(float(z) for z in depths)
     if not depths:
         raise ValueError("depths is empty. Fix: give at least one depth in metres.")
+    overrides = (lenslet_focal_length, mla_to_camera, wavelength, lenslet_aperture)
+    workers = worker_count(workers, device, _records_graph(system, overrides))
     chunks = depth_chunks(system, depths, acc.depth_chunk)
     s, q = system.voxels_per_lenslet, system.pixels_per_lenslet
     width = (2 * max(reach for reach, _ in chunks) + 3) * q
     data = torch.zeros((s, s, len(depths), width, width), dtype=dtype, device=device)
-    overrides = (lenslet_focal_length, mla_to_camera, wavelength, lenslet_aperture)
-    workers = _parallel_workers(workers, system, device, overrides)
     report = _Progress(cancel, progress, len(chunks) + len(depths))
     report("Debye NIP fields", finished=0)
 
@@ -201,19 +200,6 @@ def depth_chunks(
         ordered = sorted(indices, key=lambda i: (abs(depths[i]), depths[i]))
         chunks += [(reach, tuple(ordered[start : start + size])) for start in range(0, len(ordered), size)]
     return chunks
-
-
-def _parallel_workers(
-    workers: int,
-    system: ConventionalLFMSystem,
-    device: torch.device | str,
-    overrides: tuple[Scalar | None, ...],
-) -> int:
-    """``workers`` on the CPU when no autograd graph is recorded, else 1 (in turn, on the caller's threads:
-    a graph is built on the caller's thread, and a GPU runs one item's kernels at a time anyway)."""
-    if torch.device(device).type != "cpu":
-        return 1
-    return 1 if _records_graph(system, overrides) else workers
 
 
 def _records_graph(system: ConventionalLFMSystem, overrides: tuple[Scalar | None, ...]) -> bool:

@@ -57,7 +57,7 @@ from lfm_studio.engine.systems.fourier_windows import (
     windows_overlap,
 )
 from lfm_studio.engine.systems.lenslet_cache import LensletCache, spec_parts, stable_key
-from lfm_studio.engine.threads import run_in_workers
+from lfm_studio.engine.threads import run_in_workers, worker_count
 
 _METHODS = ("auto", "per_lenslet", "per_lenslet_coherent", "full_field")
 EXACT_PROPAGATORS = ("asm", "bandlimited_asm")
@@ -453,18 +453,15 @@ def _per_lenslet(
             done += 1
             checkpoint(cancel, progress, done, total, f"lenslet {done}/{total}")
 
-        gradients = torch.is_grad_enabled() and (
+        # Lone lenslets on worker threads, each patch placed on this thread in lenslet order:
+        # patches add into shared pixels (float sums) and the cache keeps the first ones.
+        recording = torch.is_grad_enabled() and (
             parameters is not None or parameters_require_grad(None, system)
         )
-        # Lone lenslets on worker threads (each patch placed on this thread); in turn on a GPU or
-        # when a graph is recorded.
-        workers = 1 if out.device.type != "cpu" or gradients else torch.get_num_threads()
+        workers = worker_count(None, out.device, recording)
         checkpoint(cancel, progress, done, total, f"lenslets {done}/{total}")
-        # In lenslet order: patches add into shared pixels (float sums) and the cache keeps the first ones.
         run_in_workers(compute, todo, workers, on_result=place, collect=False, in_order=True)
-        report.lenslets_computed.extend(
-            index for index, _ in todo
-        )  # in lenslet order, whatever finished first
+        report.lenslets_computed.extend(index for index, _ in todo)  # lenslet order, not finishing order
     if total and skipped == total:
         warnings.warn(
             f"no lenslet's light reaches the {sensor[0]} x {sensor[1]} px sensor (crop); the PSF is "

@@ -77,12 +77,15 @@ def test_progress_is_monotonic_on_the_callers_thread_and_cancel_drops_the_rest(m
 
     started: list[float] = []
     patterns = conventional_psf.conventional_patterns
-    monkeypatch.setattr(
-        conventional_psf,
-        "conventional_patterns",
-        lambda system, depths, **kw: started.append(depths[0]) or patterns(system, depths, **kw),
-    )
     stop, seen = threading.Event(), []
+
+    def held_after_two(system, depths, **kw):  # depths 3 and on wait for the cancel: no race with the load
+        started.append(depths[0])
+        if len(started) > 2:
+            stop.wait(10.0)
+        return patterns(system, depths, **kw)
+
+    monkeypatch.setattr(conventional_psf, "conventional_patterns", held_after_two)
 
     def stop_after_two_depths(done: int, total: int, message: str) -> None:
         seen.append(done)
