@@ -94,9 +94,7 @@ def lenslet_psf(
     for start in range(0, depths.numel(), depth_chunk):
         parts.append(
             integrate_pixels(
-                fft.centered_power(prepared.input_field(depths[start : start + depth_chunk])),
-                oversampling,
-                pixel_integration,
+                prepared.power(depths[start : start + depth_chunk]), oversampling, pixel_integration
             )
         )
     return torch.cat(parts, dim=0)
@@ -141,39 +139,43 @@ class LensletInput:
         self.dtype = dtype
         self._checker_phase = checker_phase
         self._output_ramp = output_ramp
-        self._centred_static: torch.Tensor | None = None
         self._box: LensletInput | None = None
 
-    def input_field(self, depths: torch.Tensor, *, centred: bool = False) -> torch.Tensor:
-        """Input field ``(Z, N, N)`` (complex) for ``depths``; ``centred``: times ``(-1)^(i + j)``,
-        so that a plain ``fft2`` has its zero frequency at index ``N // 2``."""
-        if centred and self._centred_static is None:
-            self._centred_static = self.static_phase + self._checker_phase
-        static = self._centred_static if centred else self.static_phase
-        phase = depths[:, None, None] * self.defocus + static  # float64
-        if self.dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
-            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
-        return torch.polar(self.amplitude.expand_as(phase), phase)
+    def power(self, depths: torch.Tensor) -> torch.Tensor:
+        """``|field|^2`` ``(Z, N, N)``: power per output sub-sample (W per W emitted), the
+        centred DFT's modulus squared (:func:`lenslet_psf`; the phase is not needed here)."""
+        spectrum = self._box_spectrum(depths)
+        return spectrum.real**2 + spectrum.imag**2
 
     def field(self, depths: torch.Tensor) -> torch.Tensor:
         """The complex output field ``(Z, N, N)`` with its relative phase (:func:`lenslet_field`).
 
-        Only the box of input samples where the amplitude is non-zero (the aperture: a few per
-        cent of the patch) is evaluated and transformed, rows first, each axis zero-padded to
-        ``N``; the box's offset ``o`` becomes the output phase ``-2 pi o m / N`` (in the ramps).
+        The box's offset ``o`` (:meth:`_box_spectrum`) becomes the output phase ``-2 pi o m / N``
+        (in the ramps).
         """
         (r0, _), (c0, _) = self._support
         n = self.static_phase.shape[-1]
-        box = self._boxed()
-        phase = depths[:, None, None] * box.defocus + box.static_phase  # float64
-        if self.dtype == torch.float32:
-            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
-        spectrum = torch.fft.fft(torch.polar(box.amplitude.expand_as(phase), phase), n=n, dim=-1)
-        spectrum = torch.fft.fft(spectrum, n=n, dim=-2)
-        m = torch.arange(n, dtype=torch.float64, device=phase.device)
+        spectrum = self._box_spectrum(depths)
+        m = torch.arange(n, dtype=torch.float64, device=spectrum.device)
         ramp_y = self._phasor(self._output_ramp[0] - (2.0 * math.pi / n) * r0 * m)
         ramp_x = self._phasor(self._output_ramp[1] - (2.0 * math.pi / n) * c0 * m)
         return spectrum * ramp_y[:, None] * ramp_x[None, :]
+
+    def _box_spectrum(self, depths: torch.Tensor) -> torch.Tensor:
+        """The centred DFT ``(Z, N, N)`` of the input field, up to the box offset's output phase.
+
+        Only the box of input samples where the amplitude is non-zero (the aperture: about 6 %
+        of the XLFM patches) is evaluated and transformed, each axis zero-padded to ``N``: rows
+        first, then the columns on a transposed copy (a DFT along the strided axis is slower).
+        Against the whole patch (phasor of every sample, ``fft2``) 3.4-4x less work here.
+        """
+        n = self.static_phase.shape[-1]
+        box = self._boxed()
+        phase = depths[:, None, None] * box.defocus + box.static_phase  # float64
+        if self.dtype == torch.float32:  # wrap in float64, then the float32 phasor is accurate to ~1e-7 rad
+            phase = torch.remainder(phase, 2.0 * math.pi).to(torch.float32)
+        rows = fft.fft_along(torch.polar(box.amplitude.expand_as(phase), phase), n, dim=-1)
+        return fft.fft_along(rows.mT.contiguous(), n, dim=-1).mT
 
     @property
     def _support(self) -> tuple[tuple[int, int], tuple[int, int]]:
@@ -192,11 +194,16 @@ class LensletInput:
     def _boxed(self) -> LensletInput:
         if self._box is None:
             (r0, r1), (c0, c1) = self._support
-            static = self.static_phase + self._checker_phase  # centred DFT
+            box = (..., slice(r0, r1), slice(c0, c1))
+            static = self.static_phase[box] + self._checker_phase[box]  # centred DFT
             self._box = LensletInput(
-                self.amplitude[..., r0:r1, c0:c1], static[..., r0:r1, c0:c1],
-                self.defocus[..., r0:r1, c0:c1], self.dtype, self._checker_phase, self._output_ramp,
-            )  # fmt: skip
+                self.amplitude[box],
+                static,
+                self.defocus[box],
+                self.dtype,
+                self._checker_phase,
+                self._output_ramp,
+            )
         return self._box
 
     def _phasor(self, phase: torch.Tensor) -> torch.Tensor:

@@ -217,3 +217,29 @@ def test_lone_lenslets_on_two_workers_give_the_one_thread_stack(monkeypatch):
     assert asked == [1, 2] and report.lenslets_computed == [0, 1, 2]
     assert float(one.max()) > 0.0
     torch.testing.assert_close(two, one, rtol=1e-6, atol=1e-7 * float(one.max()))
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_lenslet_power_on_the_aperture_box_equals_the_whole_patch_transform(dtype):
+    # lenslet_psf transforms only the box where the aperture is non-zero (zero-padded rows, then
+    # columns); the reference evaluates the phasor on every patch sample and takes a centred fft2.
+    from lfm_studio.engine.systems.fourier_lenslet import prepare_lenslet
+
+    system = _system()
+    lens = system.mla.lenslets[1]
+    depths = torch.tensor([-40 * um, 0.0, 25 * um], dtype=torch.float64)
+    window = plan_window(system, lens, tuple(depths.tolist()), oversampling=2, margin_airy=8.0)
+    prepared = prepare_lenslet(system, lens, window, depths, 2, dtype=dtype)
+    (r0, r1), (c0, c1) = prepared._support
+    n = window.samples
+    assert (r1 - r0) * (c1 - c0) < 0.5 * n * n  # the box really prunes the patch
+    phase = (depths[:, None, None] * prepared.defocus + prepared.static_phase).double()
+    odd = torch.arange(n).remainder(2).double()
+    centred = torch.polar(prepared.amplitude.double().expand_as(phase), phase) * torch.exp(
+        1j * math.pi * (odd[:, None] + odd[None, :])
+    )
+    reference = torch.fft.fft2(centred).abs() ** 2
+    power = prepared.power(depths)
+    assert power.dtype == dtype and power.shape == (3, n, n)
+    tolerance = 2e-6 if dtype == torch.float32 else 1e-12
+    assert float((power.double() - reference).abs().max() / reference.max()) < tolerance
