@@ -15,7 +15,9 @@ first simulates a pool of ``data.jitter_designs`` jittered designs from ``design
 nominal projector, and validation stays on the nominal design unless ``data.jitter_validation``.
 
 A run that ends with a trivial model (all-zero, constant or non-finite output on the
-validation set) is refused with a ValueError and writes no checkpoint.
+validation set), or with a validation loss not below the all-zero volume's, is refused with a
+ValueError and writes no checkpoint (a checkpoint is written during the run only for weights below
+that floor). A step whose loss is not finite is skipped (its gradients would make every weight NaN).
 """
 
 from __future__ import annotations
@@ -46,7 +48,13 @@ from lfm_studio.engine.learned.mismatch import (
     mismatch_pool,
     require_design_for_jitter,
 )
-from lfm_studio.engine.learned.models import DEFAULT_MODEL, build_model, model_config, parameter_count
+from lfm_studio.engine.learned.models import (
+    DEFAULT_MODEL,
+    build_model,
+    model_config,
+    model_options,
+    parameter_count,
+)
 from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
 from lfm_studio.engine.simulation import ImagingSetup
 from lfm_studio.engine.threads import torch_threads
@@ -144,7 +152,15 @@ def train(
         )
     with torch_threads(threads):
         torch.manual_seed(seed)
-        network = build_model(model, setup.projector, **(config or {}))
+        previous_run = read_checkpoint(target) if resume and target is not None and target.exists() else None
+        if previous_run is not None and previous_run[0].model != model:
+            raise ValueError(f"--resume: {target} holds a {previous_run[0].model!r} model, not {model!r}.")
+        # A resumed run keeps the checkpoint's config unless one is given (older ones lack the data options).
+        if previous_run is not None and config is None:
+            options = dict(previous_run[0].config)
+        else:
+            options = _with_data_options(model, config, data)
+        network = build_model(model, setup.projector, **options)
         pool = None
         if jitter_design is not None:
             if progress is not None:
@@ -154,10 +170,8 @@ def train(
             pool = mismatch_pool(jitter_design, data.optics_jitter, count=data.jitter_designs,
                                  seed=data.seed + POOL_SEED_OFFSET)  # fmt: skip
         start, best, best_step = 0, math.inf, 0
-        if resume and target is not None and target.exists():
-            previous, tensors = read_checkpoint(target)
-            if previous.model != model:
-                raise ValueError(f"--resume: {target} holds a {previous.model!r} model, not {model!r}.")
+        if previous_run is not None:
+            previous, tensors = previous_run
             check_architecture(previous, str(target), setup.projector)
             if previous.config != model_config(network):
                 raise ValueError(
@@ -193,6 +207,16 @@ def train(
     return TrainingResult(network, header, history, reason)
 
 
+def _with_data_options(
+    model: str, config: dict[str, JSONValue] | None, data: TrainingDataSpec
+) -> dict[str, JSONValue]:
+    """``config`` plus what the training data say about the camera, for models that take it: the
+    read noise (``read_noise``, photo-electrons rms) unless ``config`` sets it."""
+    options = model_options(model) or ()
+    extra: dict[str, JSONValue] = {"read_noise": data.read_noise} if "read_noise" in options else {}
+    return {**extra, **(config or {})}
+
+
 class _Loop:
     """One training run's state: the network, its validation set and the checkpoint it writes."""
 
@@ -207,6 +231,7 @@ class _Loop:
         self.best, self.best_step = math.inf, 0
         self.best_state = copy.deepcopy(network.state_dict())
         self.seconds = 0.0
+        self.zero_floor = 1.0 + high_pass_weight  # the all-zero volume's loss (losses.training_loss)
 
     def run(self, *, start: int, best: float, best_step: int, budget_s: float, max_steps: int | None, learning_rate: float,
             validate_every: int, patience: int, progress: ProgressCallback | None, cancel: CancelToken,
@@ -241,9 +266,10 @@ class _Loop:
             network.train()
             optimiser.zero_grad()
             loss = training_loss(network(sample.image), sample.truth, self.high_pass_weight)
-            loss.backward()
-            optimiser.step()
             value = float(loss.detach())
+            if math.isfinite(value):  # a non-finite loss would turn every weight into NaN: skip the step
+                loss.backward()
+                optimiser.step()
             step += 1
             checked = math.nan
             if (step - start) % validate_every == 0 or step - start == max_steps:
@@ -270,6 +296,7 @@ class _Loop:
             self.best_state = copy.deepcopy(self.network.state_dict())
             if (
                 self.target is not None
+                and checked < self.zero_floor
                 and trivial_reason(self.network(self.validation[0].image).detach()) is None
             ):
                 save_checkpoint(
@@ -282,7 +309,7 @@ class _Loop:
     ) -> CheckpointHeader:
         training: dict[str, JSONValue] = {"steps": steps, "seconds": seconds, "seed": self.seed, "best_validation": self.best,
                     "best_step": self.best_step, "stop_reason": reason, "parameters": parameter_count(self.network),
-                    "zero_floor": 1.0 + self.high_pass_weight}  # fmt: skip
+                    "zero_floor": self.zero_floor}  # fmt: skip
         return header_for(self.model_name, model_config(self.network), self.setup, self.design_hash, self.depths,
                           data=self.data.to_dict(), training=training, metrics=metrics or {})  # fmt: skip
 
@@ -293,6 +320,13 @@ class _Loop:
         if math.isinf(self.best):
             self.best = validation_loss(self.network, self.validation, self.high_pass_weight)
         score = validation_ncc(self.network, self.validation)  # refuses a trivial model
+        if not self.best < self.zero_floor:
+            raise ValueError(
+                f"the trained model's validation loss {self.best:.4g} is not below the all-zero volume's "
+                f"{self.zero_floor:g}: it reconstructs worse than predicting nothing, so no model was written. "
+                "Fix: more photons per image (--photons), a longer run (--minutes / --steps), or the "
+                "physics-based model (--model unrolled-rl)."
+            )
         header = self._header(steps, self.seconds, reason, {"validation_ncc": score})
         if self.target is not None:
             save_checkpoint(self.target, self.network, header, overwrite=True)

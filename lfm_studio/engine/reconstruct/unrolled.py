@@ -16,6 +16,8 @@ from typing import Protocol
 
 import torch
 
+from lfm_studio.engine.reconstruct.guards import relative_floor
+
 
 class _Projector(Protocol):
     @property
@@ -77,7 +79,18 @@ def rl_ratio(
     background: float | torch.Tensor = 0.0,
     eps: float = 1e-12,
 ) -> torch.Tensor:
-    """The Richardson-Lucy update factor ``A^T(y / (A x + b + eps)) / (A^T 1 + eps)`` (differentiable):
-    one plain RL step is ``x * rl_ratio(...)``; learned unrolled solvers reshape it (an exponent, a
-    correction) between steps. ``sensitivity`` is ``A^T 1``, computed once by the caller."""
-    return projector.adjoint(image / (projector.forward(volume) + background + eps)) / (sensitivity + eps)
+    """The Richardson-Lucy update factor ``max(A^T(y / max(A x + b, f)), 0) / max(A^T 1, g)``
+    (differentiable): one plain RL step is ``x * rl_ratio(...)``; learned unrolled solvers reshape it
+    (an exponent, a correction) between steps. ``sensitivity`` is ``A^T 1``, computed once by the caller.
+
+    The floors are those of the production solver (:mod:`.richardson_lucy`): ``f`` is ``16 eps`` of
+    the dtype times the image's largest value, ``g`` the same of the sensitivity's (each at least
+    ``eps``, in the same unit). Without ``f``, a pixel with counts (read noise) where the model
+    predicts no light, ``A x`` a rounding error, gave a ratio of ``y / eps`` and volumes of 1e29 on
+    a 2048^2 light field. The back-projected ratio is clipped at 0 (FFT rounding)."""
+    floor = relative_floor(sensitivity.dtype)
+    predicted = (projector.forward(volume) + background).clamp_min(
+        max(floor * float(image.detach().max()), eps)
+    )
+    denominator = sensitivity.clamp_min(max(floor * float(sensitivity.detach().max()), eps))
+    return projector.adjoint(image / predicted).clamp_min(0.0) / denominator

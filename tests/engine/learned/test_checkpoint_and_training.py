@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from safetensors.torch import save_file
@@ -15,6 +17,7 @@ from lfm_studio.engine.learned.models import build_model
 from lfm_studio.engine.learned.models.common import adjoint_normaliser
 from lfm_studio.engine.learned.train import train
 from lfm_studio.engine.progress import CancelledError
+from lfm_studio.engine.reconstruct.unrolled import richardson_lucy_unrolled
 
 DATA = TrainingDataSpec(seed=1)
 
@@ -106,6 +109,60 @@ def test_a_collapsed_model_is_refused_and_writes_nothing(fourier, tmp_path, monk
             fourier.setup, model="collapsing", data=DATA, max_steps=2, checkpoint=tmp_path / "m.safetensors"
         )
     assert not (tmp_path / "m.safetensors").exists()
+
+
+class _Overshooting(torch.nn.Module):
+    """Finite, not constant, and far too bright: worse than predicting nothing."""
+
+    def __init__(self, projector, **config):
+        super().__init__()
+        self.projector, self.config = projector, config
+        self.norm = adjoint_normaliser(projector)
+        self.weight = torch.nn.Parameter(torch.ones(()))
+
+    def forward(self, image):
+        return 1e3 * self.weight * self.projector.adjoint(image.clamp_min(0.0)) / self.norm
+
+
+class _NaNOnce(_Overshooting):
+    """Right scale, but its first training step's output is NaN (the loss too)."""
+
+    def __init__(self, projector, **config):
+        super().__init__(projector, **config)
+        self.calls = 0
+
+    def forward(self, image):
+        volume = self.weight * richardson_lucy_unrolled(self.projector, image.clamp_min(0.0), 3)
+        self.calls += self.training
+        return volume * float("nan") if self.training and self.calls == 1 else volume
+
+
+def test_a_model_worse_than_the_all_zero_volume_is_refused_and_writes_nothing(fourier, tmp_path, monkeypatch):
+    monkeypatch.setitem(model_registry.MODELS, "overshooting", _Overshooting)
+    target = tmp_path / "m.safetensors"
+    with pytest.raises(ValueError, match=r"not below the all-zero volume's 2: it reconstructs worse") as info:
+        train(
+            fourier.setup, model="overshooting", data=DATA, max_steps=2, validate_every=1, checkpoint=target
+        )
+    assert "Fix:" in str(info.value)
+    assert not target.exists()  # not even a running checkpoint
+
+
+def test_a_non_finite_step_is_skipped_and_the_weights_stay_finite(fourier, monkeypatch):
+    monkeypatch.setitem(model_registry.MODELS, "nan-once", _NaNOnce)
+    result = train(fourier.setup, model="nan-once", data=DATA, max_steps=3, validate_every=3)
+    losses = [loss for _, loss, _ in result.history]
+    assert math.isnan(losses[0]) and all(math.isfinite(v) for v in losses[1:])
+    assert all(bool(torch.isfinite(p).all()) for p in result.model.parameters())
+    assert result.header.training["best_validation"] < result.header.training["zero_floor"]
+
+
+def test_training_gives_unrolled_rl_the_datas_read_noise_unless_the_config_sets_it(fourier):
+    noisy = TrainingDataSpec(seed=1, read_noise=1.5)
+    result = train(fourier.setup, data=noisy, max_steps=1)
+    assert result.header.config["read_noise"] == 1.5
+    chosen = train(fourier.setup, data=noisy, max_steps=1, config={"read_noise": 0.5})
+    assert chosen.header.config["read_noise"] == 0.5
 
 
 def test_the_registrys_learned_method_runs_a_checkpoint_and_is_differentiable(tmp_path):

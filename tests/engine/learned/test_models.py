@@ -43,6 +43,27 @@ def test_an_untrained_unrolled_rl_is_plain_rl(system, request):
         torch.testing.assert_close(model(image), plain, rtol=1e-8, atol=1e-9)
 
 
+def test_an_untrained_unrolled_rl_with_read_noise_is_rl_on_the_shifted_poisson_data(fourier):
+    # Snyder's shifted Poisson: y + sigma^2 against A x + sigma^2. Reference: the engine's production
+    # RL on max(y, -sigma^2) + sigma^2 with background sigma^2 (its start is sum(y - b) / sum(A^T 1)).
+    from lfm_studio.engine.reconstruct.richardson_lucy import richardson_lucy
+
+    setup, sigma = fourier.setup64, 1.5
+    image = make_sample(
+        TrainingDataSpec(seed=1, photons=(1e4,), read_noise=sigma), setup, "test", 1
+    ).image.double()
+    assert float(image.min()) < 0  # the read noise makes pixels negative: the shift matters
+    model = build_model("unrolled-rl", setup.projector, iterations=4, read_noise=sigma)
+    assert model.config["read_noise"] == sigma
+    shifted = image.clamp_min(-(sigma**2)) + sigma**2
+    reference = richardson_lucy(setup.projector, shifted, iterations=4, background=sigma**2)
+    with torch.no_grad():
+        torch.testing.assert_close(model(image), reference, rtol=1e-6, atol=1e-9 * float(reference.max()))
+    assert "read_noise" not in build_model("unrolled-rl", setup.projector).config  # older checkpoints: 0
+    with pytest.raises(ValueError, match="read_noise must be >= 0"):
+        build_model("unrolled-rl", setup.projector, read_noise=-1.0)
+
+
 def test_an_untrained_multiwiener_stage_is_the_engines_wiener_filter(fourier):
     setup = fourier.setup64
     image = make_sample(TrainingDataSpec(seed=1, photons=(1e5,)), setup, "test", 2).image.double()
