@@ -146,7 +146,7 @@ def insensitive_parameters(study: Any, *, rtol: float = 1e-6) -> list[Insensitiv
 
     For each parameter and objective: the complete trials are grouped by the values of every other
     parameter; in each group with at least two values of the parameter, the objective's values must
-    agree to ``rtol`` (relative to the largest magnitude, absolutely for values near 0). Listed when
+    agree to ``rtol`` (relative to the largest magnitude; all-zero values agree). Listed when
     at least one such group exists and every such group agrees: in this space the objective does
     not see the parameter (e.g. the NA of a Fourier design whose lenslet apertures all lie inside
     the relayed pupil: they, not the NA, stop the light). Empty when no group varies one parameter
