@@ -101,7 +101,56 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
         yield client
 
 
-def _settings(args: argparse.Namespace):
+def _stored_crop(args: argparse.Namespace) -> tuple[bool, int | None]:
+    """``(True, crop)`` of the stored study a ``--resume`` continues, else ``(False, None)``."""
+    if not args.resume:
+        return False, None
+    try:
+        from lfm_studio.engine.optimize.study import load_study
+
+        settings = load_study(args.study, args.study_name).user_attrs.get("settings") or {}
+    except Exception:  # no such study yet: the run reports it
+        return False, None
+    return ("crop" in settings), settings.get("crop")
+
+
+def _crop(args: argparse.Namespace, design) -> int | None:
+    """The PSF crop: --crop, else the resumed study's, else :func:`auto_crop` of the design (printed)."""
+    from lfm_studio.engine.optimize import auto_crop, crop_views
+
+    if args.crop is not None:
+        if args.crop < 1:
+            raise ValueError(
+                f"--crop must be a positive number of camera pixels; got {args.crop}. Fix: e.g. --crop 512, "
+                "or leave it out for the automatic crop."
+            )
+        crop = args.crop
+    else:
+        stored, crop = _stored_crop(args)
+        if not stored:
+            crop = auto_crop(design)
+            views = crop_views(design, crop)
+            held = f"; {views.describe()}" if views is not None else ""
+            print(
+                f"PSF crop: {'the whole sensor' if crop is None else f'{crop} px'} (automatic{held}; --crop to change)"
+            )
+    views = crop_views(design, crop)
+    if views is not None and not views.enough:
+        better = auto_crop(design)
+        fix = (
+            "the whole sensor (--crop " + str(max(design.camera.pixel_count)) + ")"
+            if better is None
+            else f"--crop {better}"
+        )
+        print(
+            f"warning: --crop {crop}: {views.describe()} of {design.name!r} (fewer than {views.needed}); PSF and task "
+            f"objectives then score diffraction tails, not the design's views. Fix: {fix}, or leave --crop out.",
+            file=sys.stderr,
+        )
+    return crop
+
+
+def _settings(args: argparse.Namespace, design):
     from lfm_studio.cli.simulate import parse_depths, resolve_device
     from lfm_studio.engine.optimize import EvaluationSettings
     from lfm_studio.engine.simulation import depth_grid
@@ -109,8 +158,34 @@ def _settings(args: argparse.Namespace):
     depths = parse_depths(args.depths)
     return EvaluationSettings(
         depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
-        crop=args.crop,
+        crop=_crop(args, design),
         device=resolve_device(args.device),
+    )
+
+
+def _floor_warning(record: dict, crop: int | None, design) -> str | None:
+    """A warning when the best candidate's task score did not beat the all-zero floor (None otherwise)."""
+    from lfm_studio.engine.optimize import auto_crop
+
+    names = record.get("at_floor") or []
+    if not names:
+        return None
+    better = auto_crop(design)
+    if crop is not None and (better is None or crop < better):
+        fix = (
+            f"--crop {better}"
+            if better is not None
+            else f"--crop {max(design.camera.pixel_count)} (the whole sensor)"
+        )
+        fix = f"rerun with {fix} (a crop that holds enough sub-images) and a new --study-name or database"
+    else:
+        fix = "more --photons or --iterations, or a design whose views reach the sensor"
+    values = record.get("values") or {}
+    scores = ", ".join(f"{n} {values[n]:.4g}" if n in values else n for n in names)
+    return (
+        f"warning: the best candidate's {scores} does not beat the all-zero volume's score by the margin: its "
+        f"reconstruction holds almost nothing of the phantom, so the ranking (and the design written) is noise. "
+        f"Fix: {fix}."
     )
 
 
@@ -153,7 +228,7 @@ def run_algorithm2(args: argparse.Namespace) -> int:
     with progress_bar("optimise (algorithm 2)") as progress:
         result, study = run_algorithm2_study(
             design, objectives[0], args.study, min_lenslet_um=args.min_lenslet_um, symmetry=args.symmetry,
-            sizes=args.sizes, study_name=args.study_name, resume=args.resume, settings=_settings(args),
+            sizes=args.sizes, study_name=args.study_name, resume=args.resume, settings=_settings(args, design),
             seed=args.seed, progress=progress,
         )  # fmt: skip
     print(
@@ -213,7 +288,7 @@ def run_gradient(args: argparse.Namespace) -> int:
     space = load_space(args.space)
     common = {
         "steps": args.steps, "optimizer": args.optimizer, "lr": args.lr, "schedule": args.schedule,
-        "dtype": "float64" if args.float64 else "float32", "settings": _settings(args),
+        "dtype": "float64" if args.float64 else "float32", "settings": _settings(args, design),
         "constraints": _constraints(args, design),
         "catalogue": FocalLengthCatalogue(args.catalogue) if args.catalogue else None,
         "check_float64": not args.no_float64_check, "study": args.study, "study_name": args.study_name,
@@ -309,7 +384,12 @@ def run_optimize(args: argparse.Namespace) -> int:
     from lfm_studio.engine.io import check_output
     from lfm_studio.engine.optimize import Evaluator, FocalLengthCatalogue, load_space
     from lfm_studio.engine.optimize.study import record_of, run_study
-    from lfm_studio.engine.optimize.study_report import format_front, pareto_front, summary
+    from lfm_studio.engine.optimize.study_report import (
+        format_front,
+        insensitive_parameters,
+        pareto_front,
+        summary,
+    )
 
     out = check_output(
         args.out,
@@ -320,7 +400,7 @@ def run_optimize(args: argparse.Namespace) -> int:
         raise ValueError(f"--workers must be >= 1; got {args.workers}.")
     design = resolve_design(args.design)
     space = load_space(args.space)
-    settings = _settings(args)
+    settings = _settings(args, design)
     evaluator = Evaluator(
         design,
         space,
@@ -344,6 +424,8 @@ def run_optimize(args: argparse.Namespace) -> int:
             "no candidate was feasible, nothing to write (see 'lfm-studio study show' for the reasons). "
             "Fix: widen the space or relax the constraints."
         )
+    for found in insensitive_parameters(study):
+        print(_insensitive_note(found, design), file=sys.stderr)
     best = _best(front, evaluator.objectives)
     chosen = design_from_json(record_of(best)["design_json"], origin=f"study trial {best.number}")
     chosen = chosen.updated(
@@ -355,7 +437,27 @@ def run_optimize(args: argparse.Namespace) -> int:
     save_design(chosen, out, overwrite=args.overwrite)
     print(f"best design (trial {best.number}): {', '.join(f'{k}={v}' for k, v in best.params.items())}")
     print(f"wrote {out}")
+    floor = _floor_warning(record_of(best), settings.crop, design)
+    if floor is not None:
+        print(floor, file=sys.stderr)
     return 0
+
+
+def _insensitive_note(found, design) -> str:
+    """The note for a parameter that changed no value of an objective (:func:`insensitive_parameters`)."""
+    from lfm_studio.engine.systems.kinds import kind_of
+
+    note = (
+        f"note: {found.parameter} did not change {found.objective} in "
+        + ("the one group" if found.groups == 1 else f"any of the {found.groups} groups")
+        + f" of candidates that differ only in it (e.g. {found.value:.6g}): in this space the objective does not see it."
+    )
+    if found.parameter == "objective.numerical_aperture" and kind_of(design).mla_at_pupil:
+        note += (
+            " On this design the lenslet apertures, which the default constraints keep inside the relayed pupil, "
+            "stop the light, not the objective's NA: the PSF is the same for every NA whose pupil holds them all."
+        )
+    return note
 
 
 def _best(front: list, objectives) -> object:
@@ -413,7 +515,12 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
     )
     opt.add_argument("--seed", type=int, default=0, help="sampler seed (recorded with every trial)")
     opt.add_argument(
-        "--crop", type=int, default=256, help="camera pixels simulated about the axis (default 256)"
+        "--crop",
+        type=int,
+        default=None,
+        help="camera pixels simulated about the axis (default: automatic, the smallest from 256 px in "
+        "128 px steps that holds the sub-image centres of 3 lenslets, e.g. 512 for xlfm_cong2017; "
+        "with --resume, the stored study's)",
     )
     opt.add_argument("--depths", type=str, default=None, help="START:STOP:STEP in um (default: the design's)")
     opt.add_argument("--device", choices=("cpu", "cuda"), default="cpu")

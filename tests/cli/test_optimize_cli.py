@@ -175,3 +175,40 @@ def test_algorithm2_needs_the_cell_size(tmp_path, capsys):
     code = main(["optimize", "flfm_guo2019", "--algorithm2", "--objective", "axial_crb",
                  "--study", str(tmp_path / "s.db"), "--out", str(tmp_path / "b.json")])  # fmt: skip
     assert code == 2 and "needs --min-lenslet-um" in capsys.readouterr().err
+
+
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.design.errors.DesignWarning")
+def test_a_crop_without_views_warns_and_the_default_crop_adapts(tmp_path, capsys):
+    """xlfm_cong2017: --crop 256 holds none of the 27 sub-image centres, task_ncc stays at the all-zero
+    floor, and both warnings name --crop 512; without --crop the run takes 512 px by itself."""
+    space = tmp_path / "space.json"
+    space.write_text(json.dumps({"parameters": [{"path": "relay.focal_length_mm", "choices": [160]}]}))
+
+    def run(name, *extra):
+        return main(
+            [
+                "optimize", "xlfm_cong2017", "--space", str(space), "--objective", "task_ncc",
+                "--study", str(tmp_path / f"{name}.db"), "--out", str(tmp_path / f"{name}.json"),
+                "--depths", "-20:20:20", "--iterations", "10", "--task-seeds", "1000", *extra,
+            ]
+        )  # fmt: skip
+
+    assert run("tails", "--crop", "256") == 0
+    captured = capsys.readouterr()
+    assert "--crop 256: the 256 px crop holds 0 of the 27 sub-image centres" in captured.err
+    assert "the best candidate's task_ncc 0.0" in captured.err
+    assert "does not beat the all-zero volume's score by the margin" in captured.err
+    assert captured.err.count("Fix: --crop 512") == 1 and "rerun with --crop 512" in captured.err
+    assert run("auto") == 0
+    captured = capsys.readouterr()
+    assert "PSF crop: 512 px (automatic; the 512 px crop holds 3 of the 27 sub-image centres" in captured.out
+    assert "warning" not in captured.err
+    from lfm_studio.engine.optimize.study import load_study, record_of
+
+    study = load_study(str(tmp_path / "auto.db"))
+    assert study.user_attrs["settings"]["crop"] == 512
+    assert record_of(study.trials[0])["at_floor"] == [] and study.trials[0].values[0] > 0.3
+    # Resuming without --crop keeps the stored study's crop (no automatic crop, no mismatch).
+    assert run("tails", "--resume", "--overwrite") == 0
+    captured = capsys.readouterr()
+    assert "PSF crop" not in captured.out and "--crop 256: the 256 px crop holds 0" in captured.err

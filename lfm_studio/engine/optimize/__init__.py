@@ -44,6 +44,7 @@ from lfm_studio.engine.optimize.constraints import (
     NoSubImageOverlap,
     SubImagesOnSensor,
 )
+from lfm_studio.engine.optimize.crop import auto_crop, crop_views
 from lfm_studio.engine.optimize.end_to_end import optimize_end_to_end
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
 from lfm_studio.engine.optimize.gradient import GradientResult, optimize_psf
@@ -62,7 +63,7 @@ from lfm_studio.engine.optimize.objectives import (
     register_objective,
 )
 from lfm_studio.engine.optimize.psf_losses import axial_crb, depth_dissimilarity, mtf_support
-from lfm_studio.engine.optimize.task_score import TaskScore, score_volume
+from lfm_studio.engine.optimize.task_score import TaskFloorWarning, TaskScore, score_volume
 
 __all__ = [
     "DEFAULT_CONSTRAINTS",
@@ -90,11 +91,14 @@ __all__ = [
     "RequirementsPenalty",
     "SearchResult",
     "SubImagesOnSensor",
+    "TaskFloorWarning",
     "TaskScore",
     "WeightedSum",
     "algorithm2",
+    "auto_crop",
     "axial_crb",
     "best_of",
+    "crop_views",
     "depth_dissimilarity",
     "grid_search",
     "load_space",

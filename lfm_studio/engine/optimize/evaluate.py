@@ -29,6 +29,7 @@ from lfm_studio.engine.optimize.constraints import (
     infeasible_from_error,
 )
 from lfm_studio.engine.optimize.objectives import Objective
+from lfm_studio.engine.optimize.task_score import TaskFloorWarning
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 
 
@@ -42,6 +43,8 @@ class EvaluationRecord:
     cache : per-lenslet cache use (:meth:`LensletCache.use_since`): ``hits``, ``misses``, and
         when the cache could not hold this candidate's lenslets ``not_stored``, ``needed_bytes``
         and ``budget_bytes``.
+    at_floor : names of the task objectives whose score did not beat the all-zero volume's by
+        their margin (:class:`~.task_score.TaskFloorWarning`; its message is in ``warnings``).
     """
 
     params: Point
@@ -52,6 +55,7 @@ class EvaluationRecord:
     seed: int
     warnings: tuple[str, ...] = ()
     cache: dict[str, int] = field(default_factory=dict)
+    at_floor: tuple[str, ...] = ()
 
     @property
     def feasible(self) -> bool:
@@ -68,6 +72,7 @@ class EvaluationRecord:
             "seed": self.seed,
             "warnings": list(self.warnings),
             "cache": self.cache,
+            "at_floor": list(self.at_floor),
         }
 
 
@@ -167,11 +172,21 @@ class Evaluator:
         values: dict[str, float] | None = None
         timing: dict[str, float] = {}
         before = self.cache.counters()
+        at_floor: list[TaskFloorWarning] = []
         if design is not None:
-            values, infeasible, timing = score_design(
-                design, self.objectives, self.settings, seed=self.seed, cache=self.cache
-            )
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always", TaskFloorWarning)
+                values, infeasible, timing = score_design(
+                    design, self.objectives, self.settings, seed=self.seed, cache=self.cache
+                )
+            for w in caught:  # the floor warnings go into the record, the others on as they came
+                if isinstance(w.message, TaskFloorWarning):
+                    at_floor.append(w.message)
+                else:
+                    warnings.warn_explicit(w.message, w.category, w.filename, w.lineno, source=w.source)
             self.evaluations += values is not None
+            if values is not None:
+                notes = (*notes, *dict.fromkeys(str(w) for w in at_floor))
         total = time.perf_counter() - start
         timing["total_s"] = total
         timing["overhead_s"] = max(0.0, total - sum(v for k, v in timing.items() if k not in ("total_s",)))
@@ -184,4 +199,5 @@ class Evaluator:
             seed=self.seed,
             warnings=notes,
             cache=self.cache.use_since(before),
+            at_floor=tuple(dict.fromkeys(w.objective for w in at_floor)) if values is not None else (),
         )

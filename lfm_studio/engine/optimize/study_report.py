@@ -127,3 +127,55 @@ def summary(study: Any) -> dict[str, int]:
         if r.reason:
             counts[f"infeasible: {r.reason}"] = counts.get(f"infeasible: {r.reason}", 0) + 1
     return counts
+
+
+@dataclass(frozen=True)
+class Insensitive:
+    """A parameter that never changed an objective: ``groups`` sets of complete trials equal in every
+    other parameter and differing in this one all had the same ``value`` of ``objective`` (each
+    group its own value; ``value`` is the first group's)."""
+
+    parameter: str
+    objective: str
+    groups: int
+    value: float
+
+
+def insensitive_parameters(study: Any, *, rtol: float = 1e-6) -> list[Insensitive]:
+    """Parameters of ``study`` that changed none of the values of an objective.
+
+    For each parameter and objective: the complete trials are grouped by the values of every other
+    parameter; in each group with at least two values of the parameter, the objective's values must
+    agree to ``rtol`` (relative to the largest magnitude; all-zero values agree). Listed when
+    at least one such group exists and every such group agrees: in this space the objective does
+    not see the parameter (e.g. the NA of a Fourier design whose lenslet apertures all lie inside
+    the relayed pupil: they, not the NA, stop the light). Empty when no group varies one parameter
+    alone (a random sampler rarely makes such pairs).
+    """
+    complete = [t for t in study.get_trials(deepcopy=False) if t.state.name == "COMPLETE"]
+    names = [o["name"] for o in objectives_of(study)] or [
+        f"objective {i}" for i in range(len(study.directions))
+    ]
+    params = sorted({p for t in complete for p in t.params})
+    found = []
+    for param in params:
+        groups: dict[str, list[Any]] = {}
+        for t in complete:
+            others = {k: v for k, v in t.params.items() if k != param}
+            groups.setdefault(repr(sorted(others.items())), []).append(t)
+        varied = [g for g in groups.values() if len({repr(t.params.get(param)) for t in g}) > 1]
+        if not varied:
+            continue
+        for index, name in enumerate(names):
+            same = True
+            for group in varied:
+                values = [float(t.values[index]) for t in group]
+                scale = max(abs(v) for v in values)
+                if max(values) - min(values) > rtol * max(scale, 1e-300) or not all(
+                    map(math.isfinite, values)
+                ):
+                    same = False
+                    break
+            if same:
+                found.append(Insensitive(param, name, len(varied), float(varied[0][0].values[index])))
+    return found

@@ -15,11 +15,19 @@ then scored with a metric a trivial volume cannot pass (:func:`score_volume`):
 
 The score is the mean over the seeds. Seeds default to 1000 and up, apart from the seeds
 small examples and tests use for anything they tune (0, 1, 2...).
+
+Every score is compared with the all-zero volume's score on the same phantoms (the floor,
+:meth:`TaskScore.floor`); a score that does not beat it by ``margin`` of the way from the floor to
+a perfect score warns :class:`TaskFloorWarning` (the :class:`~.evaluate.Evaluator` records the
+candidate's objective in ``at_floor``): such a reconstruction holds almost nothing of the phantom
+and ranking candidates on it ranks noise. Measured: ``xlfm_cong2017`` on a 256 px sensor crop,
+which holds none of its sub-image centres, scores ``task_ncc`` 0.008-0.05 (:mod:`.crop`).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -40,7 +48,26 @@ TASK_METRICS: dict[str, tuple[str, Direction]] = {
 }
 """Task metrics: name -> (unit, direction)."""
 
+PERFECT_SCORES: dict[str, float] = {"ncc": 1.0, "f1": 1.0, "localisation": 0.0}
+"""The best value each task metric can take (a reconstruction equal to the truth)."""
+
 HELD_OUT_SEEDS: tuple[int, ...] = (1000, 1001)
+
+FLOOR_MARGIN = 0.05
+"""Default :attr:`TaskScore.margin`: a score must get 5 % of the way from the all-zero floor to a
+perfect score (``task_ncc`` above 0.05) to count as beating the floor."""
+
+
+class TaskFloorWarning(UserWarning):
+    """A task score that does not beat the all-zero volume's score by the margin.
+
+    ``objective``: the objective's name; ``value``, ``floor``, ``threshold``: the score, the
+    all-zero volume's score and the value it had to beat, in the objective's unit.
+    """
+
+    def __init__(self, message: str, *, objective: str, value: float, floor: float, threshold: float) -> None:
+        super().__init__(message)
+        self.objective, self.value, self.floor, self.threshold = objective, value, floor, threshold
 
 
 def score_volume(
@@ -87,6 +114,9 @@ class TaskScore:
     seeds : held-out phantom (and noise) seeds.
     count : beads per phantom (None: the default that fits).
     tolerance : peak match distance in voxels (F1, localisation).
+    margin : fraction of the way from the all-zero floor to a perfect score (:data:`PERFECT_SCORES`)
+        a score must get to count as beating the floor; below it :meth:`__call__` warns
+        :class:`TaskFloorWarning` (the score is still returned). 0 warns only at or below the floor.
     """
 
     metric: str = "ncc"
@@ -97,6 +127,7 @@ class TaskScore:
     seeds: tuple[int, ...] = HELD_OUT_SEEDS
     count: int | None = None
     tolerance: float = 2.0
+    margin: float = FLOOR_MARGIN
 
     def __post_init__(self) -> None:
         if self.metric not in TASK_METRICS:
@@ -109,6 +140,11 @@ class TaskScore:
             raise ValueError(f"photons must be > 0 (expected photons per image); got {self.photons!r}.")
         if not self.seeds:
             raise ValueError("seeds is empty. Fix: give at least one held-out seed, e.g. (1000,).")
+        if not (math.isfinite(self.margin) and 0.0 <= self.margin < 1.0):
+            raise ValueError(
+                f"margin must lie in [0, 1) (a fraction of the way from the all-zero floor to a perfect "
+                f"score); got {self.margin!r}. Fix: e.g. {FLOOR_MARGIN}."
+            )
 
     @property
     def name(self) -> str:
@@ -146,22 +182,54 @@ class TaskScore:
             candidate.memo[key] = (truth, estimate, reference)
         return candidate.memo[key]  # type: ignore[return-value]
 
-    def __call__(self, candidate: Candidate) -> float:
-        scores = []
+    def _score(self, candidate: Candidate, seed: int, zero: bool) -> float:
+        truth, estimate, reference = self.trial(candidate, seed)
+        return score_volume(
+            self.metric,
+            truth,
+            torch.zeros_like(estimate) if zero else estimate,
+            reference=reference,
+            voxel_size=candidate.setup.voxel_size,
+            tolerance=self.tolerance,
+        )
+
+    def floor(self, candidate: Candidate) -> float:
+        """The all-zero volume's score on the candidate's phantoms (mean over the seeds)."""
         for seed in self.seeds:
-            truth, estimate, reference = self.trial(candidate, seed)
-            with candidate.timed("score_s"):
-                scores.append(
-                    score_volume(
-                        self.metric,
-                        truth,
-                        estimate,
-                        reference=reference,
-                        voxel_size=candidate.setup.voxel_size,
-                        tolerance=self.tolerance,
-                    )
-                )
-        return sum(scores) / len(scores)
+            self.trial(candidate, seed)  # simulated and reconstructed once, timed as such
+        with candidate.timed("score_s"):
+            return sum(self._score(candidate, seed, True) for seed in self.seeds) / len(self.seeds)
+
+    def threshold(self, floor: float) -> float:
+        """The value a score must beat: ``margin`` of the way from ``floor`` to a perfect score."""
+        return floor + self.margin * (PERFECT_SCORES[self.metric] - floor)
+
+    def __call__(self, candidate: Candidate) -> float:
+        for seed in self.seeds:
+            self.trial(candidate, seed)
+        with candidate.timed("score_s"):
+            score = sum(self._score(candidate, seed, False) for seed in self.seeds) / len(self.seeds)
+        floor = self.floor(candidate)
+        threshold = self.threshold(floor)
+        beats = score > threshold if self.direction == "maximize" else score < threshold
+        if not beats:
+            unit = f" {self.unit}" if self.unit else ""
+            warnings.warn(
+                TaskFloorWarning(
+                    f"{self.name} {score:.4g}{unit} does not beat the all-zero volume's {floor:.4g}{unit} by the "
+                    f"margin ({'above' if self.direction == 'maximize' else 'below'} {threshold:.4g}{unit}, "
+                    f"{self.margin:g} of the way to a perfect {PERFECT_SCORES[self.metric]:g}): the reconstruction "
+                    "holds almost nothing of the phantom, and ranking on this score ranks noise. Fix: simulate "
+                    "a sensor crop that holds the sub-images (lfm_studio.engine.optimize.crop.auto_crop), or "
+                    "more photons / iterations.",
+                    objective=self.name,
+                    value=score,
+                    floor=floor,
+                    threshold=threshold,
+                ),
+                stacklevel=2,
+            )
+        return score
 
 
 def _object_indices(truth: torch.Tensor) -> torch.Tensor:
@@ -171,7 +239,7 @@ def _object_indices(truth: torch.Tensor) -> torch.Tensor:
 
 def task_score_from(options: dict[str, Any], metric: str) -> TaskScore:
     """A :class:`TaskScore` for ``metric`` with the run's task ``options`` (keys of :class:`TaskScore`)."""
-    known = {"phantom", "method", "iterations", "photons", "seeds", "count", "tolerance"}
+    known = {"phantom", "method", "iterations", "photons", "seeds", "count", "tolerance", "margin"}
     return TaskScore(metric=metric, **{k: v for k, v in options.items() if k in known})
 
 
