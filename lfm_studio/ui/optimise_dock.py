@@ -57,6 +57,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.optimize import objective_names
+from lfm_studio.engine.optimize.crop import auto_crop
 from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS
 from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES
@@ -252,6 +253,8 @@ class OptimiseDock(QWidget):
         self.runner.ended.connect(self._on_ended)
         self.runner.progressed.connect(self._on_progress)
         state.design_changed.connect(self._on_design_changed)
+        self._crop_auto = CLI_CROP  # what the crop fields show until edited (follows the design)
+        self._follow_auto_crop()
         self._fill_parameters()
         self._on_method_changed()
 
@@ -387,7 +390,8 @@ class OptimiseDock(QWidget):
         self.a2_crop = _field(
             "PSF crop", 0, 100_000, CLI_CROP, unit="px", integer=True, special="whole sensor", step=64,
             tip="Camera pixels simulated about the axis for objectives that need a PSF (px; 0 = the whole "
-            "sensor). CLI --crop (default 256).",
+            "sensor). Follows the design until edited: the smallest crop holding enough sub-images, as the "
+            "CLI --crop default.",
         )  # fmt: skip
         form.addRow("PSF crop", self.a2_crop)
         return self.algorithm2_box
@@ -417,7 +421,8 @@ class OptimiseDock(QWidget):
         _form_line(form, "Learning rate", (self.g_lr, 1), self.g_schedule)
         self.g_crop = _field(
             "PSF crop", 0, 100_000, CLI_CROP, unit="px", integer=True, special="whole sensor", step=64,
-            tip="Camera pixels simulated about the axis (px; 0 = the whole sensor). CLI --crop (default 256).",
+            tip="Camera pixels simulated about the axis (px; 0 = the whole sensor). Follows the design until edited: "
+            "the smallest crop holding enough sub-images, as the CLI --crop default.",
         )  # fmt: skip
         self.g_check = _check(
             "float64 check",
@@ -706,6 +711,7 @@ class OptimiseDock(QWidget):
         request = OptimiseRequest(
             tuple(free), tuple(self.checked_objectives()), sampler=self.sampler.currentText(),
             budget=self.budget.value(), study=study, resume=self.resume.isChecked(),
+            crop=auto_crop(self.state.design),
         )  # fmt: skip
         request.space()  # bounds and points checked now, with the parameter's name
         return request
@@ -998,10 +1004,20 @@ class OptimiseDock(QWidget):
             self.study_path.setText(path)
 
     def _on_design_changed(self, _design: Any) -> None:
+        self._follow_auto_crop()
         self._fill_parameters()  # current values, and the lenslets of the design in force
         if not self._min_lenslet_edited:
             self.a2_min_lenslet.setValue(default_min_lenslet_um(self.state.design))
         self._show_cells()
+
+    def _follow_auto_crop(self) -> None:
+        """The PSF crop fields that still show the last automatic crop take the design's new one
+        (:func:`auto_crop`: enough sub-images on the crop; 0 = the whole sensor); an edited value stays."""
+        crop = auto_crop(self.state.design) or 0
+        for field in (self.a2_crop, self.g_crop):
+            if int(field.value()) == self._crop_auto:
+                field.setValue(crop)
+        self._crop_auto = crop
 
     def _on_min_lenslet_committed(self, *_: Any) -> None:
         self._min_lenslet_edited = True

@@ -23,6 +23,7 @@ from lfm_studio.engine.optimize import (
 )
 from lfm_studio.engine.optimize import objectives as objectives_module
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
+from lfm_studio.engine.optimize.crop import auto_crop
 from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.ui.optimise_dock import JOB_NAME
 from lfm_studio.ui.optimise_model import METHODS, FreeParameter, GradientRequest, run_gradient
@@ -88,9 +89,9 @@ def test_each_method_shows_only_its_own_options(window):
         assert dock.parameters.isColumnHidden(5) == method.startswith("gradient")  # no grid points
     # The CLI's defaults (lfm-studio optimize), each option with a tooltip giving what it does
     assert (dock.g_steps.value(), dock.g_lr.value(), dock.g_optimizer.currentText()) == (20, 0.05, "adam")
-    assert (dock.g_schedule.currentText(), dock.g_crop.value(), dock.g_objective.currentText()) == (
-        "constant", 256, "axial_crb",
-    )  # fmt: skip
+    assert (dock.g_schedule.currentText(), dock.g_objective.currentText()) == ("constant", "axial_crb")
+    # The crop: the CLI's automatic one (the small test sensor is not larger than 256 px: the whole sensor, 0)
+    assert dock.g_crop.value() == dock.a2_crop.value() == (auto_crop(window.state.design) or 0) == 0
     assert (dock.e_lr.value(), dock.e_iterations.value(), dock.e_batch.value(), dock.e_held_out.value()) == (
         0.01, 4, 2, 4,
     )  # fmt: skip
@@ -319,3 +320,18 @@ def test_a_refusal_stays_shown_while_its_field_still_holds_the_refused_number(wi
     dock.e_batch.setText("3")
     dock.e_batch.commit()
     assert dock.e_batch.error() is None and dock.message.text() == ""
+
+
+def test_the_psf_crop_follows_the_design_until_edited(window):
+    # The XLFM preset's 27 views: a 256 px crop holds none of their spots, 512 px holds 3 (engine
+    # test_crop); the dock's crop fields and its grid search take the design's automatic crop.
+    dock = window.optimise
+    window.state.set_design(_quiet(lambda: load_preset("xlfm_cong2017")))
+    assert dock.g_crop.value() == dock.a2_crop.value() == auto_crop(window.state.design) == 512
+    dock.a2_crop.setText("640")
+    assert dock.a2_crop.commit()
+    window.state.set_design(_quiet(lambda: load_preset("flfm_guo2019")))
+    assert dock.g_crop.value() == auto_crop(window.state.design) == 256  # followed the design
+    assert dock.a2_crop.value() == 640  # edited: kept
+    _free_focus(dock)
+    assert dock.build_request().crop == 256
