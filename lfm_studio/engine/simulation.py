@@ -202,8 +202,15 @@ def light_field_image(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(counts, expected)``: camera counts (ADU) with shot and read noise, and the noise-free image.
 
+    ``counts`` are in ADU, the camera's baseline included: whole numbers in a float tensor, clipped
+    to ``[0, 2^bits - 1]`` (:func:`~lfm_studio.engine.optics.camera.digitize`). ``expected`` is ``A volume``
+    (clamped at 0) in the volume's units per pixel, neither photons nor ADU: a unit point source
+    puts the PSF stack's per-depth sum on the sensor. :func:`photons_per_unit` gives the photons
+    per unit of it (``photons / expected.sum()``).
+
     ``photons`` is the expected number of photons reaching the camera in the image;
-    ``None`` gives the noise-free expected image (also returned as ``counts``).
+    ``None`` gives the noise-free expected image (also returned as ``counts``, then in the
+    volume's units, not ADU).
     """
     ny, nx = setup.projector.image_shape
     require_memory(
