@@ -320,11 +320,12 @@ def run_gradient(args: argparse.Namespace) -> int:
                     iterations=args.unrolled_iterations, batch=args.batch, held_out=args.held_out, data=data,
                     progress=progress, **common,
                 )  # fmt: skip
+        unit_text = f" {unit}" if unit else ""  # no blank before a comma when unitless
         chosen = result.design.updated(
             name=f"{design.name} (gradient {args.gradient})",
             description=f"{design.description} Optimised by lfm-studio optimize --gradient {args.gradient}: study "
             f"{args.study_name!r} in {args.study}, {len(result.history)} {args.optimizer} steps, {objective} "
-            f"{result.start_value:.6g} -> {result.final_value:.6g} {unit}.".strip(),
+            f"{result.start_value:.6g} -> {result.final_value:.6g}{unit_text}.".strip(),
         )
         save_design(chosen, out, overwrite=args.overwrite)
     for note in dict.fromkeys([*result.warnings, *(str(w.message) for w in caught)]):
@@ -333,23 +334,27 @@ def run_gradient(args: argparse.Namespace) -> int:
         point = ", ".join(f"{k}={v:.6g}" for k, v in step.point.items())
         note = f"  (update backtracked: {step.infeasible.split(':')[0]})" if step.infeasible else ""
         print(
-            f"step {step.step:3d}  {objective} {step.value:.6g} {unit}  |grad| {step.grad_norm:.3g}  {point}{note}"
+            f"step {step.step:3d}  {objective} {step.value:.6g}{unit_text}  |grad| {step.grad_norm:.3g}  {point}{note}"
         )
-    print(f"{objective}: start {result.start_value:.6g} {unit}, final {result.final_value:.6g} {unit}")
+    print(
+        f"{objective}: start {result.start_value:.6g}{unit_text}, final {result.final_value:.6g}{unit_text}"
+    )
     if result.resumed_from:
         print(
             f"resumed: {result.resumed_from} stored steps, the optimiser restarted from the stored {result.final} point"
         )
     if result.best is not None:
-        print(f"best step {result.best.step}: {objective} {result.best.value:.6g} {unit}")
+        print(f"best step {result.best.step}: {objective} {result.best.value:.6g}{unit_text}")
     if result.last_value is not None:
-        print(f"last point (after the last update): {objective} {result.last_value:.6g} {unit}")
+        print(f"last point (after the last update): {objective} {result.last_value:.6g}{unit_text}")
     if args.gradient == "psf":
-        print(f"the design written is the {result.final} point: {objective} {result.final_value:.6g} {unit}")
+        print(
+            f"the design written is the {result.final} point: {objective} {result.final_value:.6g}{unit_text}"
+        )
     if result.snapped_value is not None:
         what = "held-out task loss" if args.gradient == "end-to-end" else objective
         before = result.extra.get("held_out_final", result.final_value)
-        print(f"snapped to the catalogue: {what} {before:.6g} -> {result.snapped_value:.6g} {unit}")
+        print(f"snapped to the catalogue: {what} {before:.6g} -> {result.snapped_value:.6g}{unit_text}")
     if args.gradient == "end-to-end":
         extra = result.extra
         print(
