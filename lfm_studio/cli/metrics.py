@@ -15,6 +15,7 @@ import math
 
 import torch
 
+from lfm_studio.cli.input_files import require_file
 from lfm_studio.engine.image_quality.basic import NORMALIZATIONS
 
 
@@ -103,6 +104,8 @@ def run_metrics(args: argparse.Namespace) -> int:
     """Handler of ``metrics``: the scorecard with floors (and per-depth curves, LPIPS) as text or JSON."""
     from lfm_studio.engine.image_quality import LPIPSUnavailableError, lpips, scorecard
 
+    require_file("--truth", args.truth, "the ground-truth volume TIFF (e.g. from 'lfm-studio image --truth')")
+    require_file("--estimate", args.estimate, "the reconstructed volume TIFF (from 'lfm-studio reconstruct')")
     (truth, truth_known), (estimate, estimate_known) = (
         _read_for_metrics(args.truth),
         _read_for_metrics(args.estimate),

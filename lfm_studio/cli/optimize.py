@@ -108,7 +108,7 @@ def _settings(args: argparse.Namespace):
 
     depths = parse_depths(args.depths)
     return EvaluationSettings(
-        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
+        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths, "--depths")),
         crop=args.crop,
         device=resolve_device(args.device),
     )
