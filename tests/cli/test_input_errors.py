@@ -3,6 +3,8 @@ fix, exits with the usage status (2) and prints no traceback."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 
 from lfm_studio.cli import main
@@ -99,3 +101,16 @@ def test_simulate_depths_out_of_order_names_the_option_and_a_fix(tmp_path, depth
     _refused(capsys, ["simulate", "flfm_guo2019", f"--depths={depths}", "--out", str(out)],
              "--depths must be START:STOP:STEP", f"got {depths}", f"Fix: e.g. {fix}.")  # fmt: skip
     assert not out.exists()
+
+
+def test_a_design_value_error_shows_its_own_fix_once(tmp_path, capsys):
+    from lfm_studio.engine.design import design_to_json, load_preset
+
+    data = json.loads(design_to_json(load_preset("flfm_guo2019")))
+    data["depths"]["depth_step_um"] = -10
+    path = tmp_path / "negative_step.json"
+    path.write_text(json.dumps(data))
+    err = _refused(
+        capsys, ["info", str(path)], "depth_step_um must be a finite number > 0 um; got -10 um. Fix: e.g. 2."
+    )
+    assert err.count("Fix:") == 1, err
