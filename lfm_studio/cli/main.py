@@ -79,9 +79,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         with design_notes(args.command):
             configure_threads(args.torch_threads)
             keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
-            code = int(args.handler(args))
+            status = int(args.handler(args))
             sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
-            return code
+            return status
     except BrokenPipeError:  # the reader stopped early (| head): stop quietly
         leave_quietly_on_broken_pipe()
         return BROKEN_PIPE

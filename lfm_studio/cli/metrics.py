@@ -12,11 +12,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import TYPE_CHECKING
 
 import torch
 
 from lfm_studio.cli.input_files import require_file
 from lfm_studio.engine.image_quality.basic import NORMALIZATIONS
+
+if TYPE_CHECKING:
+    from lfm_studio.engine.image_quality import PeakMatch
 
 
 def _read_for_metrics(path: str):
@@ -78,9 +82,9 @@ def _peak_settings(args: argparse.Namespace, truth, truth_known: bool):
     return use, options
 
 
-def peaks_line(p) -> str:
+def peaks_line(p: PeakMatch) -> str:
     """The peak matching of a scorecard in words, e.g. ``peaks: 9/10 objects matched within 2 voxels,
-    1 false; precision 0.900, recall 0.900; localisation error ...`` (``p``: its ``PeakMatch``)."""
+    1 false; precision 0.900, recall 0.900; localisation error ...``."""
     unit, false = p.unit, p.found - p.matched
     extra = f", {false} false" if false else ""
     error = (
