@@ -60,10 +60,16 @@ class CaseResult:
     rows: list[Row] = field(default_factory=list)
 
     def as_dict(self) -> dict:
-        """JSON-ready form (units in key names)."""
-        out = asdict(self)
-        out["rows"] = [asdict(r) for r in self.rows]
+        """JSON-ready form (units in key names); a NaN or infinite number (not measured, not checked,
+        not resolved) is ``None``, so the document is strict JSON (``null``, not ``NaN``)."""
+        out = _finite_or_none(asdict(self))
+        out["rows"] = [_finite_or_none(asdict(r)) for r in self.rows]
         return out
+
+
+def _finite_or_none(record: dict) -> dict:
+    """``record`` with its non-finite float values replaced by ``None``."""
+    return {k: None if isinstance(v, float) and not math.isfinite(v) else v for k, v in record.items()}
 
 
 def run_case(

@@ -24,6 +24,13 @@ def _number(value: float, spec: str) -> str:
     return "nan" if math.isnan(value) else format(value, spec)
 
 
+def _reference_check(change: float) -> str:
+    """The summary line's convergence check; NaN: it was not run (``--quick``, ``--grid-only``)."""
+    if math.isnan(change):
+        return "refined reference not checked (--quick or --grid-only)"
+    return f"refined reference differs by {format(change, '.2e')}"
+
+
 def format_case(result: CaseResult) -> str:
     """The Markdown block of one case (heading, summary line, table)."""
     depths = ", ".join(f"{z:g}" for z in result.depths_um)
@@ -31,7 +38,7 @@ def format_case(result: CaseResult) -> str:
         f"### {result.case} ({result.kind})",
         "",
         f"Depths {depths} um; reference {result.reference_seconds:.1f} s; "
-        f"refined reference differs by {_number(result.reference_change, '.2e')}"
+        + _reference_check(result.reference_change)
         + (f"; {result.note}" if result.note else "")
         + ".",
         "",

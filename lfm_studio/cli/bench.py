@@ -106,7 +106,7 @@ def run_bench(args: argparse.Namespace) -> int:
                 )
             )  # fmt: skip
     table = format_table(results)
-    document = json.dumps({"cases": [r.as_dict() for r in results]}, indent=1, allow_nan=True)
+    document = json.dumps({"cases": [r.as_dict() for r in results]}, indent=1, allow_nan=False)  # NaN: null
     print(document if args.json else table)
     if paths is not None:
         atomic_write(paths["table"], lambda fh: fh.write(table.encode()), overwrite=args.overwrite)

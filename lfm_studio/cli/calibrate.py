@@ -73,7 +73,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
         check_output(dark_frame_path(out), overwrite=args.overwrite, inputs=inputs, flag="--out (dark frame)")
     if args.design_out is not None:
         check_output(args.design_out, overwrite=args.overwrite, inputs=inputs, flag="--design-out")
-    design = resolve_design(args.design)
+    design = resolve_design(args.design, "--design")
     pixel = design.camera.pixel_pitch
     radiometry = read_frame("--radiometry", args.radiometry, pixel)
     dark = None if args.dark is None else read_frame("--dark", args.dark, pixel)

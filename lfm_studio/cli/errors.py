@@ -15,6 +15,7 @@ OUTPUT_REFUSED = 3
 OUT_OF_MEMORY = 4
 RESULT_REJECTED = 5
 INTERRUPTED = 130
+BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
 
 #: Exception type -> exit code, most specific first (all are ValueError subclasses but the last ones).
 EXIT_CODES: tuple[tuple[type[BaseException], int], ...] = (
@@ -36,6 +37,7 @@ EPILOG = f"""exit status:
   {OUT_OF_MEMORY}    not enough memory for the design (checked before allocating)
   {RESULT_REJECTED}    the reconstruction came out all zero, constant or NaN/Inf (not saved)
   {INTERRUPTED}  interrupted (Ctrl+C); nothing was written
+  {BROKEN_PIPE}  the output's reader stopped early (e.g. piped into head); the rest was dropped
   1    an unexpected error (a bug: please report the traceback)
 Every refusal names the problem and a fix; no refusal leaves a partial file."""
 

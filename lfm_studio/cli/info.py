@@ -18,7 +18,7 @@ import argparse
 import sys
 import time
 
-from lfm_studio.engine.design import DesignError, resolve_design
+from lfm_studio.engine.design import resolve_design
 from lfm_studio.engine.performance import compute_design_metrics, format_metrics_table, measurement_psf
 from lfm_studio.engine.performance.closed_forms import CRITERION_LABELS
 from lfm_studio.engine.performance.psf_measures_stack import main_focus_depth
@@ -58,12 +58,8 @@ def add_info_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
 
 
 def run_info(args: argparse.Namespace) -> int:
-    """Handler of ``info``: print the report; 0 on success, 2 when the design cannot be read."""
-    try:
-        design = resolve_design(args.design)
-    except (DesignError, OSError) as error:
-        print(f"lfm-studio info: {error}", file=sys.stderr)
-        return 2
+    """Handler of ``info``: print the report; 0 on success (a design that cannot be read raises)."""
+    design = resolve_design(args.design)  # a refusal: cli.main prints it, exit 2
     psf, focus = None, None
     if args.measure:
         if not kind_of(design).shift_invariant:  # PSF measures need per-depth shift-invariant PSFs

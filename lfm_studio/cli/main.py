@@ -14,7 +14,8 @@ from collections.abc import Sequence
 from lfm_studio import __version__
 from lfm_studio.cli.bench import add_bench_parser
 from lfm_studio.cli.calibrate import add_calibrate_parser
-from lfm_studio.cli.errors import EPILOG, INTERRUPTED, exit_code_for
+from lfm_studio.cli.console import design_notes, leave_quietly_on_broken_pipe
+from lfm_studio.cli.errors import BROKEN_PIPE, EPILOG, INTERRUPTED, exit_code_for
 from lfm_studio.cli.info import add_info_parser
 from lfm_studio.cli.metrics import add_metrics_parser
 from lfm_studio.cli.optimize import add_optimize_parsers
@@ -75,9 +76,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Only options were given (any positional would be the command): they go before "gui".
         args = parser.parse_args([*(argv if argv is not None else sys.argv[1:]), "gui"])
     try:
-        configure_threads(args.torch_threads)
-        keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
-        return int(args.handler(args))
+        with design_notes(args.command):
+            configure_threads(args.torch_threads)
+            keep_freed_memory()  # per-depth FFT buffers stay in the heap (engine/allocator.py)
+            status = int(args.handler(args))
+            sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's final flush
+            return status
+    except BrokenPipeError:  # the reader stopped early (| head): stop quietly
+        leave_quietly_on_broken_pipe()
+        return BROKEN_PIPE
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         # Named refusals (bad input, output refused, memory, rejected result) without a traceback;
         # the exit code says which kind (EPILOG).

@@ -12,10 +12,15 @@ from __future__ import annotations
 import argparse
 import json
 import math
+from typing import TYPE_CHECKING
 
 import torch
 
+from lfm_studio.cli.input_files import require_file
 from lfm_studio.engine.image_quality.basic import NORMALIZATIONS
+
+if TYPE_CHECKING:
+    from lfm_studio.engine.image_quality import PeakMatch
 
 
 def _read_for_metrics(path: str):
@@ -77,6 +82,22 @@ def _peak_settings(args: argparse.Namespace, truth, truth_known: bool):
     return use, options
 
 
+def peaks_line(p: PeakMatch) -> str:
+    """The peak matching of a scorecard in words, e.g. ``peaks: 9/10 objects matched within 2 voxels,
+    1 false; precision 0.900, recall 0.900; localisation error ...``."""
+    unit, false = p.unit, p.found - p.matched
+    extra = f", {false} false" if false else ""
+    error = (
+        ""
+        if not p.matched
+        else f"; localisation error mean {p.mean_error:.3g} {unit}, RMS {p.rms_error:.3g} {unit}"
+    )
+    return (
+        f"peaks: {p.matched}/{p.reference} objects matched within {p.tolerance:g} {p.tolerance_unit}{extra}; "
+        f"precision {p.precision:.3f}, recall {p.recall:.3f}{error}"
+    )
+
+
 def _print_card(card, prefix: str) -> None:
     report = card.report
     print(prefix + card.summary(precise=True))
@@ -85,16 +106,7 @@ def _print_card(card, prefix: str) -> None:
     sigma = ", ".join(f"{s:g}" for s in report.ssim_sigma)
     print(f"{prefix}{card.normalization}; SSIM Gaussian window sigma ({sigma}) voxels")
     if card.peaks is not None:
-        p, unit = card.peaks, card.peaks.unit
-        error = (
-            ""
-            if not p.matched
-            else f"; localisation error mean {p.mean_error:.3g} {unit}, RMS {p.rms_error:.3g} {unit}"
-        )
-        print(
-            f"{prefix}peaks: {p.describe()} matched within {p.tolerance:g} {p.tolerance_unit}; "
-            f"precision {p.precision:.3f}, recall {p.recall:.3f}{error}"
-        )
+        print(prefix + peaks_line(card.peaks))
     print(f"{prefix}floors: the all-zero volume and the truth's mean everywhere, scored the same way; "
           "margin = value - the best floor")  # fmt: skip
 
@@ -103,6 +115,8 @@ def run_metrics(args: argparse.Namespace) -> int:
     """Handler of ``metrics``: the scorecard with floors (and per-depth curves, LPIPS) as text or JSON."""
     from lfm_studio.engine.image_quality import LPIPSUnavailableError, lpips, scorecard
 
+    require_file("--truth", args.truth, "the ground-truth volume TIFF (e.g. from 'lfm-studio image --truth')")
+    require_file("--estimate", args.estimate, "the reconstructed volume TIFF (from 'lfm-studio reconstruct')")
     (truth, truth_known), (estimate, estimate_known) = (
         _read_for_metrics(args.truth),
         _read_for_metrics(args.estimate),

@@ -157,7 +157,7 @@ def _settings(args: argparse.Namespace, design):
 
     depths = parse_depths(args.depths)
     return EvaluationSettings(
-        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths)),
+        depths_um=None if depths is None else tuple(z * 1e6 for z in depth_grid(depths, "--depths")),
         crop=_crop(args, design),
         device=resolve_device(args.device),
     )

@@ -26,6 +26,7 @@ import sys
 
 import torch
 
+from lfm_studio.cli.input_files import require_file
 from lfm_studio.cli.method_options import add_method_arguments, method_options
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.cli.raw_frames import (
@@ -140,8 +141,11 @@ def run_reconstruct(args: argparse.Namespace) -> int:
     from lfm_studio.engine.reconstruct import check_reconstruction
     from lfm_studio.engine.simulation import imaging_setup
 
+    require_file("--psf", args.psf, "a PSF stack TIFF (from 'lfm-studio simulate', or beads with --measured)")
+    require_file("--calibration", args.calibration, "a calibration .json from 'lfm-studio calibrate'")
     if is_video_output(args.out):  # --out NAME.ome.zarr: a video on Dask (cli/video.py)
         return run_video(args)
+    require_file("--image", args.image, "a light-field image TIFF, (Y, X) or frames (T, Y, X)")
     inputs = [args.psf, args.image] + ([] if args.calibration is None else [args.calibration])
     check_output(args.out, overwrite=args.overwrite, inputs=inputs)
     method, options = method_options(args)

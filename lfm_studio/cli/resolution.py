@@ -75,7 +75,7 @@ def add_resolution_parser(subparsers: argparse._SubParsersAction) -> argparse.Ar
 
 
 def format_resolution_table(report: ResolutionReport) -> str:
-    """The report as aligned text."""
+    """The report as aligned text; a footnote explains "n/a" when a separation is n/a."""
 
     def um(value: float | None) -> str:
         return "n/a" if value is None else f"{value / 1e-6:.4g}"
@@ -92,10 +92,14 @@ def format_resolution_table(report: ResolutionReport) -> str:
             f"axial step {um(report.axial_voxel)} um (grid floor {um(report.axial_grid_floor)} um)",
             "",
             *align(rows),
-            "",
-            "  n/a: not resolved up to --max-lateral / --max-axial.",
+            *(["", "  n/a: not resolved up to --max-lateral / --max-axial."] if _unresolved(report) else []),
         ]
     )
+
+
+def _unresolved(report: ResolutionReport) -> bool:
+    """True when some depth's lateral or axial separation is n/a (none resolved up to the largest tried)."""
+    return any(d.lateral is None or d.axial is None for d in report.depths)
 
 
 def run_resolution(args: argparse.Namespace) -> int:

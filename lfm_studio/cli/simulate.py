@@ -11,13 +11,18 @@ noise-free expected image in photons (no camera).
 from __future__ import annotations
 
 import argparse
+import difflib
 import re
 import sys
 from pathlib import Path
 
 import torch
 
+from lfm_studio.cli.input_files import require_file
 from lfm_studio.cli.progress import progress_bar
+
+#: The phantoms ``image --phantom`` makes itself; any other value is a volume TIFF's path.
+PHANTOMS = ("beads", "cells")
 
 #: A value that starts with '-' but is a number or a START:STOP:STEP range, not an option.
 NEGATIVE_VALUE = re.compile(
@@ -67,11 +72,12 @@ def _design_file(design: str) -> str | None:
 def run_simulate(args: argparse.Namespace) -> int:
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io import check_output, write_psf_stack
-    from lfm_studio.engine.simulation import design_depths, simulate_psf
+    from lfm_studio.engine.simulation import depth_grid, design_depths, simulate_psf
 
+    depths_given = None if args.depths is None else depth_grid(args.depths, "--depths")
     out = check_output(args.out, overwrite=args.overwrite, inputs=[_design_file(args.design)])
     design = resolve_design(args.design)
-    depths = design_depths(design, args.depths)
+    depths = design_depths(design) if depths_given is None else depths_given
     with progress_bar(f"PSF stack ({design.kind}, {len(depths)} depths)") as progress:
         stack = simulate_psf(
             design, depths=depths, device=resolve_device(args.device), dtype=args.dtype, progress=progress
@@ -87,7 +93,7 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path]:
     """The checked output paths by flag (``--out``, ``--truth``, ``--expected``), all distinct."""
     from lfm_studio.engine.io import OutputError, check_output
 
-    phantom = args.phantom if args.phantom not in ("beads", "cells") else None
+    phantom = args.phantom if args.phantom not in PHANTOMS else None
     inputs = [args.psf, phantom, _design_file(args.design)]
     given = {"--out": args.out, "--truth": args.truth, "--expected": args.expected}
     outputs = {
@@ -104,6 +110,24 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path]:
     return outputs
 
 
+def _check_image_inputs(args: argparse.Namespace) -> None:
+    """Refuse a missing ``--psf``, a ``--phantom`` that is neither a phantom name nor a file, and a
+    ``--count`` below 1 (a phantom without objects images to all zeros), naming the option."""
+    require_file("--psf", args.psf, "a PSF stack TIFF from 'lfm-studio simulate'")
+    if args.phantom not in PHANTOMS and not Path(args.phantom).expanduser().is_file():
+        close = difflib.get_close_matches(args.phantom, PHANTOMS, n=1)
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise FileNotFoundError(
+            f"--phantom {args.phantom}: neither a phantom name nor an existing file{hint}. "
+            f"Fix: --phantom {' or '.join(PHANTOMS)}, or the path to a volume TIFF."
+        )
+    if args.count is not None and args.count < 1:
+        raise ValueError(
+            f"--count {args.count}: a phantom needs at least 1 bead (0 images to an all-zero frame). "
+            "Fix: --count 1 or more, or leave --count out for the default (50, or what fits)."
+        )
+
+
 def run_image(args: argparse.Namespace) -> int:
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io import camera_metadata, read_psf_stack, read_volume, write_image, write_volume
@@ -117,6 +141,7 @@ def run_image(args: argparse.Namespace) -> int:
         photons_per_unit,
     )
 
+    _check_image_inputs(args)
     outputs = _outputs(args)
     if args.photons is not None and not args.photons > 0:
         raise ValueError(f"--photons must be > 0 (expected photons in the image); got {args.photons}.")
@@ -124,7 +149,7 @@ def run_image(args: argparse.Namespace) -> int:
     device = resolve_device(args.device)
     stack = read_psf_stack(args.psf, device=device)
     setup = imaging_setup(stack)
-    if args.phantom in ("beads", "cells"):
+    if args.phantom in PHANTOMS:
         volume, info = make_phantom(args.phantom, setup, seed=args.seed, count=args.count)
         volume = volume.to(device)
     else:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from lfm_studio.cli.input_files import require_file
 from lfm_studio.cli.progress import progress_bar
 
 
@@ -61,6 +62,7 @@ def run_train(args: argparse.Namespace) -> int:
     from lfm_studio.engine.learned.train import train
     from lfm_studio.engine.simulation import imaging_setup, simulate_psf
 
+    require_file("--psf", args.psf, "a PSF stack TIFF from 'lfm-studio simulate', or leave --psf out")
     out = check_output(
         args.out, overwrite=args.overwrite or args.resume, inputs=[_design_file(args.design), args.psf]
     )

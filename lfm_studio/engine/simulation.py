@@ -36,13 +36,23 @@ __all__ = [
 ]
 
 
+def _valid_range(depths_um: tuple[float, float, float]) -> str:
+    """``depths_um`` put in order (STOP >= START, STEP > 0) as START:STOP:STEP, for a fix."""
+    start, stop, step = depths_um
+    if not (math.isfinite(start) and math.isfinite(stop)):
+        return "-40:40:10"
+    step = abs(step) if math.isfinite(step) and step else 5.0
+    return f"{min(start, stop):g}:{max(start, stop):g}:{step:g}"
+
+
 def depth_grid(depths_um: tuple[float, float, float], name: str = "depths") -> tuple[float, ...]:
     """Depths in metres from ``depths_um = (start, stop, step)`` in um (stop included when on the
     grid); ``name`` is the parameter named in the error."""
     start, stop, step = depths_um
-    if not step > 0 or stop < start:
+    if not (all(math.isfinite(v) for v in depths_um) and step > 0 and stop >= start):
         raise ValueError(
-            f"{name} must be START:STOP:STEP in um with STEP > 0 and STOP >= START; got {depths_um}."
+            f"{name} must be START:STOP:STEP in um (finite numbers) with STEP > 0 and STOP >= START; "
+            f"got {':'.join(f'{v:g}' for v in depths_um)}. Fix: e.g. {name}={_valid_range(depths_um)}."
         )
     count = math.floor((stop - start) / step + 1e-9) + 1
     return tuple((start + i * step) * 1e-6 for i in range(count))

@@ -13,6 +13,11 @@ from lfm_studio.cli import build_parser
 from lfm_studio.engine.design import load_preset, save_design
 
 
+def _no_constants(name: str) -> float:
+    """``json.loads`` ``parse_constant``: NaN, Infinity and -Infinity are not JSON; fail on them."""
+    raise AssertionError(f"{name} in a JSON document (not valid strict JSON)")
+
+
 def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     return int(args.handler(args))
@@ -60,7 +65,9 @@ def test_bench_quick_writes_a_parsable_table_json_and_png(plot_app, tiny_design,
     paraxial = next(r for r in rows if r.label == "objective_model=paraxial")
     assert abs(f64.psf_error - standard.psf_error) < 1e-4 < paraxial.psf_error - standard.psf_error
     assert parse_table((out / "accuracy_table.md").read_text()) == rows
-    document = json.loads((out / "accuracy.json").read_text())
+    document = json.loads((out / "accuracy.json").read_text(), parse_constant=_no_constants)
+    assert document["cases"][0]["reference_change"] is None  # --quick: not checked
+    assert "refined reference not checked (--quick or --grid-only)." in printed and "nan" not in printed
     assert [r["knob"] for r in document["cases"][0]["rows"]] == [r.knob for r in rows]
     measured = document["cases"][0]["rows"]
     assert [i for i, r in enumerate(measured) if r["front"]] == sorted(

@@ -132,3 +132,15 @@ def test_calibrate_a_fourier_lfm(tmp_path, capsys):
     centres = torch.tensor([lens.center_um for lens in resolve_design(str(fitted)).mla.lenslets])
     expected = torch.stack(((truth[:, 1] - shape[1] // 2), (truth[:, 0] - shape[0] // 2)), dim=1) * pixel_um
     assert float((centres.double() - expected).norm(dim=1).max()) <= 0.2 * pixel_um
+
+
+def test_a_frame_that_does_not_fit_a_fourier_design_is_refused(files, tmp_path, capsys):
+    """The conventional-LFM radiometry frame against the XLFM preset: a named refusal (exit 2), not a
+    crash in the sub-image fit."""
+    out = tmp_path / "calib.json"
+    argv = ["calibrate", "--radiometry", files["radiometry"], "--design", "xlfm_cong2017", "--out", str(out)]
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert "lfm-studio calibrate: error: the radiometry frame is 256 x 288 px, but" in err, err
+    assert "27 sub-images" in err and "Fix: " in err and "Traceback" not in err
+    assert not out.exists()

@@ -156,3 +156,17 @@ def test_frames_are_scored_one_by_one(capsys, files, tmp_path):
     assert (
         code == 0 and out.startswith("frame 0: NCC") and "\nframe 1: NCC 0.000  F1 0.00 (0/5 objects)" in out
     )
+
+
+def test_false_peaks_are_counted_after_the_matched_ones(capsys, files, tmp_path):
+    """5 beads found where they are plus 2 far from any: '5/5 objects matched within 2 voxels, 2 false'."""
+    estimate = _truth()
+    estimate[0, 30, 2] = estimate[5, 2, 30] = 100.0
+    files = {**files, "estimate": tmp_path / "false_peaks.tif"}
+    write_volume(files["estimate"], estimate.float(), voxel_size=VOXEL)
+    code, out, err = _run(capsys, files)
+    assert code == 0, err
+    line = next(line for line in out.splitlines() if line.startswith("peaks:"))
+    assert line.startswith(
+        "peaks: 5/5 objects matched within 2 voxels, 2 false; precision 0.714, recall 1.000"
+    ), line

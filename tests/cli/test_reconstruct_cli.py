@@ -210,7 +210,7 @@ def test_existing_output_is_kept_and_errors_are_named(files, tmp_path, capsys):
         run(["reconstruct", "--psf", str(tmp_path / "none.tif"), "--image", str(small), "--out", str(new)])
         == 2
     )
-    assert "No such TIFF file" in capsys.readouterr().err
+    assert f"--psf {tmp_path / 'none.tif'}: no such file. Fix:" in capsys.readouterr().err
     assert _reconstruct(files, new, "--iterations", "0") == 2
     assert "--iterations must be an integer >= 1; got 0" in capsys.readouterr().err
     # metrics: volumes of different shapes, and LPIPS without its package/weights.

@@ -75,8 +75,32 @@ def _apply(params: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     return torch.stack((a * y + b * x + ty, -b * y + a * x + tx), 1)
 
 
+def check_frame_holds_sub_images(shape: tuple[int, int], nominal: NominalSubImages) -> None:
+    """Raise ``ValueError`` when fewer than 2 of the design's sub-images lie whole on a frame of ``shape``
+    (a frame from another instrument, or a crop): the error names the frame's shape and the span the
+    design's sub-images need."""
+    whole = ~disk_leaves_frame(nominal.centres, torch.Size(shape), 0.5 * nominal.diameter)
+    if int(whole.sum()) >= 2:
+        return
+    centres = nominal.centres
+    span_y, span_x = (float(centres[:, i].max() - centres[:, i].min()) + nominal.diameter for i in (0, 1))
+    raise ValueError(
+        f"the radiometry frame is {shape[0]} x {shape[1]} px, but the design's {len(centres)} sub-images "
+        f"(each {nominal.diameter:.4g} px across) span about {math.ceil(span_y)} x {math.ceil(span_x)} px "
+        f"around the frame centre: only {int(whole.sum())} of them would lie whole on it (at least 2 are "
+        "needed to register them). Fix: give the whole camera frame the design describes, or the design "
+        "of the instrument that recorded this frame (its camera pixel size and lenslet centres)."
+    )
+
+
 def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background: float = 0.0) -> SubImageFit:
-    """Measure and register the sub-image centres of a dark-subtracted radiometry ``image`` (Y, X)."""
+    """Measure and register the sub-image centres of a dark-subtracted radiometry ``image`` (Y, X).
+
+    A frame on which fewer than 2 nominal sub-images lie whole is refused first
+    (:func:`check_frame_holds_sub_images`); a sub-image whose window misses the frame entirely
+    keeps its nominal centre and no light, and is flagged ``EDGE``.
+    """
+    check_frame_holds_sub_images((int(image.shape[0]), int(image.shape[1])), nominal)
     radius = min(0.5 * nominal.diameter + 2.0, 0.5 * min_spacing(nominal.centres))
     measured, light = [], []
     lit = (image.to(torch.float64) - background).clamp_min(0.0)
@@ -85,6 +109,10 @@ def fit_sub_images(image: torch.Tensor, nominal: NominalSubImages, *, background
         cy, cx = (round(float(v)) for v in centre)
         y0, x0 = max(cy - reach, 0), max(cx - reach, 0)
         crop = lit[y0 : cy + reach + 1, x0 : cx + reach + 1]
+        if crop.numel() == 0:  # off the frame: flagged EDGE below (its disk leaves the frame)
+            measured.append(centre.clone())
+            light.append(0.0)
+            continue
         # The brightness of this sub-image: its core only, so a brighter neighbour (another
         # vignetting) reaching into the window does not raise the threshold.
         yy = torch.arange(y0, y0 + crop.shape[0], dtype=torch.float64)[:, None] - float(centre[0])

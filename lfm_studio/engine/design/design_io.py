@@ -20,7 +20,7 @@ from pydantic import ValidationError
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.design.design import SCHEMA_VERSION, Design
 from lfm_studio.engine.design.errors import DesignFileError
-from lfm_studio.engine.design.file_keys import describe_invalid_values, describe_unknown_keys
+from lfm_studio.engine.design.file_keys import describe_invalid_values, describe_unknown_keys, has_own_fixes
 from lfm_studio.engine.design.migrations import migrate
 
 _INLINE_WIDTH = 120  # a list or list item (e.g. one lenslet) stays on one line up to this many characters
@@ -115,9 +115,14 @@ def design_from_json(text: str, *, origin: str = "design JSON") -> Design:
         unknown = describe_unknown_keys(exc, file_version=version)
         if unknown:
             raise DesignFileError(f"{origin} (schema_version {version}) {unknown}") from exc
+        generic = (
+            ""
+            if has_own_fixes(exc)
+            else " Fix: add or correct these keys (compare with a preset: resources/designs/*.json, "
+            "or save one with lfm-studio gui)."
+        )
         raise DesignFileError(
-            f"{origin} does not describe a valid design: {describe_invalid_values(exc)}. Fix: add or correct "
-            "these keys (compare with a preset: resources/designs/*.json, or save one with lfm-studio gui)."
+            f"{origin} does not describe a valid design: {describe_invalid_values(exc)}.{generic}"
         ) from exc
 
 

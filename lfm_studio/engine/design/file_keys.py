@@ -89,3 +89,9 @@ def describe_invalid_values(exc: ValidationError) -> str:
             value = value if len(value) <= 60 else value[:57] + "..."
             notes.append(f"'{where}': {error['msg']} (got {value})")
     return "; ".join(notes)
+
+
+def has_own_fixes(exc: ValidationError) -> bool:
+    """True when every problem of ``exc`` is a value error whose message carries its own ``Fix:``
+    (no missing key, no pydantic type error): a generic "add or correct these keys" would only repeat."""
+    return all(error["type"] != "missing" and "Fix:" in str(error["msg"]) for error in exc.errors())

@@ -27,12 +27,13 @@ def load_preset(name: str) -> Design:
     return design_from_json(text, origin=f"preset {name!r}")
 
 
-def resolve_design(name_or_path: str | os.PathLike[str]) -> Design:
+def resolve_design(name_or_path: str | os.PathLike[str], option: str = "design") -> Design:
     """A design from a preset name or a file path (what the command line accepts).
 
     A path-like object, or a string that ends in ``.json`` or contains a path
     separator, is read as a file; otherwise a preset name is tried first, then a
-    file of that name.
+    file of that name. A missing file raises ``FileNotFoundError`` naming ``option``
+    (``"--design"`` where the command line takes it as an option), the path and a fix.
     """
     text = os.fspath(name_or_path)
     looks_like_path = (
@@ -48,4 +49,11 @@ def resolve_design(name_or_path: str | os.PathLike[str]) -> Design:
                 f"{text!r} is neither a preset ({', '.join(list_presets())}) nor an existing design file. "
                 "Fix: check the spelling, or give the path to a .json design file."
             )
+    target = Path(text).expanduser()
+    if not target.is_file():
+        problem = "a folder, not a design file" if target.is_dir() else "no such design file"
+        raise FileNotFoundError(
+            f"{option} {text}: {problem}. Fix: give the path to a .json design file, or a preset name "
+            f"({', '.join(list_presets())})."
+        )
     return load_design(text)

@@ -97,3 +97,28 @@ def test_overlay_draws_registered_and_measured_centres():
     assert torch.allclose(distances, fit.residual, atol=1e-9)
     assert float(distances.max()) < 1.5  # jitter 0.3 px rms per axis
     assert overlay.flags == ((),) * 9
+
+
+def test_a_frame_too_small_for_the_design_is_refused_naming_both_shapes():
+    """A 188 x 192 frame (a conventional LFM's) against the XLFM preset: no sub-image lies whole on it,
+    which used to crash in torch.quantile on an empty crop."""
+    nominal = nominal_sub_images(load_preset("xlfm_cong2017"), (188, 192))
+    with pytest.raises(
+        ValueError, match=r"frame is 188 x 192 px, but the design's 27 sub-images .* span about"
+    ) as info:
+        fit_sub_images(torch.full((188, 192), 500.0, dtype=torch.float64), nominal)
+    assert "only 0 of them would lie whole on it" in str(info.value) and "Fix: " in str(info.value)
+
+
+def test_sub_images_off_the_frame_are_flagged_not_a_crash():
+    """An 800 px crop of the XLFM frame: 3 sub-images lie whole, 13 are off it entirely (empty windows)."""
+    shape = (800, 800)
+    nominal = nominal_sub_images(load_preset("xlfm_cong2017"), shape)
+    truth = nominal.centres + torch.tensor([1.0, -0.5], dtype=torch.float64)
+    frame = 1000.0 * sub_image_pattern(shape, truth, nominal.diameter)
+    fit = fit_sub_images(frame, nominal)
+    off = ((nominal.centres < -200) | (nominal.centres > 1000)).any(dim=1)
+    assert int(off.sum()) >= 10 and bool((fit.flags[off] != 0).all())
+    whole = fit.flags == 0
+    assert int(whole.sum()) >= 2
+    assert float((fit.measured[whole] - truth[whole]).norm(dim=1).max()) < 0.5

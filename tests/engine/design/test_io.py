@@ -146,6 +146,36 @@ def test_missing_key_is_named_without_a_pydantic_dump(fourier):
     assert "Fix:" in message and "errors.pydantic.dev" not in message and "input_type" not in message
 
 
+GENERIC_FIX = "Fix: add or correct these keys"
+
+
+def test_a_value_error_with_its_own_fix_gets_no_second_generic_fix(fourier):
+    data = _data(fourier)
+    data["depths"]["depth_step_um"] = -10
+    with pytest.raises(DesignFileError) as caught:
+        design_from_json(json.dumps(data), origin="x.json")
+    message = str(caught.value)
+    assert "depth_step_um must be a finite number > 0 um; got -10 um. Fix: e.g. 2." in message
+    assert message.count("Fix:") == 1 and GENERIC_FIX not in message
+
+
+@pytest.mark.parametrize(
+    ("section", "key", "value"),
+    [("camera", "pixel_count", None), ("camera", "pixel_pitch_um", "abc")],
+    ids=["missing-key", "not-a-number"],
+)
+def test_missing_keys_and_type_errors_keep_the_generic_fix(fourier, section, key, value):
+    """Neither pydantic's "missing" nor its type error carries a fix of ours: the generic one stays."""
+    data = _data(fourier)
+    if value is None:
+        del data[section][key]
+    else:
+        data[section][key] = value
+    with pytest.raises(DesignFileError) as caught:
+        design_from_json(json.dumps(data), origin="x.json")
+    assert f"'{section}.{key}'" in str(caught.value) and GENERIC_FIX in str(caught.value)
+
+
 def test_save_never_overwrites_without_being_asked(tmp_path, fourier, conventional):
     path = save_design(fourier, tmp_path / "d.json")
     before = path.read_bytes()

@@ -91,8 +91,12 @@ def test_resolve_design_takes_a_preset_name_or_a_path(tmp_path, monkeypatch):
         DesignFileError, match=r"'nope' is neither a preset \(flfm_guo2019, .*\) nor an existing design file"
     ):
         resolve_design("nope")
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(
+        FileNotFoundError, match=r"^design missing.json: no such design file\. Fix: .*xlfm_cong2017"
+    ):
         resolve_design("missing.json")
+    with pytest.raises(FileNotFoundError, match=r"^--design missing.json: no such design file\. Fix: "):
+        resolve_design("missing.json", "--design")
 
 
 def test_unknown_preset_lists_the_available_ones():
