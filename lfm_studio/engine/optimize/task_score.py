@@ -9,9 +9,12 @@ then scored with a metric a trivial volume cannot pass (:func:`score_volume`):
 - ``ncc``: Pearson correlation with the truth (unitless, maximise; the all-zero volume scores 0);
 - ``f1``: bead detection F1 against the phantom's own object positions (unitless, maximise;
   the all-zero volume scores 0);
-- ``localisation``: mean distance from each true object to its matched peak, an unmatched
-  object counting the match tolerance (um, minimise; the all-zero volume scores the tolerance,
-  the worst value).
+- ``localisation``: the OSPA distance (Schuhmacher, Vo and Vo 2008, order 1, cut-off ``c`` = the
+  match tolerance): ``(sum of matched distances + c x (max(found, true) - matched)) / max(found,
+  true)``, so a missed object and a false peak each cost ``c`` (um, minimise; the all-zero
+  volume scores ``c``, the worst value, and so does a noise volume with many false peaks). The
+  mean over the true objects alone, used before stop 28, let a noisy reconstruction whose
+  spurious peaks lay near every bead score 3.4 um against 5.2 um for a clean one (F1 0.016).
 
 The score is the mean over the seeds. Seeds default to 1000 and up, apart from the seeds
 small examples and tests use for anything they tune (0, 1, 2...).
@@ -94,10 +97,13 @@ def score_volume(
         return match.f1
     # Worst pair distance a match can have, in the errors' unit: the tolerance along the coarsest axis.
     worst = tolerance * (max(voxel_size) * 1e6 if voxel_size is not None else 1.0)
-    if match.reference == 0:
+    size = max(
+        match.found, match.reference
+    )  # OSPA (module docstring): every unpaired peak or object costs `worst`
+    if size == 0:
         return 0.0
-    total = float(match.errors.clamp_max(worst).sum()) + worst * (match.reference - match.matched)
-    return total / match.reference
+    total = float(match.errors.clamp_max(worst).sum()) + worst * (size - match.matched)
+    return total / size
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,15 @@ def test_score_volume_floors_on_constructed_volumes():
         23 / 4
     )
     assert score_volume("f1", points, found, reference=where) == pytest.approx(6 / 7)
+    # OSPA: the same plus two false peaks far from any bead: (3 x 1 + 20 x (5 - 3)) / 5 um; a noise
+    # volume with a peak beside every bead and many more elsewhere scores near the worst, 20 um.
+    found[0, 38, 2] = found[4, 2, 20] = 1.0
+    assert score_volume("localisation", points, found, reference=where, voxel_size=voxel) == pytest.approx(
+        43 / 5
+    )
+    noise = torch.rand((5, 40, 40), generator=torch.Generator().manual_seed(4))
+    noisy = score_volume("localisation", points, noise, reference=where, voxel_size=voxel)
+    assert noisy > 0.9 * 20.0
     with pytest.raises(ValueError, match="task metric"):
         score_volume("psnr", truth, truth)
 
