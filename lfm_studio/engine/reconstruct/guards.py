@@ -100,12 +100,13 @@ def check_background(
 
 
 def check_signal(image: torch.Tensor, background: torch.Tensor) -> float:
-    """Total counts above the background; raise if there are none (a zero-photon image)."""
+    """Total signal above the background, in the image's unit (photons or counts); raise if there is
+    none (a zero-photon image)."""
     total = float((image.double() - background.double()).sum())
     if not total > 0:
         raise ValueError(
-            f"image has no signal above the background: sum(image - background) = {total:.6g} counts "
-            "(must be > 0). Fix: check that the image is not all zero (no photons reached the camera), "
+            f"image has no signal above the background: sum(image - background) = {total:.6g} in the "
+            "image's unit (must be > 0). Fix: check that the image is not all zero (no photons reached the camera), "
             "that it is the right frame, and that `background` is not larger than the image."
         )
     return total
