@@ -2,8 +2,9 @@
 
 :func:`design_notes` shows a :class:`~lfm_studio.engine.design.DesignWarning` as
 ``lfm-studio COMMAND: note: MESSAGE`` on stderr, like the CLI's other notes, instead of
-Python's ``FILE:LINE: DesignWarning: ...`` plus the source line. Other warnings keep
-Python's format. Only the command line does this; the engine warns as usual.
+Python's ``FILE:LINE: DesignWarning: ...`` plus the source line, and lfm_studio's other warning
+classes (e.g. a learned model's output that does not fit the frame) as ``lfm-studio COMMAND:
+warning: MESSAGE``. Other packages' warnings keep Python's format. Only the command line does this; the engine warns as usual.
 
 :func:`leave_quietly_on_broken_pipe` is the standard answer to a reader that stops early
 (``lfm-studio metrics --json | head -1``): stdout is pointed at ``os.devnull`` so the
@@ -39,6 +40,8 @@ def design_notes(command: str | None) -> Iterator[None]:
     ) -> None:
         if issubclass(category, DesignWarning):
             print(f"lfm-studio {command or 'gui'}: note: {message}", file=file or sys.stderr)
+        elif category.__module__.startswith("lfm_studio."):  # our own warnings carry their fix
+            print(f"lfm-studio {command or 'gui'}: warning: {message}", file=file or sys.stderr)
         else:
             default(message, category, filename, lineno, file, line)
 

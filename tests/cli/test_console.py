@@ -13,6 +13,7 @@ from pathlib import Path
 from lfm_studio.cli.console import design_notes
 from lfm_studio.cli.errors import BROKEN_PIPE
 from lfm_studio.engine.design import DesignWarning, design_to_json, load_preset
+from lfm_studio.engine.learned.method import LearnedOutputWarning
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,8 +34,14 @@ def test_design_warnings_become_notes_and_others_go_to_the_default(monkeypatch):
             DesignWarning("sub-images are cut. Fix: x."), DesignWarning, "checks.py", 185, buffer
         )
         warnings.showwarning(UserWarning("other"), UserWarning, "elsewhere.py", 7, buffer, "source line")
+        warnings.showwarning(
+            LearnedOutputWarning("too bright. Fix: y."), LearnedOutputWarning, "method.py", 9, buffer
+        )
     assert warnings.showwarning is before  # restored: only the command line's run is affected
-    assert buffer.getvalue() == "lfm-studio simulate: note: sub-images are cut. Fix: x.\n"
+    assert buffer.getvalue() == (
+        "lfm-studio simulate: note: sub-images are cut. Fix: x.\n"
+        "lfm-studio simulate: warning: too bright. Fix: y.\n"
+    )
     assert [args[1:4] for args in passed_on] == [(UserWarning, "elsewhere.py", 7)]  # Python's own format
 
 

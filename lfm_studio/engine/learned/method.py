@@ -7,17 +7,28 @@ the studio offer it beside Richardson-Lucy. The checkpoint is checked against th
 PSF stack also pass its design hash and depths to :func:`~.checkpoint.load_model_for`) and loaded
 once per file and projector. The frame minus the background goes in; the model's volume, in
 photons per voxel, comes out.
+
+The volume is checked before it is returned: a non-finite, all-zero or constant one is refused
+(a ValueError naming the checkpoint), and one whose predicted image ``A x`` holds more than
+:data:`PHOTON_BALANCE` times (or less than its inverse) the frame's photons warns
+:class:`LearnedOutputWarning`: the model does not fit this data (another design, photon level
+or camera than it was trained for). The predicted total costs no projection:
+``sum(A x) = <x, A^T 1>``. A checkpoint written before stop 28's training floors returned volumes
+of 1e29 on the README's 2048^2 light field without a word.
 """
 
 from __future__ import annotations
 
 import os
+import warnings
 from collections.abc import Mapping
 from pathlib import Path
 
 import torch
 
 from lfm_studio.engine.learned.checkpoint import load_model_for
+from lfm_studio.engine.learned.losses import trivial_reason
+from lfm_studio.engine.learned.models.common import adjoint_normaliser
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 from lfm_studio.engine.reconstruct.registry import Method, Option, register
@@ -27,11 +38,19 @@ MODEL = Option(
     "model", str, None, "checkpoint written by `lfm-studio train` (.safetensors)", optional=True,
     file_filter="Checkpoints (*.safetensors)",
 )  # fmt: skip
-_LOADED: dict[tuple[str, int, int], torch.nn.Module] = {}
+_LOADED: dict[tuple[str, int, int], tuple[torch.nn.Module, torch.Tensor]] = {}  # model, A^T 1
+PHOTON_BALANCE = 10.0
+"""Largest factor between the photons the volume predicts and those the frame holds, either way."""
+
+
+class LearnedOutputWarning(UserWarning):
+    """A learned model's volume predicts far more or fewer photons than the frame holds."""
+
+
 _KEEP = 2  # models kept loaded (a video reuses one; switching back and forth reuses two)
 
 
-def _model(path: str, projector: Projector) -> torch.nn.Module:
+def _model(path: str, projector: Projector) -> tuple[torch.nn.Module, torch.Tensor]:
     source = Path(path).expanduser()
     if not source.is_file():
         raise FileNotFoundError(
@@ -41,8 +60,31 @@ def _model(path: str, projector: Projector) -> torch.nn.Module:
     if key not in _LOADED:
         while len(_LOADED) >= _KEEP:
             _LOADED.pop(next(iter(_LOADED)))
-        _LOADED[key] = load_model_for(source, projector)[0]
+        _LOADED[key] = (load_model_for(source, projector)[0], adjoint_normaliser(projector))
     return _LOADED[key]
+
+
+def check_learned_volume(
+    volume: torch.Tensor, frame: torch.Tensor, sensitivity: torch.Tensor, path: str
+) -> None:
+    """Refuse a trivial ``volume`` and warn when its predicted photons ``<x, A^T 1>`` and the
+    ``frame``'s (background removed) differ by more than :data:`PHOTON_BALANCE` either way."""
+    reason = trivial_reason(volume)
+    if reason is not None:
+        raise ValueError(
+            f"the learned model {path} returned a volume that is {reason}. Fix: train a model for this "
+            "design and photon level (`lfm-studio train`), or use another --method."
+        )
+    predicted = float((volume.detach().double() * sensitivity.double()).sum())
+    measured = float(frame.detach().double().sum())
+    if measured > 0 and not (1.0 / PHOTON_BALANCE <= predicted / measured <= PHOTON_BALANCE):
+        warnings.warn(
+            f"the learned model {path} predicts {predicted:.3g} photons on the camera where the frame "
+            f"holds {measured:.3g}: the model does not fit this data. Fix: train it for this design, "
+            "camera and photon level (`lfm-studio train`), or compare with --method rl.",
+            LearnedOutputWarning,
+            stacklevel=3,
+        )
 
 
 def run_learned(
@@ -62,10 +104,12 @@ def run_learned(
     background = options.get("background", 0.0)
     if isinstance(background, bool) or not isinstance(background, (int, float)):
         raise ValueError(f"background must be a number; got {background!r}.")
-    model = _model(path, projector)
+    model, sensitivity = _model(path, projector)
     checkpoint(cancel, progress, 0, 1, "learned model")
+    signal = frame - float(background)
     with torch.set_grad_enabled(frame.requires_grad):  # differentiable when asked, no graph otherwise
-        volume = model(frame - float(background))
+        volume = model(signal)
+    check_learned_volume(volume, signal, sensitivity, path)
     checkpoint(cancel, progress, 1, 1, "learned model")
     return volume
 

@@ -281,3 +281,26 @@ def _assert_beats_the_back_projection_floor(setup, model, test, margin: float = 
         floor = [float(ncc(s.truth, setup.projector.adjoint(s.image) / norm)) for s in test]
         assert all(trivial_reason(model(s.image)) is None for s in test)
     assert min(t - f for t, f in zip(trained, floor, strict=True)) > margin, (trained, floor)
+
+
+def test_a_learned_volume_is_checked_against_the_frames_photons(fourier):
+    # sum(A x) = <x, A^T 1>: the truth predicts the frame's photons; 1000 times it (a model that does
+    # not fit the data) warns; an all-zero or non-finite volume is refused, naming the checkpoint.
+    import warnings
+
+    from lfm_studio.engine.learned.method import LearnedOutputWarning, check_learned_volume
+
+    projector = fourier.setup.projector
+    truth = make_samples(DATA, fourier.setup, "test", 1)[0].truth
+    frame = projector.forward(truth)
+    sensitivity = adjoint_normaliser(projector)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        check_learned_volume(truth, frame, sensitivity, "m.safetensors")  # balanced: silent
+    with pytest.warns(LearnedOutputWarning, match=r"m.safetensors predicts .* photons .* the frame holds"):
+        check_learned_volume(1e3 * truth, frame, sensitivity, "m.safetensors")
+    with pytest.warns(LearnedOutputWarning, match="does not fit this data"):
+        check_learned_volume(1e-3 * truth, frame, sensitivity, "m.safetensors")
+    for bad in (torch.zeros_like(truth), truth * float("nan")):
+        with pytest.raises(ValueError, match=r"m.safetensors returned a volume that is .*Fix:"):
+            check_learned_volume(bad, frame, sensitivity, "m.safetensors")
