@@ -140,7 +140,8 @@ def run_algorithm2_study(
     min_lenslet_um : minimum lenslet size ``d_min``, micrometres (the cell of the grid).
     symmetry, sizes : as :func:`.algorithm2.algorithm2`.
     study_name, resume : as :func:`.study.run_study` (a resumed study must be the same search).
-    settings : how candidates are simulated (default :class:`EvaluationSettings`).
+    settings : how candidates are simulated (default :meth:`EvaluationSettings.for_design`: the PSF
+        crop chosen for the design).
     constraints : checks of each layout's design (default: the Fourier-design checks).
     seed : recorded with every trial.
     progress, cancel : as :func:`.algorithm2.algorithm2`.
@@ -156,7 +157,7 @@ def run_algorithm2_study(
     optuna = require_optuna()
     plane = MLAPlane.from_design(design, float(min_lenslet_um))
     check_symmetry(symmetry)
-    settings = settings or EvaluationSettings()
+    settings = settings or EvaluationSettings.for_design(design)
     if constraints is None:
         constraints = default_constraints(design)
     order = None if sizes is None else list(sizes)

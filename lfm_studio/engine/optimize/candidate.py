@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from lfm_studio.engine.design import Design
+from lfm_studio.engine.optimize.crop import auto_crop
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.simulation import ImagingSetup, design_depths, imaging_setup, simulate_psf
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
@@ -37,6 +38,13 @@ class EvaluationSettings:
     crop: int | None = 256
     device: str = "cpu"
     dtype: str | None = None
+
+    @classmethod
+    def for_design(cls, design: Design) -> EvaluationSettings:
+        """The settings a study of ``design`` uses when none are given: the defaults with the PSF crop
+        chosen for the design (:func:`~lfm_studio.engine.optimize.crop.auto_crop`: the smallest crop
+        holding enough sub-images; the fixed 256 px held none of the XLFM preset's 27)."""
+        return cls(crop=auto_crop(design))
 
     def to_dict(self) -> dict:
         return {

@@ -162,7 +162,7 @@ def optimize_end_to_end(
     spec = data or replace(DEFAULT_DATA, seed=seed)
     start = prepare_start(design, space, constraints)
     binding, u0 = start.binding, start.u
-    base = settings or EvaluationSettings()
+    base = settings or EvaluationSettings.for_design(design)
     conventional = binding.kind is CONVENTIONAL
 
     def setup_of(stack: PSFStack) -> ImagingSetup:

@@ -110,7 +110,8 @@ class Evaluator:
     constraints : checks of a built design (default: inside the pupil, sub-images on the
         sensor and apart; Fourier designs only).
     catalogue : optional focal-length catalogue applied before the checks.
-    settings : how candidates are simulated.
+    settings : how candidates are simulated (default :meth:`EvaluationSettings.for_design` of ``base``:
+        the PSF crop chosen for the design).
     seed : recorded with every trial (task scores use their own held-out seeds).
     cache_bytes : budget of the per-lenslet cache (default: a quarter of the free memory of
         ``settings.device``, between 512 MiB and 8 GiB: :func:`default_cache_bytes`).
@@ -137,7 +138,7 @@ class Evaluator:
             constraints = default_constraints(base)
         self.constraints = tuple(constraints)
         self.catalogue = catalogue
-        self.settings = settings or EvaluationSettings()
+        self.settings = settings or EvaluationSettings.for_design(base)
         self.seed = seed
         self.cache_bytes = cache_bytes
         self.cache = LensletCache(cache_bytes, device=self.settings.device)

@@ -688,7 +688,8 @@ def optimize_psf(
     steps, optimizer, lr, schedule : the descent (see the module docstring); ``lr`` in units of
         each parameter's range.
     dtype : "float32" (default) or "float64" (the whole run in double).
-    settings : depths, crop, device (``settings.dtype`` is replaced by ``dtype``).
+    settings : depths, crop, device (``settings.dtype`` is replaced by ``dtype``; default
+        :meth:`EvaluationSettings.for_design`: the PSF crop chosen for the design).
     options : objective options (``photons``, ``background`` for ``axial_crb``; ``softness``).
     constraints : checked after every step (default :func:`.constraints.default_constraints`);
         the design's own validation always applies.
@@ -716,7 +717,7 @@ def optimize_psf(
     built = psf_objective(objective, options)
     start = prepare_start(design, space, constraints)
     binding, u0 = start.binding, start.u
-    base = settings or EvaluationSettings()
+    base = settings or EvaluationSettings.for_design(design)
     direction = sign(built.direction)
 
     def loss_of(values: torch.Tensor, at: Design, precision: str) -> torch.Tensor:

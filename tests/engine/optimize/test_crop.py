@@ -96,3 +96,18 @@ def test_the_floor_is_the_all_zero_score_and_the_margin_is_checked(xlfm):
     assert TaskScore("ncc", margin=0.0).threshold(0.0) == 0.0 and TaskScore("f1").threshold(0.0) == 0.05
     with pytest.raises(ValueError, match=r"margin must lie in \[0, 1\).*got 1.5.*Fix: e.g. 0.05"):
         TaskScore(margin=1.5)
+
+
+def test_a_study_without_settings_takes_the_designs_automatic_crop(xlfm):
+    # The Python API as the CLI and the studio: no settings given -> the crop that holds enough views.
+    from lfm_studio.engine.design.space import DesignSpace, Parameter
+    from lfm_studio.engine.optimize import objective_named
+
+    space = DesignSpace((Parameter("relay.focal_length_mm", 150.0, 170.0, points=2),))
+    views = [objective_named("number_of_views")]
+    assert Evaluator(xlfm, space, views, constraints=()).settings.crop == 512
+    flfm = load_preset("flfm_guo2019")
+    assert Evaluator(flfm, space, views, constraints=()).settings.crop == 256 == auto_crop(flfm)
+    assert EvaluationSettings().crop == 256  # explicit settings keep their own default
+    given = EvaluationSettings(crop=384)
+    assert Evaluator(xlfm, space, views, settings=given, constraints=()).settings is given
