@@ -21,7 +21,8 @@ COLUMNS = (*LEGACY_COLUMNS, "lateral res. (um)", "axial res. (um)")
 
 
 def _number(value: float, spec: str) -> str:
-    return "nan" if math.isnan(value) else format(value, spec)
+    """``value`` in ``spec``; no value (NaN: not measured) reads "n/a" (:func:`_float` reads it back)."""
+    return "n/a" if math.isnan(value) else format(value, spec)
 
 
 def _reference_check(change: float) -> str:

@@ -102,10 +102,15 @@ def test_grid_rows_and_legacy_tables_round_trip():
     result.rows.append(
         Row("tiny", "voxels_per_lenslet", "7", 2.5, 1.4, math.nan, math.nan, False, "voxel 1", 2.25, math.inf)
     )
+    result.rows.append(
+        Row("tiny", "dtype", "float64", 2.5, 1.4, 1e-3, math.nan, False, "", math.nan, math.nan)
+    )
     text = format_table([result])
     assert "| n/a (other grid) | n/a (other grid) |" in text and "| 2.25 | inf |" in text
+    assert "nan" not in text and "| 1.00e-03 | n/a |" in text  # a value not measured reads n/a
     rows = parse_table(text)
     assert rows[3] == result.rows[3]  # NaN cells read back as the one math.nan object
+    assert math.isnan(rows[4].recon_error) and abs(rows[4].psf_error - 1e-3) < 1e-12
     assert all(math.isnan(r.lateral_um) and math.isnan(r.axial_um) for r in rows[:3])
     # A table written before the resolution columns existed (8 columns) still reads.
     legacy = "\n".join(
