@@ -54,24 +54,6 @@ def centered_ifft2(x: torch.Tensor) -> torch.Tensor:
     return torch.fft.fftshift(ifft2(torch.fft.ifftshift(x, dim=_DIMS)), dim=_DIMS)
 
 
-def centered_power(x: torch.Tensor) -> torch.Tensor:
-    """``|centered_fft2(x)|^2`` without the two shifts (only the modulus is kept).
-
-    For even sizes, multiplying the input by ``(-1)^(i + j)`` moves the zero frequency
-    to index ``N // 2`` of the output; the input's ``ifftshift`` only changes the output
-    phase. Odd sizes fall back to :func:`centered_fft2`.
-    """
-    ny, nx = x.shape[-2:]
-    if ny % 2 or nx % 2:
-        spectrum = centered_fft2(x)
-    else:
-        iy = torch.arange(ny, device=x.device)[:, None]
-        ix = torch.arange(nx, device=x.device)[None, :]
-        checker = (1 - 2 * ((iy + ix) % 2)).to(x.real.dtype if x.is_complex() else x.dtype)
-        spectrum = fft2(x * checker)
-    return spectrum.real**2 + spectrum.imag**2
-
-
 def rfft_along(x: torch.Tensor, n: int, dim: int) -> torch.Tensor:
     """Unnormalised real-input 1D DFT of length ``n`` (zero-padded) along ``dim``."""
     return torch.fft.rfft(x, n=n, dim=dim, norm="backward")
