@@ -103,15 +103,9 @@ def _client(args: argparse.Namespace) -> Iterator[Any]:
 
 def _stored_crop(args: argparse.Namespace) -> tuple[bool, int | None]:
     """``(True, crop)`` of the stored study a ``--resume`` continues, else ``(False, None)``."""
-    if not args.resume:
-        return False, None
-    try:
-        from lfm_studio.engine.optimize.study import load_study
+    from lfm_studio.engine.optimize.study import stored_crop
 
-        settings = load_study(args.study, args.study_name).user_attrs.get("settings") or {}
-    except Exception:  # no such study yet: the run reports it
-        return False, None
-    return ("crop" in settings), settings.get("crop")
+    return stored_crop(args.study, args.study_name) if args.resume else (False, None)
 
 
 def _crop(args: argparse.Namespace, design) -> int | None:

@@ -253,7 +253,9 @@ class OptimiseDock(QWidget):
         self.runner.ended.connect(self._on_ended)
         self.runner.progressed.connect(self._on_progress)
         state.design_changed.connect(self._on_design_changed)
-        self._crop_auto = CLI_CROP  # what the crop fields show until edited (follows the design)
+        self._crop_edited: set[int] = set()  # ids of the crop fields the user committed a value in
+        for crop_field in (self.a2_crop, self.g_crop):
+            crop_field.committed.connect(lambda *_, f=crop_field: self._crop_edited.add(id(f)))
         self._follow_auto_crop()
         self._fill_parameters()
         self._on_method_changed()
@@ -1011,13 +1013,12 @@ class OptimiseDock(QWidget):
         self._show_cells()
 
     def _follow_auto_crop(self) -> None:
-        """The PSF crop fields that still show the last automatic crop take the design's new one
-        (:func:`auto_crop`: enough sub-images on the crop; 0 = the whole sensor); an edited value stays."""
+        """The PSF crop fields the user has not edited take the design's automatic crop
+        (:func:`auto_crop`: enough sub-images on the crop; 0 = the whole sensor)."""
         crop = auto_crop(self.state.design) or 0
-        for field in (self.a2_crop, self.g_crop):
-            if int(field.value()) == self._crop_auto:
-                field.setValue(crop)
-        self._crop_auto = crop
+        for crop_field in (self.a2_crop, self.g_crop):
+            if id(crop_field) not in self._crop_edited:
+                crop_field.setValue(crop)
 
     def _on_min_lenslet_committed(self, *_: Any) -> None:
         self._min_lenslet_edited = True

@@ -52,7 +52,7 @@ from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHE
 from lfm_studio.engine.optimize.gradient_params import bind_space
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, MLAPlane
 from lfm_studio.engine.optimize.objectives import sign
-from lfm_studio.engine.optimize.study import load_study, record_of, run_study
+from lfm_studio.engine.optimize.study import DEFAULT_STUDY_NAME, load_study, record_of, run_study, stored_crop
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.simulation import simulate_psf
@@ -273,9 +273,14 @@ def run_optimisation(
 ) -> list[CandidateRow]:
     """Run ``request`` from ``base``; returns every stored candidate (resumed ones too) in trial order."""
     objectives = [objective_named(n, request.objective_options) for n in request.objectives]
+    stored, crop = (
+        stored_crop(str(Path(request.study).expanduser()), DEFAULT_STUDY_NAME)
+        if request.resume and request.study
+        else (False, None)
+    )
     evaluator = Evaluator(
-        base, request.space(), objectives, settings=EvaluationSettings(crop=request.crop)
-    )  # raises ValueError naming a path the design does not have
+        base, request.space(), objectives, settings=EvaluationSettings(crop=crop if stored else request.crop)
+    )  # raises ValueError naming a path the design does not have; a resumed study keeps its crop
     names = [o.name for o in objectives]
     rows: dict[int, CandidateRow] = {}
 

@@ -335,3 +335,27 @@ def test_the_psf_crop_follows_the_design_until_edited(window):
     assert dock.a2_crop.value() == 640  # edited: kept
     _free_focus(dock)
     assert dock.build_request().crop == 256
+    # An edited value stays even when it equals an automatic crop (it was compared by value before,
+    # so 256 typed on the XLFM, kept on the FLFM whose automatic crop is 256, became 512 on the way back).
+    window.state.set_design(_quiet(lambda: load_preset("xlfm_cong2017")))
+    assert dock.g_crop.value() == 512
+    dock.g_crop.setText("256")
+    assert dock.g_crop.commit()
+    for name in ("flfm_guo2019", "xlfm_cong2017"):
+        window.state.set_design(_quiet(lambda name=name: load_preset(name)))
+        assert dock.g_crop.value() == 256 and dock.a2_crop.value() == 640
+
+
+def test_a_resumed_grid_study_keeps_its_stored_crop(tmp_path):
+    # The dock's grid search now asks for the design's automatic crop (512 px on the XLFM); a study it
+    # stored with another crop (e.g. the old fixed one) resumes with that crop instead of being refused.
+    from lfm_studio.engine.optimize.study import load_study
+    from lfm_studio.ui.optimise_model import OptimiseRequest, run_optimisation
+
+    design = _quiet(lambda: load_preset("xlfm_cong2017"))
+    free = (FreeParameter("relay.focal_length_mm", 150.0, 170.0, 2),)
+    path = str(tmp_path / "grid.db")
+    run_optimisation(design, OptimiseRequest(free, ("number_of_views",), budget=1, study=path, crop=128))
+    again = OptimiseRequest(free, ("number_of_views",), budget=2, study=path, resume=True, crop=512)
+    assert len(run_optimisation(design, again)) == 2
+    assert load_study(path).user_attrs["settings"]["crop"] == 128

@@ -31,6 +31,7 @@ from lfm_studio.engine.learned.losses import trivial_reason
 from lfm_studio.engine.learned.models.common import adjoint_normaliser
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
+from lfm_studio.engine.reconstruct.guards import check_signal
 from lfm_studio.engine.reconstruct.registry import Method, Option, register
 from lfm_studio.engine.types import OptionValue
 
@@ -76,8 +77,8 @@ def check_learned_volume(
             "design and photon level (`lfm-studio train`), or use another --method."
         )
     predicted = float((volume.detach().double() * sensitivity.double()).sum())
-    measured = float(frame.detach().double().sum())
-    if measured > 0 and not (1.0 / PHOTON_BALANCE <= predicted / measured <= PHOTON_BALANCE):
+    measured = float(frame.detach().double().sum())  # > 0: run_learned checks the signal first
+    if not (measured > 0 and 1.0 / PHOTON_BALANCE <= predicted / measured <= PHOTON_BALANCE):
         warnings.warn(
             f"the learned model {path} predicts {predicted:.3g} photons on the camera where the frame "
             f"holds {measured:.3g}: the model does not fit this data. Fix: train it for this design, "
@@ -107,6 +108,9 @@ def run_learned(
     model, sensitivity = _model(path, projector)
     checkpoint(cancel, progress, 0, 1, "learned model")
     signal = frame - float(background)
+    check_signal(
+        frame.detach(), torch.tensor(float(background))
+    )  # a blank frame: RL's refusal, not the model's
     with torch.set_grad_enabled(frame.requires_grad):  # differentiable when asked, no graph otherwise
         volume = model(signal)
     check_learned_volume(volume, signal, sensitivity, path)

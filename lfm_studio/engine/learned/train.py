@@ -174,9 +174,12 @@ def train(
             previous, tensors = previous_run
             check_architecture(previous, str(target), setup.projector)
             if previous.config != model_config(network):
+                now = model_config(network)
+                differs = sorted(k for k in {*previous.config, *now} if previous.config.get(k) != now.get(k))
                 raise ValueError(
                     f"--resume: {target} holds a {model!r} model with config {previous.config}, not "
-                    f"{model_config(network)}. Fix: resume with the same model config, or train afresh."
+                    f"{now} (differs in {', '.join(differs)}). Fix: resume with the same model config (or "
+                    "without --config, to keep the checkpoint's), or train afresh."
                 )
             network.load_state_dict(tensors)
             steps, best_validation = (
@@ -267,9 +270,10 @@ class _Loop:
             optimiser.zero_grad()
             loss = training_loss(network(sample.image), sample.truth, self.high_pass_weight)
             value = float(loss.detach())
-            if math.isfinite(value):  # a non-finite loss would turn every weight into NaN: skip the step
+            if math.isfinite(value):  # a non-finite loss or gradient would turn every weight into NaN: skip
                 loss.backward()
-                optimiser.step()
+                if all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in network.parameters()):
+                    optimiser.step()
             step += 1
             checked = math.nan
             if (step - start) % validate_every == 0 or step - start == max_steps:

@@ -174,11 +174,34 @@ def _check_same(study: Any, attrs: dict[str, Any]) -> None:
         if key in stored and json.dumps(stored[key], sort_keys=True) != json.dumps(
             attrs[key], sort_keys=True
         ):
+            differs = ""
+            if isinstance(stored[key], dict) and isinstance(attrs[key], dict):
+                names = sorted(
+                    k for k in {*stored[key], *attrs[key]} if stored[key].get(k) != attrs[key].get(k)
+                )
+                differs = (
+                    " ("
+                    + "; ".join(
+                        f"{k}: stored {stored[key].get(k)!r}, now {attrs[key].get(k)!r}" for k in names[:4]
+                    )
+                    + ")"
+                )
             raise StudyMismatchError(
-                f"study {study.study_name!r} was made with another {key.replace('_', ' ')}; resuming it with this "
-                f"one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as before, or "
-                "a new --study-name / database."
+                f"study {study.study_name!r} was made with another {key.replace('_', ' ')}{differs}; resuming it "
+                f"with this one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as "
+                "before, or a new --study-name / database."
             )
+
+
+def stored_crop(storage: str, study_name: str | None = None) -> tuple[bool, int | None]:
+    """``(True, crop)`` of the PSF crop a stored study was run with, else ``(False, None)`` (no such
+    study or database yet, or settings without a crop): a resumed study keeps it, whatever the
+    automatic crop of its design is now (:meth:`EvaluationSettings.for_design`)."""
+    try:
+        settings = load_study(storage, study_name).user_attrs.get("settings") or {}
+    except (FileNotFoundError, ValueError, KeyError):  # not there yet: the run reports it
+        return False, None
+    return ("crop" in settings), settings.get("crop")
 
 
 EXISTS_FIX = "pass --resume to continue it, or choose another --study-name or database."

@@ -2,7 +2,9 @@
 
 Plain multiplicative updates (Richardson 1972, Lucy 1974)::
 
-    x_{k+1} = x_k * A^T(y / (A x_k + eps)) / (A^T 1 + eps)
+    x_{k+1} = x_k * max(A^T(y / max(A x_k, f)), 0) / max(A^T 1, g)
+
+(``f``, ``g``: the production solver's floors, :func:`rl_ratio`)
 
 with no safeguards, stopping rules or in-place writes, so gradients flow from the
 result to the image, the start volume and, through the projector, to the PSF and the
@@ -45,7 +47,8 @@ def richardson_lucy_unrolled(
     iterations : number of updates (>= 0; 0 returns the start volume).
     initial : start volume (positive, the projector's volume shape); default the flat
         volume whose projection carries the image's total signal.
-    eps : added to the denominators (same unit as they are), keeps them non-zero.
+    eps : the smallest floor of the denominators (same unit as they are; :func:`rl_ratio`), keeps
+        them non-zero for an all-zero image.
 
     Returns
     -------

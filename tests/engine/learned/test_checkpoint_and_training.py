@@ -148,6 +148,24 @@ def test_a_model_worse_than_the_all_zero_volume_is_refused_and_writes_nothing(fo
     assert not target.exists()  # not even a running checkpoint
 
 
+class _NaNGradientOnce(_NaNOnce):
+    """A finite loss whose first training step has a NaN gradient (d sqrt(u) / du at u = 0, times 0)."""
+
+    def forward(self, image):
+        volume = self.weight * richardson_lucy_unrolled(self.projector, image.clamp_min(0.0), 3)
+        self.calls += self.training
+        if self.training and self.calls == 1:
+            return volume + 0.0 * torch.sqrt(self.weight - self.weight.detach())
+        return volume
+
+
+def test_a_finite_loss_with_a_non_finite_gradient_is_skipped_too(fourier, monkeypatch):
+    monkeypatch.setitem(model_registry.MODELS, "nan-gradient", _NaNGradientOnce)
+    result = train(fourier.setup, model="nan-gradient", data=DATA, max_steps=3, validate_every=3)
+    assert all(math.isfinite(loss) for _, loss, _ in result.history)
+    assert all(bool(torch.isfinite(p).all()) for p in result.model.parameters())
+
+
 def test_a_non_finite_step_is_skipped_and_the_weights_stay_finite(fourier, monkeypatch):
     monkeypatch.setitem(model_registry.MODELS, "nan-once", _NaNOnce)
     result = train(fourier.setup, model="nan-once", data=DATA, max_steps=3, validate_every=3)
@@ -189,6 +207,10 @@ def test_the_registrys_learned_method_runs_a_checkpoint_and_is_differentiable(tm
         lambda y: (method(projector, y, {"model": str(path)}) * weights).sum(), (frame.clone().requires_grad_(True),),
         eps=1e-6, atol=1e-5,
     )  # fmt: skip
+    # A frame without signal above its background is RL's refusal, not a complaint about the model.
+    for blank, background in ((torch.zeros_like(frame), 0.0), (frame, float(frame.max()) + 1.0)):
+        with pytest.raises(ValueError, match="image has no signal above the background"):
+            method(projector, blank, {"model": str(path), "background": background})
 
 
 def test_a_checkpoint_of_an_older_architecture_or_another_config_is_refused_by_name(fourier, tmp_path):
@@ -301,6 +323,8 @@ def test_a_learned_volume_is_checked_against_the_frames_photons(fourier):
         check_learned_volume(1e3 * truth, frame, sensitivity, "m.safetensors")
     with pytest.warns(LearnedOutputWarning, match="does not fit this data"):
         check_learned_volume(1e-3 * truth, frame, sensitivity, "m.safetensors")
+    with pytest.warns(LearnedOutputWarning, match="the frame holds -"):  # a frame without signal: checked too
+        check_learned_volume(truth, -frame, sensitivity, "m.safetensors")
     for bad in (torch.zeros_like(truth), truth * float("nan")):
         with pytest.raises(ValueError, match=r"m.safetensors returned a volume that is .*Fix:"):
             check_learned_volume(bad, frame, sensitivity, "m.safetensors")

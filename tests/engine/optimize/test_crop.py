@@ -111,3 +111,30 @@ def test_a_study_without_settings_takes_the_designs_automatic_crop(xlfm):
     assert EvaluationSettings().crop == 256  # explicit settings keep their own default
     given = EvaluationSettings(crop=384)
     assert Evaluator(xlfm, space, views, settings=given, constraints=()).settings is given
+
+
+def test_a_resumed_study_keeps_its_stored_crop_and_a_mismatch_names_it(xlfm, tmp_path):
+    # A study stored with the old default crop (256 px) resumes with it (stored_crop, as the CLI and the
+    # studio do); resumed with the automatic crop instead, the refusal names the crop's two values.
+    pytest.importorskip("optuna")
+    from lfm_studio.engine.design.space import DesignSpace, Parameter
+    from lfm_studio.engine.optimize import objective_named
+    from lfm_studio.engine.optimize.study import StudyMismatchError, run_study, stored_crop
+
+    space = DesignSpace((Parameter("relay.focal_length_mm", 150.0, 170.0, points=2),))
+    views = [objective_named("number_of_views")]
+    storage = str(tmp_path / "old.db")
+    assert stored_crop(storage) == (False, None)  # no database yet
+    run_study(
+        Evaluator(xlfm, space, views, settings=EvaluationSettings(), constraints=()), storage, n_trials=1
+    )
+    assert stored_crop(storage) == (True, 256)
+    automatic = Evaluator(xlfm, space, views, constraints=())  # crop 512
+    with pytest.raises(StudyMismatchError, match=r"another settings \(crop: stored 256, now 512\)"):
+        run_study(automatic, storage, n_trials=1, resume=True)
+    kept = Evaluator(
+        xlfm, space, views, settings=EvaluationSettings(crop=stored_crop(storage)[1]), constraints=()
+    )
+    assert (
+        len(run_study(kept, storage, n_trials=2, resume=True).trials) == 2
+    )  # the budget counts stored trials
