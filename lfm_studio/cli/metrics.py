@@ -85,15 +85,14 @@ def _peak_settings(args: argparse.Namespace, truth, truth_known: bool):
 def peaks_line(p: PeakMatch) -> str:
     """The peak matching of a scorecard in words, e.g. ``peaks: 9/10 objects matched within 2 voxels,
     1 false; precision 0.900, recall 0.900; localisation error ...``."""
-    unit, false = p.unit, p.found - p.matched
-    extra = f", {false} false" if false else ""
+    unit = p.unit
     error = (
         ""
         if not p.matched
         else f"; localisation error mean {p.mean_error:.3g} {unit}, RMS {p.rms_error:.3g} {unit}"
     )
     return (
-        f"peaks: {p.matched}/{p.reference} objects matched within {p.tolerance:g} {p.tolerance_unit}{extra}; "
+        f"peaks: {p.describe(matched=f' matched within {p.tolerance:g} {p.tolerance_unit}')}; "
         f"precision {p.precision:.3f}, recall {p.recall:.3f}{error}"
     )
 

@@ -112,6 +112,7 @@ def _crop(args: argparse.Namespace, design) -> int | None:
     """The PSF crop: --crop, else the resumed study's, else :func:`auto_crop` of the design (printed)."""
     from lfm_studio.engine.optimize import auto_crop, crop_views
 
+    automatic = False
     if args.crop is not None:
         if args.crop < 1:
             raise ValueError(
@@ -122,26 +123,33 @@ def _crop(args: argparse.Namespace, design) -> int | None:
     else:
         stored, crop = _stored_crop(args)
         if not stored:
-            crop = auto_crop(design)
-            views = crop_views(design, crop)
-            held = f"; {views.describe()}" if views is not None else ""
-            print(
-                f"PSF crop: {'the whole sensor' if crop is None else f'{crop} px'} (automatic{held}; --crop to change)"
-            )
+            crop, automatic = auto_crop(design), True
     views = crop_views(design, crop)
-    if views is not None and not views.enough:
-        better = auto_crop(design)
-        fix = (
-            "the whole sensor (--crop " + str(max(design.camera.pixel_count)) + ")"
-            if better is None
-            else f"--crop {better}"
+    if automatic:
+        held = f"; {views.describe()}" if views is not None else ""
+        print(
+            f"PSF crop: {'the whole sensor' if crop is None else f'{crop} px'} (automatic{held}; --crop to change)"
         )
+    elif views is not None and not views.enough:
         print(
             f"warning: --crop {crop}: {views.describe()} of {design.name!r} (fewer than {views.needed}); PSF and task "
-            f"objectives then score diffraction tails, not the design's views. Fix: {fix}, or leave --crop out.",
+            f"objectives then score diffraction tails, not the design's views. Fix: {_crop_fix(design)}, or leave "
+            "--crop out.",
             file=sys.stderr,
         )
     return crop
+
+
+def _crop_fix(design) -> str:
+    """The ``--crop`` that holds enough sub-images of ``design`` (:func:`auto_crop`), as a fix."""
+    from lfm_studio.engine.optimize import auto_crop
+
+    better = auto_crop(design)
+    return (
+        f"--crop {better}"
+        if better is not None
+        else f"--crop {max(design.camera.pixel_count)} (the whole sensor)"
+    )
 
 
 def _settings(args: argparse.Namespace, design):
@@ -166,12 +174,7 @@ def _floor_warning(record: dict, crop: int | None, design) -> str | None:
         return None
     better = auto_crop(design)
     if crop is not None and (better is None or crop < better):
-        fix = (
-            f"--crop {better}"
-            if better is not None
-            else f"--crop {max(design.camera.pixel_count)} (the whole sensor)"
-        )
-        fix = f"rerun with {fix} (a crop that holds enough sub-images) and a new --study-name or database"
+        fix = f"rerun with {_crop_fix(design)} (a crop that holds enough sub-images) and a new --study-name or database"
     else:
         fix = "more --photons or --iterations, or a design whose views reach the sensor"
     values = record.get("values") or {}

@@ -61,9 +61,16 @@ def test_a_cropped_design_warns_in_one_line_without_file_or_source(tmp_path):
 
 
 def test_a_reader_that_leaves_early_ends_the_command_quietly():
-    """stdout's reader is gone before anything is written (``| head -0``): no traceback, exit 141."""
-    proc = _cli("info", "xlfm_cong2017", "--json", stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    proc.stdout.close()
+    """stdout's reader is gone before anything is written (``| head -0``): no traceback, exit 141.
+
+    The pipe's read end is closed before the command starts, so every write fails whatever the
+    timing (closing it after the start would race the child's first write into the pipe buffer)."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        proc = _cli("info", "xlfm_cong2017", "--json", stdout=write_end, stderr=subprocess.PIPE)
+    finally:
+        os.close(write_end)
     err = proc.stderr.read().decode()
     proc.stderr.close()
     assert proc.wait(timeout=120) == BROKEN_PIPE, err

@@ -85,10 +85,10 @@ class PeakMatch:
         """Root-mean-square distance of the matched pairs in ``unit`` (NaN without a match)."""
         return float(self.errors.square().mean().sqrt()) if self.matched else math.nan
 
-    def describe(self, noun: str = "objects") -> str:
-        """E.g. ``"9/10 beads, 1 false"``."""
+    def describe(self, noun: str = "objects", matched: str = "") -> str:
+        """E.g. ``"9/10 beads, 1 false"``; ``matched`` follows the count (e.g. ``" matched within 2 voxels"``)."""
         false = self.found - self.matched
-        return f"{self.matched}/{self.reference} {noun}" + (f", {false} false" if false else "")
+        return f"{self.matched}/{self.reference} {noun}{matched}" + (f", {false} false" if false else "")
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready numbers (``null`` for an undefined localisation error)."""

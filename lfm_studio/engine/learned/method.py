@@ -40,15 +40,13 @@ MODEL = Option(
     file_filter="Checkpoints (*.safetensors)",
 )  # fmt: skip
 _LOADED: dict[tuple[str, int, int], tuple[torch.nn.Module, torch.Tensor]] = {}  # model, A^T 1
+_KEEP = 2  # models kept loaded (a video reuses one; switching back and forth reuses two)
 PHOTON_BALANCE = 10.0
 """Largest factor between the photons the volume predicts and those the frame holds, either way."""
 
 
 class LearnedOutputWarning(UserWarning):
     """A learned model's volume predicts far more or fewer photons than the frame holds."""
-
-
-_KEEP = 2  # models kept loaded (a video reuses one; switching back and forth reuses two)
 
 
 def _model(path: str, projector: Projector) -> tuple[torch.nn.Module, torch.Tensor]:
@@ -77,7 +75,7 @@ def check_learned_volume(
             "design and photon level (`lfm-studio train`), or use another --method."
         )
     predicted = float((volume.detach().double() * sensitivity.double()).sum())
-    measured = float(frame.detach().double().sum())  # > 0: run_learned checks the signal first
+    measured = float(frame.detach().double().sum())
     if not (measured > 0 and 1.0 / PHOTON_BALANCE <= predicted / measured <= PHOTON_BALANCE):
         warnings.warn(
             f"the learned model {path} predicts {predicted:.3g} photons on the camera where the frame "
@@ -107,10 +105,8 @@ def run_learned(
         raise ValueError(f"background must be a number; got {background!r}.")
     model, sensitivity = _model(path, projector)
     checkpoint(cancel, progress, 0, 1, "learned model")
+    check_signal(frame.detach(), torch.tensor(float(background)))  # a blank frame: RL's refusal
     signal = frame - float(background)
-    check_signal(
-        frame.detach(), torch.tensor(float(background))
-    )  # a blank frame: RL's refusal, not the model's
     with torch.set_grad_enabled(frame.requires_grad):  # differentiable when asked, no graph otherwise
         volume = model(signal)
     check_learned_volume(volume, signal, sensitivity, path)

@@ -174,23 +174,22 @@ def _check_same(study: Any, attrs: dict[str, Any]) -> None:
         if key in stored and json.dumps(stored[key], sort_keys=True) != json.dumps(
             attrs[key], sort_keys=True
         ):
-            differs = ""
-            if isinstance(stored[key], dict) and isinstance(attrs[key], dict):
-                names = sorted(
-                    k for k in {*stored[key], *attrs[key]} if stored[key].get(k) != attrs[key].get(k)
-                )
-                differs = (
-                    " ("
-                    + "; ".join(
-                        f"{k}: stored {stored[key].get(k)!r}, now {attrs[key].get(k)!r}" for k in names[:4]
-                    )
-                    + ")"
-                )
+            differs = _differences(stored[key], attrs[key])
             raise StudyMismatchError(
                 f"study {study.study_name!r} was made with another {key.replace('_', ' ')}{differs}; resuming it "
                 f"with this one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as "
                 "before, or a new --study-name / database."
             )
+
+
+def _differences(stored: Any, now: Any) -> str:
+    """`` (key: stored X, now Y; ...)`` for two dicts (at most 4 keys), else ``""``."""
+    if not (isinstance(stored, dict) and isinstance(now, dict)):
+        return ""
+    keys = sorted(k for k in {*stored, *now} if stored.get(k) != now.get(k))[:4]
+    if not keys:
+        return ""
+    return " (" + "; ".join(f"{k}: stored {stored.get(k)!r}, now {now.get(k)!r}" for k in keys) + ")"
 
 
 def stored_crop(storage: str, study_name: str | None = None) -> tuple[bool, int | None]:

@@ -167,15 +167,12 @@ def insensitive_parameters(study: Any, *, rtol: float = 1e-6) -> list[Insensitiv
         if not varied:
             continue
         for index, name in enumerate(names):
-            same = True
-            for group in varied:
-                values = [float(t.values[index]) for t in group]
-                scale = max(abs(v) for v in values)
-                if max(values) - min(values) > rtol * max(scale, 1e-300) or not all(
-                    map(math.isfinite, values)
-                ):
-                    same = False
-                    break
-            if same:
+            if all(_agree([float(t.values[index]) for t in group], rtol) for group in varied):
                 found.append(Insensitive(param, name, len(varied), float(varied[0][0].values[index])))
     return found
+
+
+def _agree(values: list[float], rtol: float) -> bool:
+    """All finite and equal to ``rtol`` of the largest magnitude (all-zero values agree)."""
+    scale = max(abs(v) for v in values)
+    return all(map(math.isfinite, values)) and max(values) - min(values) <= rtol * max(scale, 1e-300)

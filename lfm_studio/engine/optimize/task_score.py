@@ -97,9 +97,8 @@ def score_volume(
         return match.f1
     # Worst pair distance a match can have, in the errors' unit: the tolerance along the coarsest axis.
     worst = tolerance * (max(voxel_size) * 1e6 if voxel_size is not None else 1.0)
-    size = max(
-        match.found, match.reference
-    )  # OSPA (module docstring): every unpaired peak or object costs `worst`
+    # OSPA (module docstring): every unpaired peak or object costs `worst`.
+    size = max(match.found, match.reference)
     if size == 0:
         return 0.0
     total = float(match.errors.clamp_max(worst).sum()) + worst * (size - match.matched)

@@ -26,6 +26,7 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 from __future__ import annotations
 
 import math
+from functools import cached_property
 
 import torch
 
@@ -177,7 +178,7 @@ class LensletInput:
         rows = fft.fft_along(torch.polar(box.amplitude.expand_as(phase), phase), n, dim=-1)
         return fft.fft_along(rows.mT.contiguous(), n, dim=-1).mT
 
-    @property
+    @cached_property
     def _support(self) -> tuple[tuple[int, int], tuple[int, int]]:
         """Row and column ranges of the non-zero amplitude, 2 samples wider (clipped)."""
         nonzero = self.amplitude.detach() != 0
