@@ -78,7 +78,10 @@ def run_train(args: argparse.Namespace) -> int:
     design_hash, depths = stack_identity(stack)
     setup = imaging_setup(stack)
     threads = args.torch_threads if args.torch_threads is not None else 1
-    with progress_bar(f"training {args.model} ({args.minutes:g} min budget, {threads} thread)") as progress:
+    unit = "step" if args.steps is not None else "s"  # the engine counts capped steps, else budget seconds
+    with progress_bar(
+        f"training {args.model} ({args.minutes:g} min budget, {threads} thread)", unit
+    ) as progress:
         result = train(
             setup, model=args.model, config=args.config, data=data, budget_minutes=args.minutes, max_steps=args.steps, seed=args.seed,
             design_hash=design_hash, depths=depths, design=stack.design, checkpoint=out, resume=args.resume, overwrite=args.overwrite,

@@ -254,7 +254,8 @@ class _Loop:
         if math.isinf(best):  # the starting point is the first candidate: training never ends worse
             self.network.eval()
             self.best = validation_loss(network, self.validation, self.high_pass_weight)
-        total = max_steps if max_steps is not None else 0
+        # progress counts steps when they are capped, else the seconds of the budget spent
+        total = max_steps if max_steps is not None else max(round(budget_s), 1)
         while max_steps is None or step - start < max_steps:
             if clock() - began >= budget_s:
                 reason = "time budget"
@@ -284,7 +285,8 @@ class _Loop:
                 on_step(step, value, checked)
             if progress is not None:
                 shown = "" if math.isnan(checked) else f", validation {checked:.4f}"
-                progress(step - start, total, f"step {step}: loss {value:.4f}{shown}")
+                done = step - start if max_steps is not None else min(round(clock() - began), total)
+                progress(done, total, f"step {step}: loss {value:.4f}{shown}")
             if since_best >= patience:
                 reason = "early stopping"
                 break

@@ -328,3 +328,23 @@ def test_a_learned_volume_is_checked_against_the_frames_photons(fourier):
     for bad in (torch.zeros_like(truth), truth * float("nan")):
         with pytest.raises(ValueError, match=r"m.safetensors returned a volume that is .*Fix:"):
             check_learned_volume(bad, frame, sensitivity, "m.safetensors")
+
+
+def test_a_budget_run_reports_progress_in_seconds_of_its_budget(fourier):
+    """Without a step cap the progress total is the budget in seconds and ``done`` the seconds spent
+    (it used to report a total of 0, which a progress bar cannot show)."""
+    ticks = iter(range(0, 10_000, 7))  # each clock() call advances 7 s
+    calls = []
+    result = train(
+        fourier.setup,
+        data=DATA,
+        budget_minutes=1.0,
+        validate_every=100,
+        clock=lambda: float(next(ticks)),
+        progress=lambda done, total, message: calls.append((done, total, message)),
+    )
+    assert result.stop_reason == "time budget"
+    assert calls and {total for _, total, _ in calls} == {60}
+    done = [d for d, _, _ in calls]
+    assert done == sorted(done) and done[0] > 0 and done[-1] <= 60
+    assert calls[0][2].startswith("step 1:")
