@@ -162,14 +162,16 @@ class ParameterPanel(QScrollArea):
             self._commit({"accuracy": AccuracySpec.from_preset(name)}, "accuracy")
 
     def _commit(self, changes: dict[str, Any], path: str, fallback: dict[str, Any] | None = None) -> None:
-        """Apply ``changes`` together; if refused, try ``fallback`` (the edit alone) before refusing."""
+        """Apply ``changes`` together; if refused, try ``fallback`` (the edit alone) before refusing.
+
+        A refusal records the edit's own reason: with a fallback, the reason the edit alone was
+        refused (the combined outcome's reason also names the other waiting fields).
+        """
         state = self.state
         outcome = try_changes(state.design, changes)
         accepted = changes
         if not outcome.ok and fallback is not None:
-            alone = try_changes(state.design, fallback)
-            if alone.ok:
-                outcome, accepted = alone, fallback
+            outcome, accepted = try_changes(state.design, fallback), fallback
         if outcome.ok:
             state.set_design(outcome.design, warnings=outcome.warnings)
             state.clear_errors(accepted)

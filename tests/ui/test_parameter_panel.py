@@ -149,3 +149,16 @@ def test_volume_grid_settings_are_edited_per_kind(panel, design):
     _set(panel, "accuracy.volume_oversampling", 2)  # even: refused with the reason, design stays
     assert state.design.accuracy.volume_oversampling == 3
     assert "volume_oversampling must be 1, 3, 5 or 7" in state.errors["accuracy.volume_oversampling"]
+
+
+def test_a_field_shows_only_its_own_reason_while_another_field_is_refused(panel, design):
+    state = panel.state
+    _set(panel, "depths.depth_step_um", 0.0)  # refused, waits to be corrected
+    _set(panel, "camera.quantum_efficiency", 1.5)  # refused too: together and alone
+    qe, step = panel.error_labels["camera.quantum_efficiency"], panel.error_labels["depths.depth_step_um"]
+    assert "quantum_efficiency must be in (0, 1]" in qe.text()
+    assert (
+        "depth_step_um" not in qe.text() and "depth_step_um" not in state.errors["camera.quantum_efficiency"]
+    )
+    assert "depth_step_um must be a finite number > 0" in step.text() and "quantum" not in step.text()
+    assert state.design == design
