@@ -68,6 +68,7 @@ class StudioController(QObject):
         self._timer.setInterval(debounce_ms)
         self._timer.timeout.connect(self.run_stale)
         self.runner.status_changed.connect(self._on_status)
+        self.runner.ended.connect(self._on_ended)
         state.design_changed.connect(self._on_design_changed)
         state.device_changed.connect(self._on_changed)
         state.workflow_changed.connect(self._on_changed)
@@ -224,6 +225,10 @@ class StudioController(QObject):
 
     def _on_error(self, outcome: JobOutcome) -> None:
         self.last_error = outcome
+
+    def _on_ended(self, outcome: JobOutcome) -> None:
+        if outcome.name == "reconstruction" and outcome.state != "done":  # its partial curves were shown
+            self.state.restore_convergence()
 
     # ----- changes -----
 

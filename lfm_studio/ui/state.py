@@ -242,7 +242,11 @@ class StudioState:
 
     @property
     def convergence(self) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """Richardson-Lucy convergence: NCC with the truth and relative change after each iteration (live)."""
+        """Richardson-Lucy convergence: NCC with the truth and relative change after each iteration.
+
+        Live while a reconstruction runs; the kept reconstruction's once it ends (done: the new one;
+        cancelled or failed: the previous one, :meth:`restore_convergence`).
+        """
         return self._convergence
 
     def set_convergence(self, quality: tuple[float, ...], change: tuple[float, ...]) -> None:
@@ -250,6 +254,12 @@ class StudioState:
         if value != self._convergence:
             self._convergence = value
             self.convergence_changed.emit(value)
+
+    def restore_convergence(self) -> None:
+        """Show the kept reconstruction's curves again (none: empty), after a run that streamed its
+        own partial curves was cancelled or failed."""
+        kept = self._reconstruction
+        self.set_convergence(*((kept.ncc_curve, kept.change_curve) if kept is not None else ((), ())))
 
     @property
     def metrics(self) -> DesignMetrics | None:

@@ -250,3 +250,85 @@ def test_without_auto_update_only_the_button_recomputes_the_image(qtbot, studio)
     controller.request_image()
     qtbot.waitUntil(lambda: state.image is not first, timeout=TIMEOUT_MS)
     assert state.image.info["seed"] == 2
+
+
+KEPT_CURVES = ((0.2, 0.4, 0.5), (0.5, 0.2, 0.1))  # NCC and relative change of the kept run
+PARTIAL_CURVES = ((0.05,), (0.9,))  # what the run that does not finish streams first
+
+
+@pytest.fixture
+def kept_run(qtbot, design):
+    """A state holding a finished 3-iteration reconstruction of a fresh image (neither computed here)."""
+    import torch
+
+    from lfm_studio.ui.results import ReconstructionResult
+
+    state = StudioState(design)
+    controller = StudioController(state, debounce_ms=10, preview=False)
+    kept = ReconstructionResult(
+        torch.ones(1, 2, 2), (1e-6,) * 3, 3, change_curve=KEPT_CURVES[1], ncc_curve=KEPT_CURVES[0]
+    )
+    state.set_image(SimpleNamespace(name="image stand-in"))
+    state.set_reconstruction(kept)
+    for stage in ("psf", "image", "reconstruction"):
+        state.mark_fresh(stage)
+    yield state, controller, kept
+    controller.shutdown()
+
+
+def _rerun_streaming(qtbot, state, controller, monkeypatch, end):
+    """Start a reconstruction that streams PARTIAL_CURVES, then ends with ``end(ctx)`` once the test
+    has seen the partial curve on the state (and, for a cancel, cancelled it)."""
+    seen = threading.Event()
+
+    def streaming(ctx, design, image, settings):
+        ctx.partial(PARTIAL_CURVES)
+        assert seen.wait(60)
+        return end(ctx)
+
+    monkeypatch.setattr(pipeline, "reconstruct", streaming)
+    controller.request_reconstruction()
+    qtbot.waitUntil(lambda: state.convergence == PARTIAL_CURVES, timeout=TIMEOUT_MS)  # live while running
+    return seen
+
+
+def test_a_cancelled_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot, kept_run, monkeypatch):
+    state, controller, kept = kept_run
+
+    def until_cancelled(ctx):
+        assert ctx.cancel.wait(60)
+        ctx.check()
+
+    seen = _rerun_streaming(qtbot, state, controller, monkeypatch, until_cancelled)
+    controller.cancel()
+    seen.set()
+    qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
+    assert state.reconstruction is kept and state.convergence == KEPT_CURVES
+
+
+def test_a_failed_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot, kept_run, monkeypatch):
+    state, controller, kept = kept_run
+
+    def fail(ctx):
+        raise ValueError("reconstruction diverged. Fix: fewer iterations.")
+
+    seen = _rerun_streaming(qtbot, state, controller, monkeypatch, fail)
+    seen.set()
+    qtbot.waitUntil(lambda: state.job("reconstruction").state == "failed", timeout=TIMEOUT_MS)
+    assert state.reconstruction is kept and state.convergence == KEPT_CURVES
+
+
+def test_a_cancelled_first_reconstruction_leaves_no_curve(qtbot, kept_run, monkeypatch):
+    state, controller, _ = kept_run
+    state.set_reconstruction(None)
+    state.set_convergence((), ())
+
+    def until_cancelled(ctx):
+        assert ctx.cancel.wait(60)
+        ctx.check()
+
+    seen = _rerun_streaming(qtbot, state, controller, monkeypatch, until_cancelled)
+    controller.cancel()
+    seen.set()
+    qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
+    assert state.convergence == ((), ())
