@@ -3,6 +3,9 @@
 Designs are written atomically by :func:`~lfm_studio.engine.design.save_design`; an
 existing file other than the open document is never replaced without a confirmation
 (the file dialogs' own overwrite prompt is off so the question is asked once, here).
+Refused values on screen are not in the design in force: Save asks before writing the last
+valid design without them, and closing or replacing the document asks before losing them
+(:mod:`~lfm_studio.ui.refused_input`).
 Recent files live in :class:`QSettings` under the organisation/application
 ``lfm_studio``; tests pass their own settings object. Exports (PSF stack, light-field
 image, reconstruction) are ImageJ TIFFs from :mod:`lfm_studio.engine.io`, written on a
@@ -29,6 +32,7 @@ from lfm_studio.engine.design import list_presets, load_design, load_preset, sav
 from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.failure_notices import show_failure, write_error_text
 from lfm_studio.ui.raw_frame_dialog import RawFrameActions
+from lfm_studio.ui.refused_input import confirm_save_refused, refused_text
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.video_dialog import VideoActions
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
@@ -134,16 +138,28 @@ class FileActions(QObject):
     # ----- documents -----
 
     def confirm_discard(self) -> bool:
-        """Ask what to do with unsaved changes; True when it is fine to go on (saved or discarded)."""
-        if not self.state.dirty:
+        """Ask what to do with unsaved input (changes, refused values on screen); True when it is fine
+        to go on (saved or discarded)."""
+        state = self.state
+        if not state.unsaved_input:
             return True
+        refused = refused_text(state.errors, "will not be saved") if state.errors else ""
+        if not state.dirty:  # the design is saved; only refused values are on screen
+            them = "it" if len(state.errors) == 1 else "them"
+            answer = QMessageBox.question(
+                self.window, "Refused values on screen",
+                f"{refused_text(state.errors, 'will be lost')} Discard {them}?",
+                _Buttons.Discard | _Buttons.Cancel, _Buttons.Cancel,
+            )  # fmt: skip
+            return answer == _Buttons.Discard
         answer = QMessageBox.question(
             self.window, "Unsaved changes",
-            f"The design “{self.state.design.name}” has unsaved changes. Save them first?",
+            f"The design “{state.design.name}” has unsaved changes. Save them first?"
+            + (f"\n\n{refused}" if refused else ""),
             _Buttons.Save | _Buttons.Discard | _Buttons.Cancel, _Buttons.Save,
         )  # fmt: skip
         if answer == _Buttons.Save:
-            return self.save()
+            return self.save(refused_asked=True)  # the question above named the refused values
         return answer == _Buttons.Discard
 
     def new_from_preset(self, name: str) -> bool:
@@ -174,15 +190,27 @@ class FileActions(QObject):
         self.state.add_recent_file(Path(path).resolve())
         return True
 
-    def save(self, *_: Any) -> bool:
-        """Save to the open document's file (Save as… when there is none)."""
+    def save(self, *_: Any, refused_asked: bool = False) -> bool:
+        """Save to the open document's file (Save as… when there is none).
+
+        With refused values on screen, asks first whether to save the last valid design anyway
+        (unless ``refused_asked``: the caller's question named them already).
+        """
+        if not (refused_asked or confirm_save_refused(self.window, self.state.errors)):
+            return False
         path = self.state.file_path
         if path is None:
-            return self.save_as()
+            return self._save_as()
         return self._write(path, overwrite=True)
 
     def save_as(self, *_: Any) -> bool:
-        """Choose a file and save; an existing file is replaced only after a confirmation."""
+        """Choose a file and save; an existing file is replaced only after a confirmation.
+
+        With refused values on screen, asks first whether to save the last valid design anyway.
+        """
+        return confirm_save_refused(self.window, self.state.errors) and self._save_as()
+
+    def _save_as(self) -> bool:
         suggested = str(Path(self._folder()) / f"{_slug(self.state.design.name)}.json")
         path, _filter = QFileDialog.getSaveFileName(
             self.window,

@@ -3,7 +3,7 @@
 Centre: the PSF / image / reconstruction viewer. Docks: design parameters with the
 design metrics against the requirements under them (left, full height), the PSF profile /
 RL convergence plots (right, in tabs), the MLA layout editor, the simulate-and-reconstruct
-workflow, the Optimise dock and the learned-model training (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes, stops the jobs
+workflow, the Optimise dock and the learned-model training (bottom, tabbed, under viewer and plots). Status bar: the running job with a progress bar and a Cancel button. Closing asks about unsaved changes (refused values on screen included), stops the jobs
 and closes the viewer.
 """
 
@@ -148,13 +148,14 @@ class MainWindow(QMainWindow):
 
     def _on_errors(self, errors: dict[str, str]) -> None:
         self.mla_error.show_error(errors.get(MLAEditorBinding.ERROR_KEY))
+        self._update_title()  # refused values on screen are unsaved input
 
     def _update_title(self, *_: Any) -> None:
         state = self.state
         where = state.file_path.name if state.file_path is not None else "not saved"
         # "[*]": where Qt draws the modified mark ("*" while dirty); without it Qt warns on stderr.
         self.setWindowTitle(f"{state.design.name} ({where})[*] — {APP_TITLE}")
-        self.setWindowModified(state.dirty)
+        self.setWindowModified(state.unsaved_input)
 
     def closeEvent(self, event: QCloseEvent) -> None:
         if not self.file_actions.confirm_discard():

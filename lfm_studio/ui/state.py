@@ -333,6 +333,12 @@ class StudioState:
         """The design has changes not saved to :attr:`file_path`."""
         return self._dirty
 
+    @property
+    def unsaved_input(self) -> bool:
+        """Something on screen is not in the saved file: changes (:attr:`dirty`), or refused values
+        (:attr:`errors`), which Save does not write since they are not in the design in force."""
+        return self._dirty or bool(self._errors)
+
     def set_dirty(self, dirty: bool) -> None:
         if dirty != self._dirty:
             self._dirty = dirty

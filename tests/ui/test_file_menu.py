@@ -7,13 +7,16 @@ import threading
 from types import SimpleNamespace
 
 import pytest
-from qtpy.QtCore import QSettings
+from qtpy.QtCore import QSettings, Qt
+from qtpy.QtTest import QTest
 from qtpy.QtWidgets import QFileDialog, QMainWindow, QMessageBox
 
 from lfm_studio.engine.design import load_design
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.edits import apply_changes
 from lfm_studio.ui.file_menu import RECENT_KEY, FileActions
+from lfm_studio.ui.parameter_panel import ParameterPanel
+from lfm_studio.ui.refused_input import SAVE_ANYWAY
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobRunner
 from tests.ui.standins import small_fourier_design
@@ -34,10 +37,13 @@ class Dialogs:
         self.answers: list[Button] = []
         self.questions: list[str] = []
         self.warnings: list[str] = []
+        self.clicks: list[str] = []  # the button (its text) to press in each message box run with exec()
+        self.boxes: list[tuple[str, tuple[str, ...]]] = []  # (text, button texts) of each one
         monkeypatch.setattr(QFileDialog, "getSaveFileName", self._save)
         monkeypatch.setattr(QFileDialog, "getOpenFileName", self._open)
         monkeypatch.setattr(QMessageBox, "question", self._question)
         monkeypatch.setattr(QMessageBox, "warning", self._warning)
+        monkeypatch.setattr(QMessageBox, "exec", lambda box: self._exec(box))  # bound to the box
 
     def _save(self, *args, **kwargs):
         return str(self.save_path), "Design files (*.json)"
@@ -52,6 +58,12 @@ class Dialogs:
     def _warning(self, parent, title, text, *args, **kwargs):
         self.warnings.append(text)
         return Button.Ok
+
+    def _exec(self, box):
+        buttons = {button.text().replace("&", ""): button for button in box.buttons()}
+        self.boxes.append((box.text(), tuple(buttons)))
+        buttons[self.clicks.pop(0)].click()
+        return 0
 
 
 @pytest.fixture
@@ -115,6 +127,63 @@ def test_unsaved_changes_prompt(menu, design, tmp_path):
     assert load_design(tmp_path / "saved_first.json").wavelength_nm == 700.0
     assert state.design.name.startswith("XLFM") and not state.dirty and state.file_path is None
     assert actions.confirm_discard() and len(dialogs.questions) == 2  # clean: no question
+
+
+def test_save_with_a_refused_value_on_screen_asks_and_cancel_writes_nothing(menu, qtbot, design, tmp_path):
+    state, actions, dialogs = menu.state, menu.actions, menu.dialogs
+    panel = ParameterPanel(state)
+    qtbot.addWidget(panel)
+    target = tmp_path / "mine.json"
+    dialogs.save_path = target
+    assert actions.save_as()  # nothing refused: no question
+    assert dialogs.boxes == [] and not state.unsaved_input
+    written = target.read_bytes()
+    box = panel.inputs["objective.numerical_aperture"].boxes[0]
+    box.setFocus()
+    box.selectAll()
+    QTest.keyClicks(box, "2.5")  # what the user does: refused (an air objective)
+    QTest.keyClick(box, Qt.Key.Key_Return)
+    assert "objective.numerical_aperture" in state.errors and state.design == design
+    assert state.unsaved_input and not state.dirty  # the design is saved, the field is not
+    dialogs.clicks = ["Cancel"]
+    actions.save_action.trigger()
+    text, buttons = dialogs.boxes[-1]
+    assert text == "1 field shows a refused value that will not be saved: Numerical aperture."
+    assert buttons == (SAVE_ANYWAY, "Cancel")
+    assert target.read_bytes() == written
+    dialogs.clicks, dialogs.save_path = ["Cancel"], tmp_path / "other.json"
+    assert not actions.save_as()  # Save as asks too, before the file dialog
+    assert not (tmp_path / "other.json").exists() and len(dialogs.boxes) == 2
+    state.set_field_error("mla", "lenslet apertures must not overlap")  # the editor's refusal
+    dialogs.clicks = [SAVE_ANYWAY]
+    assert actions.save_as()
+    assert dialogs.boxes[-1][0] == (
+        "2 fields show refused values that will not be saved: Numerical aperture, MLA layout."
+    )
+    assert load_design(tmp_path / "other.json") == design  # the last valid design
+    assert not state.dirty and state.unsaved_input  # the refused values are still not saved
+    panel.disconnect_state()
+
+
+def test_replacing_the_document_asks_about_refused_values_on_screen(menu, design):
+    state, actions, dialogs = menu.state, menu.actions, menu.dialogs
+    state.set_field_error(
+        "objective.numerical_aperture", "numerical_aperture 2.5 must be below immersion_index 1"
+    )
+    dialogs.answers = [Button.Cancel]
+    assert not actions.new_from_preset("xlfm_cong2017")
+    assert dialogs.questions[-1] == (
+        "1 field shows a refused value that will be lost: Numerical aperture. Discard it?"
+    )
+    assert state.design == design and state.errors
+    state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))  # and an unsaved change
+    dialogs.answers = [Button.Discard]
+    assert actions.new_from_preset("xlfm_cong2017")
+    assert (
+        "unsaved changes" in dialogs.questions[-1]
+        and "will not be saved: Numerical aperture" in dialogs.questions[-1]
+    )
+    assert not state.unsaved_input and dialogs.boxes == []
 
 
 def test_recent_files_persist_in_the_settings(menu, qtbot, tmp_path):

@@ -98,6 +98,34 @@ def test_closing_with_unsaved_changes_asks_first(qtbot, settings, monkeypatch, t
     assert answers == []
 
 
+def test_closing_with_a_refused_value_on_screen_asks_first(qtbot, settings, monkeypatch):
+    from qtpy.QtCore import Qt
+    from qtpy.QtTest import QTest
+
+    window = _open_window(qtbot, settings, small_fourier_design(), debounce_ms=10_000)
+    state = window.state
+    assert not window.isWindowModified()
+    box = window.parameter_panel.inputs["objective.numerical_aperture"].boxes[0]
+    box.setFocus()
+    box.selectAll()
+    QTest.keyClicks(box, "2.5")  # refused: an air objective
+    QTest.keyClick(box, Qt.Key.Key_Return)
+    assert "objective.numerical_aperture" in state.errors and not state.dirty
+    assert window.isWindowModified()  # unsaved input: the title's "*"
+    questions, answers = [], [QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Discard]
+
+    def question(parent, title, text, *args, **kwargs):
+        questions.append(text)
+        return answers.pop(0)
+
+    monkeypatch.setattr(QMessageBox, "question", question)
+    assert not window.close()
+    assert window.isVisible() and box.text().startswith("2.5")  # Cancel: the typed value is still there
+    assert questions == ["1 field shows a refused value that will be lost: Numerical aperture. Discard it?"]
+    _close(qtbot, window)  # Discard
+    assert answers == []
+
+
 def test_the_command_line_argument_opens_a_preset_or_a_file(tmp_path):
     design, path = _open("flfm_guo2019")
     assert design.name.startswith("FLFM") and path is None
