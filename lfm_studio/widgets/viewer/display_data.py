@@ -264,6 +264,18 @@ def describe(shown: DisplayData, *, stretched: bool = True) -> str:
     return f"{shown.name}: {shape} voxels of {dz:g}×{dy:g}×{dx:g} µm (z×y×x, sample side)"
 
 
+def depth_axis_um(shown: DisplayData) -> np.ndarray:
+    """Sample-side depth of each slice in um, as drawn (the display stretch removed)."""
+    z = shown.z_axis
+    return shown.translate_um[z] + shown.scale_um[z] * np.arange(shown.data.shape[z])
+
+
+def nearest_depth_index(shown: DisplayData, depth_um: float) -> int:
+    """Index of ``shown``'s slice nearest ``depth_um`` (sample side): where a stack replacing
+    another keeps the depth that was on screen (the 5-depth preview's z = 0 stays z = 0)."""
+    return int(np.argmin(np.abs(depth_axis_um(shown) - depth_um)))
+
+
 def _numpy(tensor: torch.Tensor) -> np.ndarray:
     if not isinstance(tensor, torch.Tensor):
         raise TypeError(f"expected a torch.Tensor, got {type(tensor).__name__}.")

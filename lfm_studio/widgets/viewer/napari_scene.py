@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from psygnal import Signal
 
+from lfm_studio.widgets.viewer.display_data import depth_axis_um, nearest_depth_index
 from lfm_studio.widgets.viewer.napari_embed import (
     canvas_screenshot,
     close_qt_viewer,
@@ -101,9 +102,13 @@ class NapariScene:
         inherits the focus. The bookkeeping (``_layers``, ``_shown``, ``focused``) is kept
         consistent before napari is told, because napari emits dims events (and so calls
         :meth:`_on_step`) from inside ``layers.remove`` / ``layers.append``.
+
+        New data for an existing layer with depth keeps the depth its canvas stood at (the
+        nearest slice of the new data), replaced or updated in place.
         """
         from napari.layers import Image
 
+        kept = self._depth_on_screen(shown.name)  # before napari moves the slider for the new data
         layer = self._layers.get(shown.name)
         multiscale = bool(shown.levels)
         refocus = replaced = False
@@ -163,7 +168,34 @@ class NapariScene:
             self._on_step()
         elif created:
             layer.visible = False  # another layer of its space is on screen
+        if kept is not None and shown.has_depth and shown.space == kept[0]:
+            self._show_depth(shown, kept[1])
         return created
+
+    def _depth_axis(self, shown: DisplayData) -> int:
+        """The depth axis of ``shown`` in its canvas's dims."""
+        dims = self._views[shown.space].viewer.dims
+        return shown.z_axis + dims.ndim - shown.data.ndim
+
+    def _depth_on_screen(self, name: str) -> tuple[str, float] | None:
+        """``(space, depth in um)`` of the slice at which layer ``name``'s canvas stands, or None
+        (no such layer, or one without depth)."""
+        shown = self._shown.get(name)
+        if shown is None or not shown.has_depth:
+            return None
+        dims = self._views[shown.space].viewer.dims
+        return shown.space, float(dims.point[self._depth_axis(shown)]) / shown.z_stretch
+
+    def _show_depth(self, shown: DisplayData, depth_um: float) -> None:
+        """Put ``shown``'s canvas on the slice of ``shown`` nearest ``depth_um`` (sample side).
+
+        A stack replacing another (the 5-depth preview, then the full stack) keeps the depth on
+        screen: updating the layer's scale before its data clipped the slider to the old depth
+        span (the conventional preview's z = 0 became z = -80 um in the full stack).
+        """
+        depth = depth_axis_um(shown)[nearest_depth_index(shown, depth_um)]
+        self._views[shown.space].viewer.dims.set_point(self._depth_axis(shown), depth * shown.z_stretch)
+        self._on_step()  # the read-out: a point moved within one step leaves current_step as it was
 
     def focus(self, name: str, *, reset: bool = True) -> None:
         """Put ``name``'s space on screen and show ``name`` alone in it (selected for the controls)."""

@@ -16,6 +16,8 @@ from qtpy.QtCore import QRectF
 from qtpy.QtGui import QImage
 from qtpy.QtWidgets import QHBoxLayout, QVBoxLayout, QWidget
 
+from lfm_studio.widgets.viewer.display_data import depth_axis_um, nearest_depth_index
+
 if TYPE_CHECKING:
     from lfm_studio.widgets.viewer.display_data import DisplayData
 
@@ -25,12 +27,6 @@ _GRAY = "CET-L1"
 def colormap(name: str) -> pg.ColorMap:
     """A pyqtgraph colormap for a napari colormap name (``gray`` -> ``CET-L1``)."""
     return pg.colormap.get(_GRAY if name == "gray" else name)
-
-
-def depth_axis_um(shown: DisplayData) -> np.ndarray:
-    """Sample-side depth of each slice in um (the display stretch removed)."""
-    z = shown.z_axis
-    return shown.translate_um[z] + shown.scale_um[z] * np.arange(shown.data.shape[z])
 
 
 def displayed_block(shown: DisplayData) -> np.ndarray:
@@ -125,11 +121,17 @@ class PyqtgraphVolume(QWidget):
         layout.addWidget(self.projections, 2)
 
     def put(self, shown: DisplayData) -> bool:
-        """Show ``shown`` under its name; True when the name is new (the view then switches to it)."""
+        """Show ``shown`` under its name; True when the name is new (the view then switches to it).
+
+        New data for the layer on screen keeps the depth shown (its nearest slice).
+        """
         created = shown.name not in self._shown
+        kept = None if created or shown.name != self.focused else self.current_depth()
         self._shown[shown.name] = shown
         if created or shown.name == self.focused:
             self.focus(shown.name)
+        if kept is not None and shown.has_depth:
+            self.image_view.setCurrentIndex(nearest_depth_index(shown, kept))
         return created
 
     def focus(self, name: str, *, reset: bool = True) -> None:
