@@ -118,3 +118,18 @@ def small_fourier_design():
         mla=MLASpec(lenslets=tuple(lenslets)),
         accuracy={"preset": "preview"},
     )
+
+
+def small_conventional_design():
+    """A small conventional LFM for fast UI tests: the 10x/0.3 preset on 128^2 px behind 8 x 8 lenslets,
+    17 depths 5 um apart (its 5-depth preview: 20 um apart), preview accuracy (about a second)."""
+    from lfm_studio.engine.design import DepthSpec, load_preset
+
+    base = load_preset("lfm_10x_na03")
+    return base.updated(
+        name="small conventional LFM test design",
+        camera={**base.camera.model_dump(), "pixel_count": (128, 128)},
+        mla={**base.mla.model_dump(), "shape": (8, 8)},
+        depths=DepthSpec(depth_range_um=(-40.0, 40.0), depth_step_um=5.0),
+        accuracy={"preset": "preview"},
+    )

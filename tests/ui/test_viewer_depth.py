@@ -13,6 +13,7 @@ from qtpy.QtGui import QGuiApplication
 from lfm_studio.engine.psf_stack import ConventionalPatterns
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from lfm_studio.widgets.viewer import napari_embed
+from tests.ui.standins import small_conventional_design
 from tests.ui.test_psf_viewer import spot_stack
 
 TIMEOUT_MS = 120_000  # generous: only a hang should reach it
@@ -86,20 +87,11 @@ def test_a_shift_invariant_stack_updated_in_place_keeps_the_depth_too(qtbot):
 
 def test_a_small_conventional_design_shows_its_full_stack_at_the_preview_depth(qtbot):
     """The studio's own path: controller (preview first), viewer binding, real viewer."""
-    from lfm_studio.engine.design import DepthSpec, load_preset
     from lfm_studio.ui.controllers import StudioController, ViewerBinding
     from lfm_studio.ui.state import StudioState
 
-    base = load_preset("lfm_10x_na03")
-    design = base.updated(
-        name="small conventional LFM",
-        camera={**base.camera.model_dump(), "pixel_count": (128, 128)},
-        mla={**base.mla.model_dump(), "shape": (8, 8)},
-        depths=DepthSpec(depth_range_um=(-40.0, 40.0), depth_step_um=5.0),  # preview: 20 um apart
-        accuracy={"preset": "preview"},
-    )
     view = _napari(qtbot)
-    state = StudioState(design)
+    state = StudioState(small_conventional_design())  # 17 depths; the preview's 5 are 20 um apart
     controller = StudioController(state, debounce_ms=10, preview=True)
     binding = ViewerBinding(state, view, controller)
     previews: list[float] = []
