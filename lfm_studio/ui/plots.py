@@ -26,6 +26,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.performance import DesignMetrics
 from lfm_studio.engine.performance.report import UNIT_SCALE
+from lfm_studio.ui.measured_note import MEASURED_LATER, measured_note
 from lfm_studio.ui.results import PSFResult
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.stale_mark import StaleMark
@@ -161,12 +162,10 @@ class RequirementsView(_StateView):
         self.summary = QLabel(self)
         self.summary.setWordWrap(True)
         layout.addWidget(self.summary)
-        note = QLabel(
-            "Bars: formula estimates, then measured on the PSF (*) once the full stack is in.", self
-        )
-        note.setWordWrap(True)
-        note.setStyleSheet("color: gray;")
-        layout.addWidget(note)
+        self.note = QLabel(MEASURED_LATER, self)  # per design kind: measured later, or why never
+        self.note.setWordWrap(True)
+        self.note.setStyleSheet("color: gray;")
+        layout.addWidget(self.note)
         self.chart = _plot("value / requirement (≥ 1 passes)", "", "score")
         self.chart.getPlotItem().addLine(y=1.0, pen=pg.mkPen("k", style=Qt.PenStyle.DashLine))
         self.chart.setMouseEnabled(x=False, y=False)
@@ -200,6 +199,7 @@ class RequirementsView(_StateView):
         if metrics is None:
             self.summary.setText("")
             return
+        self.note.setText(measured_note(metrics))
         met = metrics.requirements_met
         verdict = {True: "meets", False: "does not meet", None: "may meet"}[met]
         failed = sum(c.passed is False for c in checks)

@@ -16,6 +16,7 @@ from typing import Any
 
 from qtpy.QtCore import QObject
 
+from lfm_studio.ui.measured_note import measured_unavailable
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.stale_mark import Activity, StaleMark
 
@@ -84,8 +85,9 @@ def stage_mark(state: StudioState, stage: str) -> StaleMark | None:
 
 
 def metrics_mark(state: StudioState) -> StaleMark | None:
-    """The requirements table's mark: its measured rows wait for (or lost) the current design's PSF."""
-    if "psf" not in state.stale:
+    """The requirements table's mark: its measured rows wait for (or lost) the current design's PSF
+    (none for a design kind without measured values: nothing waits)."""
+    if "psf" not in state.stale or measured_unavailable(state.design) is not None:
         return None
     activity, part = _job_part(state, "psf")
     if activity in ("failed", "cancelled"):

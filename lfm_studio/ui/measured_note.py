@@ -1,0 +1,36 @@
+"""What the design-metrics panel says about measured (*) values, per system kind (Qt-free).
+
+The PSF measures (FWHM, two-point resolution, depth of field:
+:mod:`lfm_studio.engine.performance.psf_measures`) need one laterally shift-invariant PSF per
+depth, which a Fourier LFM's stack holds. A conventional LFM's stack holds lenslet patterns
+that change with the source position behind each lenslet, so the studio, like
+``lfm-studio info --measure``, shows its formula estimates only, and says so instead of
+promising measured values that never come.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from lfm_studio.engine.systems.kinds import kind_of
+
+MEASURED_LATER = "Bars: formula estimates, then measured on the PSF (*) once the full stack is in."
+
+
+def measured_unavailable(subject: Any) -> str | None:
+    """Why no measured values are shown for ``subject`` (a design, or its ``DesignMetrics``), or
+    None when they come with the full PSF stack."""
+    kind = kind_of(subject)
+    if kind.shift_invariant:
+        return None
+    return (
+        f"Bars: formula estimates only. No measured values (*) for a {kind.title}: the PSF measures "
+        "(FWHM, two-point resolution, depth of field) need one shift-invariant PSF per depth, and "
+        "this PSF changes with the source position behind each lenslet. For a measured resolution, "
+        "run `lfm-studio resolution` on the design file (it reconstructs two points; minutes)."
+    )
+
+
+def measured_note(subject: Any) -> str:
+    """The panel's line on its bars for ``subject``'s kind: measured later, or why never."""
+    return measured_unavailable(subject) or MEASURED_LATER
