@@ -15,22 +15,29 @@ from typing import Any
 from lfm_studio.engine.systems.kinds import kind_of
 
 MEASURED_LATER = "Bars: formula estimates, then measured on the PSF (*) once the full stack is in."
+MEASURED_LATER_WHY = "Measured (*) values: FWHM, two-point resolution and depth of field of the PSF stack."
 
 
 def measured_unavailable(subject: Any) -> str | None:
-    """Why no measured values are shown for ``subject`` (a design, or its ``DesignMetrics``), or
-    None when they come with the full PSF stack."""
+    """Why no measured values are shown for ``subject`` (a design, or its ``DesignMetrics``), in one
+    short line, or None when they come with the full PSF stack."""
     kind = kind_of(subject)
     if kind.shift_invariant:
         return None
     return (
-        f"Bars: formula estimates only. No measured values (*) for a {kind.title}: the PSF measures "
-        "(FWHM, two-point resolution, depth of field) need one shift-invariant PSF per depth, and "
-        "this PSF changes with the source position behind each lenslet. For a measured resolution, "
-        "run `lfm-studio resolution` on the design file (it reconstructs two points; minutes)."
+        f"Bars: formula estimates only. A {kind.title} gets no measured values (*): "
+        "its PSF is not one shift-invariant PSF per depth."
     )
 
 
-def measured_note(subject: Any) -> str:
-    """The panel's line on its bars for ``subject``'s kind: measured later, or why never."""
-    return measured_unavailable(subject) or MEASURED_LATER
+def measured_note(subject: Any) -> tuple[str, str]:
+    """The panel's line on its bars for ``subject``'s kind (measured later, or why never) and its tooltip."""
+    why = measured_unavailable(subject)
+    if why is None:
+        return MEASURED_LATER, MEASURED_LATER_WHY
+    return why, (
+        "The PSF measures (FWHM, two-point resolution, depth of field) need one laterally shift-invariant "
+        f"PSF per depth. A {kind_of(subject).title}'s PSF changes with the source position behind each lenslet, "
+        "so, as with lfm-studio info --measure, only the formula estimates are shown. For a measured "
+        "resolution, run lfm-studio resolution on the design file (it reconstructs two points; minutes)."
+    )

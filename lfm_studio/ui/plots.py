@@ -26,7 +26,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.performance import DesignMetrics
 from lfm_studio.engine.performance.report import UNIT_SCALE
-from lfm_studio.ui.measured_note import MEASURED_LATER, measured_note
+from lfm_studio.ui.measured_note import MEASURED_LATER, MEASURED_LATER_WHY, measured_note
 from lfm_studio.ui.results import PSFResult
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.stale_mark import StaleMark
@@ -163,6 +163,7 @@ class RequirementsView(_StateView):
         self.summary.setWordWrap(True)
         layout.addWidget(self.summary)
         self.note = QLabel(MEASURED_LATER, self)  # per design kind: measured later, or why never
+        self.note.setToolTip(MEASURED_LATER_WHY)
         self.note.setWordWrap(True)
         self.note.setStyleSheet("color: gray;")
         layout.addWidget(self.note)
@@ -199,7 +200,9 @@ class RequirementsView(_StateView):
         if metrics is None:
             self.summary.setText("")
             return
-        self.note.setText(measured_note(metrics))
+        text, tip = measured_note(metrics)
+        self.note.setText(text)
+        self.note.setToolTip(tip)
         met = metrics.requirements_met
         verdict = {True: "meets", False: "does not meet", None: "may meet"}[met]
         failed = sum(c.passed is False for c in checks)

@@ -39,10 +39,10 @@ def test_a_conventional_design_is_told_why_it_has_no_measured_values(qtbot, conv
     qtbot.addWidget(view)
     state.set_psf(psf)
     state.set_metrics(metrics)
-    note = view.note.text()
-    assert note.startswith("Bars: formula estimates only. No measured values (*) for a Conventional LFM")
-    assert "shift-invariant PSF per depth" in note and "lfm-studio resolution" in note
-    assert "once the full stack is in" not in note
+    note, why = view.note.text(), view.note.toolTip()
+    assert note.startswith("Bars: formula estimates only. A Conventional LFM gets no measured values (*)")
+    assert "shift-invariant PSF per depth" in note and "once the full stack is in" not in note
+    assert "source position behind each lenslet" in why and "lfm-studio resolution" in why
     assert {row[1] for row in view.rows()} == {"formula"}
     # A Fourier design's metrics: measured values do come with its full stack.
     state.set_metrics(pipeline.measure_design(_ctx(), small_fourier_design(), None))
