@@ -306,6 +306,27 @@ def test_a_cancelled_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot
     assert state.reconstruction is kept and state.convergence == KEPT_CURVES
 
 
+def test_a_reconstruction_cancelled_before_its_first_iteration_leaves_the_kept_curve(
+    qtbot, kept_run, monkeypatch
+):
+    # The conventional preset's run spends seconds "starting": the plot was emptied and stayed empty.
+    state, controller, kept = kept_run
+    started = threading.Event()
+
+    def slow_start(ctx, design, image, settings):
+        started.set()
+        assert ctx.cancel.wait(60)
+        ctx.check()
+
+    monkeypatch.setattr(pipeline, "reconstruct", slow_start)
+    controller.request_reconstruction()
+    assert started.wait(60)
+    assert state.convergence == ((), ())  # a new run starts with an empty plot
+    controller.cancel()
+    qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
+    assert state.reconstruction is kept and state.convergence == KEPT_CURVES
+
+
 def test_a_failed_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot, kept_run, monkeypatch):
     state, controller, kept = kept_run
 
