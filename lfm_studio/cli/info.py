@@ -21,8 +21,7 @@ import time
 from lfm_studio.engine.design import resolve_design
 from lfm_studio.engine.performance import compute_design_metrics, format_metrics_table, measurement_psf
 from lfm_studio.engine.performance.closed_forms import CRITERION_LABELS
-from lfm_studio.engine.performance.psf_measures_stack import main_focus_depth
-from lfm_studio.engine.systems.kinds import kind_of
+from lfm_studio.engine.performance.psf_measures_stack import main_focus_depth, unmeasurable_reason
 
 
 def add_info_parser(subparsers: argparse._SubParsersAction) -> argparse.ArgumentParser:
@@ -62,10 +61,11 @@ def run_info(args: argparse.Namespace) -> int:
     design = resolve_design(args.design)  # a refusal: cli.main prints it, exit 2
     psf, focus = None, None
     if args.measure:
-        if not kind_of(design).shift_invariant:  # PSF measures need per-depth shift-invariant PSFs
+        why = unmeasurable_reason(design)
+        if why is not None:
             print(
-                f"lfm-studio info: measuring is not available yet for a {design.kind!r} LFM (no PSF model); "
-                "showing the closed forms only.",
+                f"lfm-studio info: {why}; showing the closed forms only "
+                "(lfm-studio resolution measures a resolution by reconstructing two points).",
                 file=sys.stderr,
             )
         else:

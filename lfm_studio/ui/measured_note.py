@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from lfm_studio.engine.performance.psf_measures_stack import unmeasurable_reason
 from lfm_studio.engine.systems.kinds import kind_of
 
 MEASURED_LATER = "Bars: formula estimates, then measured on the PSF (*) once the full stack is in."
@@ -21,11 +22,10 @@ MEASURED_LATER_WHY = "Measured (*) values: FWHM, two-point resolution and depth 
 def measured_unavailable(subject: Any) -> str | None:
     """Why no measured values are shown for ``subject`` (a design, or its ``DesignMetrics``), in one
     short line, or None when they come with the full PSF stack."""
-    kind = kind_of(subject)
-    if kind.shift_invariant:
+    if unmeasurable_reason(subject) is None:
         return None
     return (
-        f"Bars: formula estimates only. A {kind.title} gets no measured values (*): "
+        f"Bars: formula estimates only. A {kind_of(subject).title} gets no measured values (*): "
         "its PSF is not one shift-invariant PSF per depth."
     )
 
@@ -35,9 +35,9 @@ def measured_note(subject: Any) -> tuple[str, str]:
     why = measured_unavailable(subject)
     if why is None:
         return MEASURED_LATER, MEASURED_LATER_WHY
+    reason = str(unmeasurable_reason(subject))
     return why, (
-        "The PSF measures (FWHM, two-point resolution, depth of field) need one laterally shift-invariant "
-        f"PSF per depth. A {kind_of(subject).title}'s PSF changes with the source position behind each lenslet, "
-        "so, as with lfm-studio info --measure, only the formula estimates are shown. For a measured "
+        f"Measured (*) values: {reason[0].upper()}{reason[1:]}. As with lfm-studio info --measure, only the "
+        "formula estimates (FWHM, two-point resolution, depth of field) are shown. For a measured "
         "resolution, run lfm-studio resolution on the design file (it reconstructs two points; minutes)."
     )

@@ -81,6 +81,23 @@ def cropped_system(system: FourierLFMSystem, depths: tuple[float, ...]) -> Fouri
     return replace(system, sensor_shape=shape)
 
 
+def unmeasurable_reason(subject: object) -> str | None:
+    """Why the PSF measures cannot run on ``subject``'s kind (a design or its metrics), or None.
+
+    The measures (FWHM, two-point resolution, depth of field) need one laterally shift-invariant
+    PSF per depth. A kind whose PSF changes with the source position behind each lenslet (the
+    conventional LFM) has none; ``lfm-studio resolution`` measures its resolution by
+    reconstructing two points instead.
+    """
+    kind = kind_of(subject)
+    if kind.shift_invariant:
+        return None
+    return (
+        f"a {kind.title} cannot be measured on its PSF: the measures need one laterally shift-invariant "
+        "PSF per depth, and its PSF changes with the source position behind each lenslet"
+    )
+
+
 def measurement_psf(
     design: Design,
     *,
@@ -92,13 +109,11 @@ def measurement_psf(
 ) -> PSFStack:
     """PSF stack of a Fourier-LFM ``design`` on the depths of :func:`measurement_depths`.
 
-    Raises NotImplementedError for conventional designs (their PSF model does not exist yet).
+    Raises NotImplementedError for a design whose stack cannot be measured (:func:`unmeasurable_reason`).
     """
-    if not kind_of(design).shift_invariant:  # the measures need per-depth shift-invariant PSFs
-        raise NotImplementedError(
-            f"measuring needs the PSF model of a {design.kind!r} LFM, which is not implemented yet; "
-            "only the closed-form metrics are available for this design."
-        )
+    why = unmeasurable_reason(design)
+    if why is not None:
+        raise NotImplementedError(f"{why}; only the closed-form metrics are available for this design.")
     accuracy = replace(
         fourier_accuracy_of(design), oversampling=2, margin_airy=MARGIN_AIRY, method="per_lenslet"
     )

@@ -63,10 +63,11 @@ def test_unknown_design_exits_2_with_a_message(capsys):
     assert err.startswith("lfm-studio info: error: ") and "no_such_preset" in err and "Fix:" in err
 
 
-def test_measure_on_a_conventional_design_says_it_is_not_available(capsys):
+def test_measure_on_a_conventional_design_says_why_it_cannot(capsys):
     code, out, err = run(["lfm_prevedel2014", "--measure", "--json"], capsys)
     assert code == 0
-    assert "not available" in err
+    assert "shift-invariant PSF per depth" in err and "lfm-studio resolution" in err
+    assert "not implemented" not in err and "no PSF model" not in err  # the PSF model exists
     assert json.loads(out)["measured"] is None
 
 

@@ -142,10 +142,10 @@ def test_conventional_with_an_explicit_lenslet_list_uses_its_aperture_and_extent
     assert b.field_of_view_limit == "MLA extent"
 
 
-def test_measuring_a_conventional_design_is_refused_until_its_psf_model_exists():
+def test_measuring_a_conventional_design_is_refused_with_the_reason():
     from lfm_studio.engine.performance import measurement_psf
 
-    with pytest.raises(NotImplementedError, match="closed-form"):
+    with pytest.raises(NotImplementedError, match=r"shift-invariant PSF per depth.*closed-form"):
         measurement_psf(load_preset("lfm_10x_na03"))
 
 
