@@ -7,8 +7,14 @@ and a fix, so a user can correct a design without reading the source.
 from __future__ import annotations
 
 import math
+import os
+import sys
+import warnings
+from types import FrameType
 
 import torch
+
+_ENGINE_DIR = os.path.dirname(os.path.abspath(__file__))
 
 
 class SamplingWarning(UserWarning):
@@ -62,3 +68,13 @@ def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
             f"{name} contains {bad} NaN/Inf value(s) of {tensor.numel()}. "
             "Fix: check the input data or the upstream computation that produced it."
         )
+
+
+def warn_at_caller(message: str, category: type[Warning]) -> None:
+    """Emit ``category`` with ``message``, attributed to the first frame outside ``lfm_studio.engine``
+    (the user's call, so the warning shows their line and filters on their module apply)."""
+    level = 2  # stacklevel 2: the caller of this function
+    frame: FrameType | None = sys._getframe(1)  # f_back is None at the top of the stack
+    while frame is not None and frame.f_code.co_filename.startswith(_ENGINE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)
