@@ -60,7 +60,9 @@ def wiener(projector: FourierProjector, image: TensorLike, *, snr: float = 100.0
         Fourier LFM projector (cached OTFs, e.g. ShiftInvariantProjector); its dtype and device
         are used. Any other projector raises ``NotImplementedError``.
     image : tensor or array ``(Py, Px)``
-        Camera image (finite; a linear method, so zero-mean noise may be negative), counts.
+        Camera image in photons, the camera's baseline removed (finite; a linear method, so
+        zero-mean noise may be negative): convert camera counts with
+        :func:`lfm_studio.engine.io.counts_to_photons`.
     snr : float
         Power SNR relative to the OTF peak (> 0, ``math.inf`` for the pseudo-inverse).
 
