@@ -320,7 +320,7 @@ class Method:
     def check_projector(self, projector: Projector) -> None:
         """A ``ValueError`` naming the method and a fix when it cannot take ``projector``."""
         if not self.supports(projector):
-            choices = ", ".join(m.name for m in methods() if m.projectors == "any")
+            choices = ", ".join(m.name for m in methods() if m.supports(projector))  # what takes this one
             needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
             if self.projectors == "periodic":
                 needs += " or a conventional-LFM lenslet-lattice projector"
