@@ -13,6 +13,7 @@ import warnings
 from types import FrameType
 
 import torch
+from pydantic import ValidationError
 
 _ENGINE_DIR = os.path.dirname(os.path.abspath(__file__))
 
@@ -78,3 +79,26 @@ def warn_at_caller(message: str, category: type[Warning]) -> None:
     while frame is not None and frame.f_code.co_filename.startswith(_ENGINE_DIR):
         frame, level = frame.f_back, level + 1
     warnings.warn(message, category, stacklevel=level)
+
+
+def error_text(error: BaseException) -> str:
+    """The message of ``error`` for a user: for a pydantic ``ValidationError`` (a design or spec
+    refused), our own text of each problem without pydantic's wrapping (the "1 validation error
+    for ...", ``[type=..., input_value=...]`` and the errors.pydantic.dev link); ``str(error)`` else.
+
+    A value error raised by our validators names its parameter, value and fix, so it is shown
+    alone; pydantic's own errors (a wrong type, a missing key) keep their location and the value.
+    """
+    if not isinstance(error, ValidationError):
+        return str(error)
+    parts = []
+    for item in error.errors():
+        message = str(item.get("msg", "")).removeprefix("Value error, ")
+        loc = ".".join(str(x) for x in item.get("loc", ()))
+        if item.get("type") == "value_error" or not loc:
+            parts.append(message)
+            continue
+        value = repr(item.get("input"))
+        value = value if len(value) <= 60 else value[:57] + "..."
+        parts.append(f"{loc}: {message} (got {value})")
+    return "; ".join(parts) or str(error)

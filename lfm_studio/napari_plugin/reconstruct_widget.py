@@ -39,6 +39,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.calibration import CalibrationFileError, load_calibration
+from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin import reconstruction
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.layer_data import (
@@ -153,7 +154,7 @@ class ReconstructWidget(QWidget):
         try:
             request = self._request_from_layers()
         except ValueError as error:
-            report_error(str(error))
+            report_error(error_text(error))
             return False
         self._request = request
         task = BackgroundTask(partial(reconstruction.run, request), self)

@@ -28,6 +28,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.design import AccuracySpec, Design
+from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_data import psf_layer_data
@@ -162,7 +163,7 @@ class SimulateWidget(QWidget):
         try:
             design = self.design_to_simulate()
         except ValueError as error:
-            report_error(f"Cannot simulate: {error}")
+            report_error(f"Cannot simulate: {error_text(error)}")
             return False
         self._name = f"PSF {design.name}"
         self._task = start_psf_task(
