@@ -77,10 +77,13 @@ def _is_ours(layer: Any) -> int:
 
 
 def fit_view_to(viewer: napari.viewer.Viewer, layer: Layer) -> bool:
-    """Pan and zoom the canvas onto ``layer`` (camera angles kept), where napari can fit the view to some
-    layers (``fit_to_view(layers=...)``, napari 0.9.2 has it); False, the view unchanged, on an older napari."""
+    """Pan and zoom the canvas onto ``layer`` (camera angles kept) with napari's
+    ``fit_to_view(layers=...)``; False, the view unchanged, where that cannot be done: a napari
+    without it, or a viewer with more dimensions than ``layer`` (e.g. a 5-D conventional pattern
+    stack beside the 3-D volume), where napari 0.9.2 indexes the viewer's displayed axes into the
+    layer's extent and raises ``IndexError``."""
     fit = getattr(viewer, "fit_to_view", None)
-    if fit is None or "layers" not in inspect.signature(fit).parameters:
+    if fit is None or "layers" not in inspect.signature(fit).parameters or layer.ndim != viewer.dims.ndim:
         return False
     fit(layers=[layer])
     return True

@@ -90,6 +90,20 @@ def test_the_view_is_fitted_to_the_new_volume(widget_on_sample, qtbot):
     np.testing.assert_allclose(camera.center, center, atol=1e-9)
 
 
+def test_the_view_is_left_alone_beside_a_layer_of_more_dimensions(make_napari_viewer):
+    """napari fits a subset by indexing the viewer's displayed axes into the subset's extent: with a
+    5-D layer (a conventional pattern stack) in the viewer a 3-D volume raised IndexError there."""
+    from lfm_studio.napari_plugin.reconstruct_widget import fit_view_to
+
+    viewer = make_napari_viewer()
+    viewer.add_image(np.zeros((2, 2, 3, 8, 8), np.float32), name="patterns")
+    volume = viewer.add_image(np.zeros((3, 4, 4), np.float32), name="volume")
+    camera = viewer.scene.camera if hasattr(viewer, "scene") else viewer.camera
+    before = (camera.zoom, tuple(camera.center))
+    assert not fit_view_to(viewer, volume)
+    assert (camera.zoom, tuple(camera.center)) == before
+
+
 def test_cancel_leaves_no_half_layer(widget_on_sample, qtbot, notes):
     viewer, widget = widget_on_sample
     before = [(layer.name, id(layer)) for layer in viewer.layers]
