@@ -24,6 +24,7 @@ from lfm_studio.cli.resolution import add_resolution_parser
 from lfm_studio.cli.simulate import add_simulate_parsers
 from lfm_studio.cli.train import add_train_parser
 from lfm_studio.engine.allocator import keep_freed_memory
+from lfm_studio.engine.errors import error_text
 from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
 
 
@@ -91,7 +92,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         code = exit_code_for(error)
         if code is None:
             raise
-        print(f"lfm-studio {args.command}: error: {error}", file=sys.stderr)
+        print(f"lfm-studio {args.command}: error: {error_text(error)}", file=sys.stderr)
         return code
     except KeyboardInterrupt:  # outputs are written atomically: nothing partial is left
         print(f"lfm-studio {args.command}: interrupted; no output was written.", file=sys.stderr)

@@ -7,8 +7,15 @@ and a fix, so a user can correct a design without reading the source.
 from __future__ import annotations
 
 import math
+import os
+import sys
+import warnings
+from types import FrameType
 
 import torch
+from pydantic import ValidationError
+
+_ENGINE_DIR = os.path.dirname(os.path.abspath(__file__))
 
 
 class SamplingWarning(UserWarning):
@@ -62,3 +69,36 @@ def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
             f"{name} contains {bad} NaN/Inf value(s) of {tensor.numel()}. "
             "Fix: check the input data or the upstream computation that produced it."
         )
+
+
+def warn_at_caller(message: str, category: type[Warning]) -> None:
+    """Emit ``category`` with ``message``, attributed to the first frame outside ``lfm_studio.engine``
+    (the user's call, so the warning shows their line and filters on their module apply)."""
+    level = 2  # stacklevel 2: the caller of this function
+    frame: FrameType | None = sys._getframe(1)  # f_back is None at the top of the stack
+    while frame is not None and frame.f_code.co_filename.startswith(_ENGINE_DIR):
+        frame, level = frame.f_back, level + 1
+    warnings.warn(message, category, stacklevel=level)
+
+
+def error_text(error: BaseException) -> str:
+    """The message of ``error`` for a user: for a pydantic ``ValidationError`` (a design or spec
+    refused), our own text of each problem without pydantic's wrapping (the "1 validation error
+    for ...", ``[type=..., input_value=...]`` and the errors.pydantic.dev link); ``str(error)`` else.
+
+    A value error raised by our validators names its parameter, value and fix, so it is shown
+    alone; pydantic's own errors (a wrong type, a missing key) keep their location and the value.
+    """
+    if not isinstance(error, ValidationError):
+        return str(error)
+    parts = []
+    for item in error.errors():
+        message = str(item.get("msg", "")).removeprefix("Value error, ")
+        loc = ".".join(str(x) for x in item.get("loc", ()))
+        if item.get("type") == "value_error" or not loc:
+            parts.append(message)
+            continue
+        value = repr(item.get("input"))
+        value = value if len(value) <= 60 else value[:57] + "..."
+        parts.append(f"{loc}: {message} (got {value})")
+    return "; ".join(parts) or str(error)

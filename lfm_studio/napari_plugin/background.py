@@ -20,6 +20,7 @@ from typing import Any
 
 from qtpy.QtCore import QObject, Signal
 
+from lfm_studio.engine.errors import error_text
 from lfm_studio.engine.progress import ProgressCallback
 from lfm_studio.widgets.jobs import JobContext, JobOutcome, JobRunner
 
@@ -41,8 +42,11 @@ class Outcome:
 
 
 def _message(error: BaseException | None) -> str:
-    """A failure for a notification: the text of a ValueError/OSError (ours name the fix), else with its type."""
-    return str(error) if isinstance(error, (ValueError, OSError)) else f"{type(error).__name__}: {error}"
+    """A failure for a notification: the text of a ValueError/OSError (ours name the fix; a refused
+    design without pydantic's wrapping, :func:`~lfm_studio.engine.errors.error_text`), else with its type."""
+    if isinstance(error, (ValueError, OSError)):
+        return error_text(error)
+    return f"{type(error).__name__}: {error}"
 
 
 class BackgroundTask(QObject):

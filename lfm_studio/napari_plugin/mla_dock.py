@@ -22,6 +22,7 @@ from napari.layers import Layer
 from qtpy.QtWidgets import QFileDialog, QLabel, QPushButton, QVBoxLayout, QWidget
 
 from lfm_studio.engine.design import Design, MLASpec, save_design
+from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_data import LayerError, design_of, kind_of, psf_layer_data
@@ -166,8 +167,8 @@ class MLADock(QWidget):
                 mla = {**self.design.mla.model_dump(), "lenslets": tuple(lenslets)}
                 design = self.design.updated(mla=mla)
         except ValueError as error:
-            report_error(f"Lenslet edit not applied to the design: {error}")
-            self.status.setText(f"Refused: {error}")
+            report_error(f"Lenslet edit not applied to the design: {error_text(error)}")
+            self.status.setText(f"Refused: {error_text(error)}")
             return
         self.design = design
         self.status.setText(f"{design.name}: {design.mla.count} lenslets (edited; not saved).")

@@ -18,6 +18,7 @@ from typing import Any
 from napari.utils.notifications import show_error, show_info, show_warning
 
 from lfm_studio.engine.design import Design, DesignWarning
+from lfm_studio.engine.errors import error_text
 
 _log = logging.getLogger(__name__)
 
@@ -62,5 +63,5 @@ def design_or_report(loader: Callable[[Any], Design], argument: Any, refusal: st
         with design_warnings_collected():
             return loader(argument)
     except (ValueError, OSError) as error:
-        report_error(f"{refusal}: {error}")
+        report_error(f"{refusal}: {error_text(error)}")
         return None

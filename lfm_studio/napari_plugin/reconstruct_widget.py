@@ -10,8 +10,10 @@ before anything starts (a mismatch, e.g. of pixel sizes, is an error notificatio
 naming both layers and values); the reconstruction then runs as a
 background job (:mod:`lfm_studio.widgets.jobs`) with progress and Cancel. Only a finished reconstruction adds a
 layer: the volume in object space (voxel size from the PSF's magnification and depth
-step, in um), its settings in the layer metadata. Cancel or failure adds nothing and
-leaves every layer as it was.
+step, in um), its settings in the layer metadata. The view is then fitted to that layer
+(:func:`fit_view_to`): object-space volumes are about 30 times smaller than the camera-space
+image and PSF layers, and napari's own reset (the Home button) fits them all. Cancel or failure
+adds nothing and leaves every layer and the view as they were.
 
 A raw camera frame (the lenslet grid at some offset, rotation and non-integer pitch) is
 reconstructed with an optional calibration file from ``lfm-studio calibrate``: the frame is
@@ -22,6 +24,7 @@ to the calibration whose grid overlay was opened last (the lfm-studio reader).
 
 from __future__ import annotations
 
+import inspect
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -39,6 +42,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.calibration import CalibrationFileError, load_calibration
+from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin import reconstruction
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.layer_data import (
@@ -70,6 +74,19 @@ def is_psf_stack(layer: Any) -> bool:
 
 def _is_ours(layer: Any) -> int:
     return int(kind_of(layer.metadata) is not None)
+
+
+def fit_view_to(viewer: napari.viewer.Viewer, layer: Layer) -> bool:
+    """Pan and zoom the canvas onto ``layer`` (camera angles kept) with napari's
+    ``fit_to_view(layers=...)``; False, the view unchanged, where that cannot be done: a napari
+    without it, or a viewer with more dimensions than ``layer`` (e.g. a 5-D conventional pattern
+    stack beside the 3-D volume), where napari 0.9.2 indexes the viewer's displayed axes into the
+    layer's extent and raises ``IndexError``."""
+    fit = getattr(viewer, "fit_to_view", None)
+    if fit is None or "layers" not in inspect.signature(fit).parameters or layer.ndim != viewer.dims.ndim:
+        return False
+    fit(layers=[layer])
+    return True
 
 
 class ReconstructWidget(QWidget):
@@ -153,7 +170,7 @@ class ReconstructWidget(QWidget):
         try:
             request = self._request_from_layers()
         except ValueError as error:
-            report_error(str(error))
+            report_error(error_text(error))
             return False
         self._request = request
         task = BackgroundTask(partial(reconstruction.run, request), self)
@@ -230,7 +247,8 @@ class ReconstructWidget(QWidget):
             name = f"{request.image_name} {request.settings.method}"
             for note in outcome.value.metadata.get("notes", []):
                 report_warning(f"{request.image_name}: {note}")
-            self.viewer.add_layer(Layer.create(*volume_layer_data(outcome.value, name=name)))
+            layer = self.viewer.add_layer(Layer.create(*volume_layer_data(outcome.value, name=name)))
+            fit_view_to(self.viewer, layer)
         elif outcome.state == "cancelled":
             report_info("Reconstruction cancelled; no layer was added.")
         elif outcome.state == "failed":

@@ -6,7 +6,10 @@ same layers: the ``flfm_guo2019`` preset (Fourier LFM, 3 x 3 lenslets, 40x/0.95)
 from -20 to 20 um, 8 beads and 1e6 photons with shot and read noise. About 2 s on a
 laptop CPU. The image is in camera counts (ADU) with the camera's 100 ADU baseline,
 recorded with the gain and QE in its metadata, so the Reconstruct widget turns it
-back into photons by itself.
+back into photons by itself. The ground truth is in photons per voxel (the phantom times
+:func:`~lfm_studio.engine.simulation.photons_per_unit`, as ``lfm-studio image --truth`` writes
+it): the unit a reconstruction comes out in, so the two layers compare directly; its
+projection puts the 1e6 photons on the camera.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from lfm_studio.engine.simulation import (
     imaging_setup,
     light_field_image,
     make_phantom,
+    photons_per_unit,
     simulate_psf,
 )
 from lfm_studio.napari_plugin.layer_data import (
@@ -36,6 +40,7 @@ BEADS = 8
 PHOTONS = 1e6
 SEED = 0
 NAMES = ("beads light field", "beads PSF stack", "beads ground truth")
+TRUTH_UNITS = "photons per voxel"
 
 
 def sample_design() -> Design:
@@ -52,16 +57,18 @@ def sample_design() -> Design:
 
 
 def bead_sample(seed: int = SEED) -> list[LayerData]:
-    """The three sample layers: light-field image (ADU), PSF stack, ground-truth volume (napari sample hook)."""
+    """The three sample layers: light-field image (ADU), PSF stack, ground-truth volume (photons per
+    voxel) (napari sample hook)."""
     design = sample_design()
     stack = simulate_psf(design, depths=design_depths(design))
     setup = imaging_setup(stack)
     volume, info = make_phantom("beads", setup, seed=seed, count=BEADS)
-    counts, _ = light_field_image(setup, volume, camera_of(design), photons=PHOTONS, seed=seed)
+    counts, expected = light_field_image(setup, volume, camera_of(design), photons=PHOTONS, seed=seed)
     provenance = {**info, "photons": PHOTONS, "design": design.name, "psf": NAMES[1]}
     camera = {"units": ADU, "camera": camera_metadata(camera_of(design), photons=PHOTONS, seed=seed)}
     image = LightFieldImage(counts.cpu(), stack.pixel_size, {**provenance, **camera})
-    truth = Volume(volume.cpu(), setup.voxel_size, stack.depths, provenance)
+    photons = volume * photons_per_unit(expected, PHOTONS)  # photons per voxel, as `image --truth`
+    truth = Volume(photons.cpu(), setup.voxel_size, stack.depths, {**provenance, "units": TRUTH_UNITS})
     lf, psf, gt = NAMES
     return [
         volume_layer_data(truth, name=gt),

@@ -27,7 +27,9 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
-from lfm_studio.engine.design import AccuracySpec, Design
+from lfm_studio.engine.design import AccuracySpec, DepthSpec, Design
+from lfm_studio.engine.design.errors import fmt
+from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.design_source import DesignSource
 from lfm_studio.napari_plugin.layer_data import psf_layer_data
@@ -52,12 +54,22 @@ def _depth_box(suffix: str = " um") -> QDoubleSpinBox:
     return box
 
 
-def describe(design: Design) -> str:
-    """One line on what a PSF of ``design`` costs: camera pixels, depths, kind."""
+def describe(design: Design, depths: str | None = None) -> str:
+    """One line on what a PSF of ``design`` costs: kind, camera pixels, depths (``depths``: other
+    words for them, e.g. the widget's own depths), lenslets."""
     ny, nx = design.camera.pixel_count
-    return (
-        f"{design.kind} LFM, {ny} x {nx} px camera, {design.depths.count} depths, {design.mla.count} lenslets"
-    )
+    depths = depths or f"{design.depths.count} depths"
+    return f"{design.kind} LFM, {ny} x {nx} px camera, {depths}, {design.mla.count} lenslets"
+
+
+def describe_depths(start_um: float, stop_um: float, step_um: float) -> str:
+    """The depths ``start:stop:step`` um in words (``"3 depths, -10 to 10 um"``), or why they are refused."""
+    try:
+        spec = DepthSpec(depth_range_um=(start_um, stop_um), depth_step_um=step_um)
+    except ValueError as error:
+        return f"other depths refused ({error_text(error)})"
+    values = spec.values_um
+    return f"{spec.count} depths, {fmt(values[0])} to {fmt(values[-1])} um"
 
 
 class SimulateWidget(QWidget):
@@ -67,6 +79,7 @@ class SimulateWidget(QWidget):
         super().__init__(parent)
         self.viewer = napari_viewer
         self.design: Design | None = None
+        self._label = ""
         self.source = DesignSource(self.set_design)
         self.preset, self.browse = self.source.preset, self.source.file_button
         self.summary = QLabel("")
@@ -91,6 +104,8 @@ class SimulateWidget(QWidget):
         layout.addWidget(self.controls)
         layout.addStretch(1)
         self.custom_depths.toggled.connect(self._on_custom_depths)
+        for box in (self.depth_start, self.depth_stop, self.depth_step):
+            box.valueChanged.connect(self._show_summary)
         self.controls.runClicked.connect(self.start)
         self._task: BackgroundTask | None = None
         self._name = ""
@@ -105,8 +120,7 @@ class SimulateWidget(QWidget):
 
     def set_design(self, design: Design, label: str | None = None) -> None:
         """Simulate ``design`` next; its depths fill the depth fields."""
-        self.design = design
-        self.summary.setText(f"{label or design.name}: {describe(design)}")
+        self.design, self._label = design, label or design.name
         start, stop = design.depths.depth_range_um
         for box, value in zip(
             (self.depth_start, self.depth_stop, self.depth_step),
@@ -114,6 +128,7 @@ class SimulateWidget(QWidget):
             strict=True,
         ):
             box.setValue(value)
+        self._show_summary()
 
     def set_preset(self, name: str) -> bool:
         """Use the bundled preset ``name``; False (with an error notification) if it cannot be read."""
@@ -162,7 +177,7 @@ class SimulateWidget(QWidget):
         try:
             design = self.design_to_simulate()
         except ValueError as error:
-            report_error(f"Cannot simulate: {error}")
+            report_error(f"Cannot simulate: {error_text(error)}")
             return False
         self._name = f"PSF {design.name}"
         self._task = start_psf_task(
@@ -180,6 +195,18 @@ class SimulateWidget(QWidget):
     def _on_custom_depths(self, checked: bool) -> None:
         for box in (self.depth_start, self.depth_stop, self.depth_step):
             box.setEnabled(checked)
+        self._show_summary()
+
+    def _show_summary(self) -> None:
+        """The design line, with the depths that will be simulated (the design's or the other depths)."""
+        if self.design is None:
+            return
+        depths = None
+        if self.custom_depths.isChecked():
+            depths = describe_depths(
+                self.depth_start.value(), self.depth_stop.value(), self.depth_step.value()
+            )
+        self.summary.setText(f"{self._label}: {describe(self.design, depths)}")
 
     def _on_ended(self, outcome: Outcome) -> None:
         self._task = None

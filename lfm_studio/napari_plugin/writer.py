@@ -6,7 +6,10 @@ depths, pixel size, magnification, wavelength and design exactly. Other image la
 are written from their napari scale, read as micrometres: a 2-D layer as a camera
 image (square pixels), a 3-D or 4-D layer as a volume ``(Z, Y, X)`` / ``(T, Z, Y, X)``.
 Writes are atomic (a failed write leaves no partial file). napari's *Save Layers*
-dialog asks before replacing an existing file, so the writer replaces what it is given.
+dialog asks before replacing an existing file and then calls the writer, which cannot tell
+that confirmed call from a script's ``napari.save_layers``: it replaces what it is given in
+both cases (docs/napari_plugin.md says so; scripts check first or use the engine's writers,
+which refuse an existing file unless ``overwrite=True``).
 """
 
 from __future__ import annotations

@@ -14,9 +14,10 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 
 from lfm_studio.engine.design import Design, DesignWarning
+from lfm_studio.engine.errors import error_text
 
 
 @dataclass(frozen=True)
@@ -78,19 +79,6 @@ def apply_changes(design: Design, changes: Mapping[str, Any]) -> Design:
     return design.updated(**grouped)
 
 
-def error_message(error: BaseException) -> str:
-    """The readable reason of a refused design: our DesignError text without pydantic's wrapping."""
-    if isinstance(error, ValidationError):
-        parts = []
-        for item in error.errors():
-            message = str(item.get("msg", "")).removeprefix("Value error, ")
-            loc = ".".join(str(x) for x in item.get("loc", ()))
-            plain = item.get("type") == "value_error" or not loc
-            parts.append(message if plain else f"{loc}: {message}")
-        return "; ".join(parts)
-    return str(error)
-
-
 def try_changes(design: Design, changes: Mapping[str, Any]) -> EditOutcome:
     """:func:`apply_changes` that never raises: the new design with its warnings, or the reason."""
     with warnings.catch_warnings(record=True) as caught:
@@ -98,7 +86,7 @@ def try_changes(design: Design, changes: Mapping[str, Any]) -> EditOutcome:
         try:
             new = apply_changes(design, changes)
         except (ValueError, KeyError, TypeError) as error:
-            return EditOutcome(None, error_message(error))
+            return EditOutcome(None, error_text(error))
     found = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DesignWarning)))
     return EditOutcome(new, None, found)
 

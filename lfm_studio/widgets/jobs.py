@@ -33,6 +33,7 @@ from typing import Any
 from qtpy.QtCore import QObject, QThreadPool, Signal
 from superqt.utils import create_worker
 
+from lfm_studio.engine.errors import error_text
 from lfm_studio.engine.progress import CancelledError
 from lfm_studio.widgets.job_status import JobStatus
 
@@ -107,8 +108,10 @@ def _root_cause(error: BaseException) -> BaseException:
 
 
 def _one_line(error: BaseException | None) -> str:
-    """``error`` for the status bar: its first non-empty line (the type name when it has no message)."""
-    lines = [line.strip() for line in str(error).splitlines() if line.strip()]
+    """``error`` for the status bar: its first non-empty line (the type name when it has no message; a
+    refused design's own text, not pydantic's "1 validation error for ..." header)."""
+    message = str(error) if error is None else error_text(error)
+    lines = [line.strip() for line in message.splitlines() if line.strip()]
     text = lines[0] if lines else ""
     return (
         f"{type(error).__name__}: {text}" if isinstance(error, (KeyError, IndexError)) or not text else text

@@ -114,3 +114,21 @@ def test_a_design_value_error_shows_its_own_fix_once(tmp_path, capsys):
         capsys, ["info", str(path)], "depth_step_um must be a finite number > 0 um; got -10 um. Fix: e.g. 2."
     )
     assert err.count("Fix:") == 1, err
+
+
+def test_a_design_refused_by_validation_prints_our_message_without_pydantic_wrapping(capsys):
+    """--voxels-per-lenslet 0 makes the design's accuracy invalid inside pydantic: the refusal is our
+    sentence (parameter, value, fix), not "1 validation error for ... [type=value_error, ...]"."""
+    err = _refused(
+        capsys,
+        ["resolution", "flfm_guo2019", "--voxels-per-lenslet", "0"],
+        "voxels_per_lenslet must be an odd integer >= 1 (a voxel on each lenslet centre); got 0. Fix: e.g. 5",
+    )
+    for boilerplate in (
+        "validation error for",
+        "[type=",
+        "input_value",
+        "errors.pydantic.dev",
+        "Value error, ",
+    ):
+        assert boilerplate not in err, err

@@ -54,3 +54,22 @@ def test_edit_save_and_recompute_the_psf_layer(make_napari_viewer, qtbot, bead_l
     old = bead_layers[1][0][corner]
     change = np.abs(psf_layer.data[corner] - old).max() / old.max()
     assert change < 1e-3, change
+
+
+def test_a_refused_edit_shows_the_designs_sentence_without_pydantic_wrapping(make_napari_viewer, notes):
+    viewer = make_napari_viewer()
+    _, dock = viewer.window.add_plugin_dock_widget(PLUGIN, "MLA editor")
+    dock.set_preset("flfm_guo2019")
+    before = dock.design
+    lenslets = list(dock.editor.lenslets())
+    lenslets[0] = lenslets[0].model_copy(update={"center_um": (3000.0, 0.0)})  # beyond the pupil image
+    dock.editor.lensletsCommitted.emit(tuple(lenslets))
+    assert dock.design is before  # the last valid design is kept
+    (message,) = notes.errors()
+    assert message.startswith(
+        "Lenslet edit not applied to the design: lenslet centres must lie inside the pupil"
+    )
+    assert dock.status.text().startswith("Refused: lenslet centres must lie inside the pupil")
+    for text in (message, dock.status.text()):
+        for boilerplate in ("validation error for", "[type=", "input_value", "errors.pydantic.dev"):
+            assert boilerplate not in text, text

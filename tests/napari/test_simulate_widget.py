@@ -66,7 +66,11 @@ def test_invalid_depth_range_is_refused_and_cancel_adds_nothing(make_napari_view
     widget.set_depths_um(10.0, -10.0, 5.0)  # stop before start
     assert not widget.start()
     (message,) = notes.errors()
-    assert "depth_range_um" in message
+    # the design's own sentence, without pydantic's "1 validation error for Design ... [type=value_error"
+    assert (
+        message
+        == "Cannot simulate: depth_range_um must be ordered (start <= stop); got (10, -10) um. Fix: write (-10, 10)."
+    )
     widget.set_depths_um(-40.0, 40.0, 1.0)  # 81 depths: long enough to cancel
     assert widget.start()
     qtbot.waitUntil(
@@ -76,3 +80,22 @@ def test_invalid_depth_range_is_refused_and_cancel_adds_nothing(make_napari_view
     qtbot.waitUntil(lambda: not widget.busy, timeout=60_000)
     assert len(viewer.layers) == 0
     assert any("cancelled" in m for m in notes.infos())
+
+
+def test_the_summary_line_counts_the_depths_that_will_be_simulated(make_napari_viewer):
+    _, widget = _simulate_widget(make_napari_viewer)
+    widget.set_design(sample_design(), "sample")  # 5 depths, -20 to 20 um
+    assert widget.summary.text() == "sample: fourier LFM, 288 x 288 px camera, 5 depths, 9 lenslets"
+    widget.set_depths_um(-10.0, 10.0, 10.0)
+    assert (
+        widget.summary.text()
+        == "sample: fourier LFM, 288 x 288 px camera, 3 depths, -10 to 10 um, 9 lenslets"
+    )
+    widget.depth_step.setValue(4.0)  # the last depth on the grid below the stop
+    assert "6 depths, -10 to 10 um" in widget.summary.text()
+    widget.depth_step.setValue(3.0)
+    assert "7 depths, -10 to 8 um" in widget.summary.text()
+    widget.set_depths_um(10.0, -10.0, 5.0)
+    assert "other depths refused (depth_range_um must be ordered (start <= stop)" in widget.summary.text()
+    widget.custom_depths.setChecked(False)  # back to the design's depths
+    assert widget.summary.text() == "sample: fourier LFM, 288 x 288 px camera, 5 depths, 9 lenslets"

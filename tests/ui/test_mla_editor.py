@@ -452,3 +452,26 @@ def test_sub_image_overlaps_match_a_brute_force_search():
     found = disc_overlaps(centers, radius, tolerance)
     assert len(brute) > 100 and [p[:2] for p in found] == [p[:2] for p in brute]
     assert [p[2] for p in found] == pytest.approx([p[2] for p in brute], rel=1e-12)
+
+
+def test_table_headers_are_never_clipped_in_a_narrow_editor(qtbot):
+    """A narrow dock (the napari MLA editor beside other docks) read "liameter (um" and "al length (m":
+    every column stays at least as wide as its header text, whose full meaning is in the tooltip."""
+    from lfm_studio.widgets.mla_editor.table import HEADERS
+
+    widget = MLAEditor(START, pupil_radius_um=PUPIL_UM, sensor_size_um=(3000.0, 3000.0))
+    qtbot.addWidget(widget)
+    widget.resize(400, 500)  # narrower than the canvas and the table want: both at their minimum
+    widget.show()
+    qtbot.waitExposed(widget)
+    table, model = widget.table, widget.table_model
+    header = table.horizontalHeader()
+    texts = [model.headerData(i, Qt.Orientation.Horizontal) for i in range(model.columnCount())]
+    assert tuple(texts) == HEADERS
+    for i, text in enumerate(texts):
+        assert header.sectionSize(i) >= header.fontMetrics().horizontalAdvance(text) + 8, (
+            text,
+            header.sectionSize(i),
+        )
+    tips = [model.headerData(i, Qt.Orientation.Horizontal, Qt.ItemDataRole.ToolTipRole) for i in range(4)]
+    assert "diameter" in tips[2] and "focal length" in tips[3] and all("um" in t or "mm" in t for t in tips)

@@ -127,7 +127,7 @@ def _check_pupil(design: Design) -> None:
         elif lens.reach_um > radius + 1e-5:
             clipped.append(f"{lens.describe(i)} reaches {fmt(lens.reach_um)} um")
     where = (
-        f"the pupil image at the MLA has radius {fmt(radius)} um (2 NA f_relay / M = 2 x "
+        f"the pupil image at the MLA has radius {fmt(radius)} um (NA f_relay / M = "
         f"{fmt(design.objective.numerical_aperture)} x {fmt(relay.focal_length_mm)} mm / "
         f"{fmt(design.objective.magnification)})"
     )

@@ -9,10 +9,13 @@ is used only when passed as ``data_range=255``).
 
 Example::
 
-    from lfm_studio.engine.image_quality import compare, psnr, ssim
+    from lfm_studio.engine.image_quality import compare, psnr, scorecard, ssim
 
     psnr(truth, estimate)                     # dB, data range = truth.max() - truth.min()
-    ssim(truth, estimate, data_range=1.0)     # Gaussian window, sigma 1.5 (Wang et al. 2004)
+    ssim(truth, estimate, data_range=1.0, sigma=(0, 1.5, 1.5))  # Gaussian window of sigma 1.5 (Wang et al.
+                                              # 2004) in y and x, none across z: the window needs 11 samples
+                                              # per axis, a volume of few depths has fewer (compare and
+                                              # scorecard choose this by themselves)
     report = compare(truth, estimate, normalize="scale", per_depth=True)
     report.to_dict()                          # JSON-ready numbers
 

@@ -27,15 +27,11 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 from __future__ import annotations
 
 import math
-import os
-import sys
-import warnings
 from collections.abc import Sequence
-from types import FrameType
 
 import torch
 
-from lfm_studio.engine.errors import SamplingError, SamplingWarning, require_positive
+from lfm_studio.engine.errors import SamplingError, SamplingWarning, require_positive, warn_at_caller
 from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 
@@ -43,8 +39,6 @@ EDGE_POWER_TOLERANCE = 1e-3  # fraction of the power allowed in the outer border
 EDGE_BORDER_FRACTION = 1.0 / 32.0  # border width per side, as a fraction of the samples (at least 1)
 FRESNEL_PHASE_LIMIT = math.pi / 2.0  # rad, Fresnel phase error allowed at Nyquist
 MAX_GRID_SAMPLES = 16384 * 16384  # samples per 2D slice: 2 GiB complex64, 4 GiB complex128
-
-_ENGINE_DIR = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
 # -- formatting and warning -----------------------------------------------------------
@@ -65,18 +59,9 @@ def describe_grid(shape: Sequence[int], spacing: Sequence[float]) -> str:
     return f"Grid(shape=({shape[0]}, {shape[1]}), spacing=({_um(spacing[0])}, {_um(spacing[1])}))"
 
 
-def _stacklevel() -> int:
-    """``stacklevel`` of the first frame outside ``lfm_studio.engine`` (the user's call)."""
-    level = 1
-    frame: FrameType | None = sys._getframe(2)  # f_back is None at the top of the stack
-    while frame is not None and frame.f_code.co_filename.startswith(_ENGINE_DIR):
-        frame, level = frame.f_back, level + 1
-    return level + 1
-
-
 def warn_sampling(message: str) -> None:
     """Emit a :class:`SamplingWarning` attributed to the first caller outside the engine."""
-    warnings.warn(message, SamplingWarning, stacklevel=_stacklevel())
+    warn_at_caller(message, SamplingWarning)
 
 
 # -- criteria ----------------------------------------------------------------------------

@@ -2,14 +2,26 @@
 
 Every method takes a projector (``forward``/``adjoint``/``volume_shape``/``image_shape``;
 Richardson-Lucy works with any, Wiener needs the shift-invariant one with cached OTFs,
-Tikhonov that or the conventional lenslet-lattice one) and a camera image in counts, and runs in the projector's dtype and on
-its device.
+Tikhonov that or the conventional lenslet-lattice one) and a camera image ``(Py, Px)`` in
+photons with the camera's baseline removed, and runs in the projector's dtype and on its
+device; the volume is then in photons per voxel (the unit of ``lfm-studio image --truth``).
+Camera counts (ADU) are converted first with :func:`lfm_studio.engine.io.counts_to_photons`,
+``max((ADU - baseline) / gain + c, 0) / QE``, whose second value (the noise floor ``c / QE``)
+is the ``background`` to pass; the calibration comes from the image's metadata
+(:func:`~lfm_studio.engine.io.resolve_calibration`) or the design's camera
+(:func:`~lfm_studio.engine.io.camera_counts.design_camera`). An integer image (raw counts) is
+warned about (:class:`~.guards.RawCountsWarning`).
 
 Example::
 
+    from lfm_studio.engine.io import counts_to_photons, resolve_calibration
+
+    calibration, notes = resolve_calibration(metadata, counts)  # from the TIFF's camera metadata
+    image, floor = counts_to_photons(counts, calibration, name="frame.tif")  # photons, baseline removed
+
     from lfm_studio.engine.reconstruct import accelerated_rl_options, richardson_lucy, richardson_lucy_iterates
 
-    volume = richardson_lucy(setup.projector, image, iterations=30)
+    volume = richardson_lucy(setup.projector, image, background=floor, iterations=30)
     for it in richardson_lucy_iterates(setup.projector, image, acceleration="geometric",
                                        iterations=50, rtol=1e-3, progress=report, cancel=event):
         show(it.index, it.estimate, it.relative_change)
@@ -19,10 +31,11 @@ Example::
 
     bp = wiener_butterworth_backprojector(setup.projector)      # Guo et al. 2020
     fast = richardson_lucy(setup.projector, image, backprojector=bp, iterations=3)
-    stack = wiener(setup.projector, image, snr=100.0)           # per-depth Wiener (eq. 4.5)
+    stack = wiener(setup.projector, image, snr=100.0)           # per-depth Wiener (eq. 4.5): a preview,
+                                                                 # every depth holds the image's light
     solution = tikhonov(setup.projector, image, mu=1e-3)        # per-frequency 3D Tikhonov
 
-    volume = reconstruct_frame(setup.projector, image, method="wiener", snr=100.0)  # by name
+    volume = reconstruct_frame(setup.projector, image, method="rl-accelerated", background=floor)  # by name
     for method in methods():                                     # the registry every front end reads
         print(method.name, method.description, [o.name for o in method.options])
 """

@@ -160,7 +160,8 @@ BUILTIN = (
     Method(
         "wiener",
         "Wiener (one step)",
-        "Wiener deconvolution per depth (shift-invariant Fourier LFM projectors)",
+        "Wiener deconvolution per depth (shift-invariant Fourier LFM projectors): a quick preview; every "
+        "depth holds the whole image's light, so not photons per voxel",
         (WIENER_SNR,),
         _wiener_run,
         differentiable=True,

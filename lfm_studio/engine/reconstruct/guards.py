@@ -1,7 +1,12 @@
 """Input checks and guarded divisions shared by every reconstruction method.
 
+Unit: the camera image is in photons with the camera's baseline removed (what
+:func:`lfm_studio.engine.io.counts_to_photons` returns), and the volume comes out in photons
+per voxel. An integer image (raw camera counts, e.g. uint16 ADU) is reconstructed but warned
+about (:class:`RawCountsWarning`).
+
 Numerics rules (docs/architecture.md section 4): divisions are guarded by a floor *relative to
-the data scale* (an absolute ``1e-12`` vanishes next to float32 counts of 1e4, and is
+the data scale* (an absolute ``1e-12`` vanishes next to float32 values of 1e4, and is
 below float32's smallest normal number times a typical PSF value), estimates stay
 non-negative, and NaN/Inf, negative or empty inputs are rejected with a ``ValueError``
 that names the parameter, the value, the limit and a fix.
@@ -13,13 +18,18 @@ anything below that floor is rounding noise, not signal.
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-from lfm_studio.engine.errors import require_finite_tensor
+from lfm_studio.engine.errors import require_finite_tensor, warn_at_caller
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.types import Scalar, Shape2, Shape3, TensorLike
 
 RELATIVE_FLOOR_ULPS = 16.0  # FFT rounding of a 2400^2 transform: log2(N) ~ 22 ulps at most, ~4 typical
+
+
+class RawCountsWarning(UserWarning):
+    """A reconstruction was given an integer image: raw camera counts (ADU), not photons."""
 
 
 def relative_floor(dtype: torch.dtype) -> float:
@@ -58,14 +68,43 @@ def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
         )
 
 
+def is_integer_data(value: object) -> bool:
+    """Whether ``value`` is a tensor or array of an integer dtype (not bool, float or complex)."""
+    dtype = getattr(value, "dtype", None)
+    if isinstance(dtype, torch.dtype):
+        return not (dtype.is_floating_point or dtype.is_complex or dtype == torch.bool)
+    return isinstance(dtype, np.dtype) and dtype.kind in "iu"
+
+
+def warn_if_raw_counts(name: str, image: object) -> None:
+    """Warn (:class:`RawCountsWarning`, at the user's call) when ``image`` has an integer dtype: most
+    likely raw camera counts (ADU, baseline included), where the methods take photons."""
+    if not is_integer_data(image):
+        return
+    dtype = str(getattr(image, "dtype", "")).removeprefix("torch.")
+    warn_at_caller(
+        f"{name} has the integer dtype {dtype}: raw camera counts (ADU, with the camera's baseline)? The "
+        "reconstruction takes photons with the baseline removed and returns photons per voxel; from counts "
+        "the volume is in the wrong unit and the baseline is reconstructed as light. Fix: convert first, "
+        "photons, background = lfm_studio.engine.io.counts_to_photons(counts, calibration, name=...) with "
+        "calibration = CameraCalibration(baseline_adu, gain_adu_per_e, quantum_efficiency) or from "
+        "resolve_calibration(...), and pass background=background; if the values are photons already, pass "
+        "them as floats (.float() on a tensor, .astype(numpy.float32) on an array).",
+        RawCountsWarning,
+    )
+
+
 def check_image(
     image: TensorLike, shape: Shape2, *, dtype: torch.dtype, device: torch.device, non_negative: bool = True
 ) -> torch.Tensor:
     """The camera image as a checked ``(Py, Px)`` tensor: finite, right shape and (for RL) non-negative.
 
-    Values that are negative only by rounding (``>= -16 eps max|image|``, e.g. a projector's
-    FFT output) are set to 0; anything more negative is rejected when ``non_negative``.
+    The image is in photons, baseline removed (:func:`lfm_studio.engine.io.counts_to_photons`); an
+    integer dtype (raw counts) is warned about (:func:`warn_if_raw_counts`). Values that are negative
+    only by rounding (``>= -16 eps max|image|``, e.g. a projector's FFT output) are set to 0; anything
+    more negative is rejected when ``non_negative``.
     """
+    warn_if_raw_counts("image", image)
     tensor = as_real_tensor("image", image, dtype=dtype, device=device)
     require_shape("image", tensor, shape, "(Py, Px) camera pixels")
     require_finite_tensor("image", tensor.detach())
@@ -86,7 +125,8 @@ def check_image(
 def check_background(
     background: Scalar, shape: Shape2, *, dtype: torch.dtype, device: torch.device
 ) -> torch.Tensor:
-    """Background ``b`` (counts per pixel; a number or a tensor broadcastable to ``shape``), >= 0."""
+    """Background ``b`` (photons per pixel, the image's unit; a number or a tensor broadcastable to
+    ``shape``), >= 0."""
     tensor = as_real_tensor("background", background, dtype=dtype, device=device)
     try:
         torch.broadcast_shapes(tuple(tensor.shape), tuple(shape))
@@ -95,7 +135,9 @@ def check_background(
             f"background must be a number or broadcast to the image shape {tuple(shape)}; "
             f"got shape {tuple(tensor.shape)}."
         ) from None
-    require_non_negative("background", tensor, "give the mean dark level per pixel (counts), e.g. 0.")
+    require_non_negative(
+        "background", tensor, "give the mean background per pixel (photons, the image's unit), e.g. 0."
+    )
     return tensor
 
 

@@ -35,6 +35,7 @@ import torch
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
 from lfm_studio.engine.operators.protocol import FourierProjector, Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
+from lfm_studio.engine.reconstruct.guards import is_integer_data, warn_if_raw_counts
 from lfm_studio.engine.types import OptionValue
 
 PROJECTOR_KINDS = ("any", "shift-invariant", "periodic")
@@ -305,15 +306,21 @@ class Method:
         progress: ProgressCallback | None = None,
         cancel: CancelToken = None,
     ) -> torch.Tensor:
-        """Check ``options`` and the projector kind, then run (volume ``(Z, Y, X)``)."""
+        """Check ``options`` and the projector kind, then run (volume ``(Z, Y, X)``).
+
+        An integer ``frame`` (raw camera counts?) is warned about (:func:`.guards.warn_if_raw_counts`)
+        and handed to ``run`` in the projector's dtype, like every float frame."""
         resolved = self.resolve(options)
         self.check_projector(projector)
+        if is_integer_data(frame):
+            warn_if_raw_counts("frame", frame)
+            frame = torch.as_tensor(frame).to(device=projector.device, dtype=projector.dtype)
         return self.run(projector, frame, resolved, progress, cancel)
 
     def check_projector(self, projector: Projector) -> None:
         """A ``ValueError`` naming the method and a fix when it cannot take ``projector``."""
         if not self.supports(projector):
-            choices = ", ".join(m.name for m in methods() if m.projectors == "any")
+            choices = ", ".join(m.name for m in methods() if m.supports(projector))  # what takes this one
             needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
             if self.projectors == "periodic":
                 needs += " or a conventional-LFM lenslet-lattice projector"

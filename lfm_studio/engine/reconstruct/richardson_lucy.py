@@ -1,6 +1,6 @@
 """3D layered Richardson-Lucy (thesis eqs. 4.11-4.12) over any projector, as a generator of iterates.
 
-With ``y`` the camera image (counts), ``b`` the background and ``A`` the projector
+With ``y`` the camera image (photons, baseline removed), ``b`` the background and ``A`` the projector
 (``forward``: volume ``(Z, Y, X)`` -> image; ``adjoint``: image -> volume):
 
     x_{k+1} = x_k * A^T( y / (A x_k + b) ) / A^T 1
@@ -31,7 +31,7 @@ data near float32's smallest normal number (1.2e-38) no voxel is flushed to 0 du
 iterations; only result values below it are 0.
 
 Start (``initial=None``): the uniform volume whose projection carries the image's
-counts, ``x_0 = sum(y - b) / sum(A^T 1)`` in every voxel (RL keeps that total after
+photons, ``x_0 = sum(y - b) / sum(A^T 1)`` in every voxel (RL keeps that total after
 its first step when ``b = 0``).
 
 The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulation and Optimization" (docs/references.md).
@@ -291,9 +291,11 @@ def richardson_lucy_iterates(
         ``device``, ``dtype``) (shift-invariant Fourier LFM, conventional lenslet lattice, ...); the
         reconstruction runs on its device and in its dtype (float32 or float64).
     image : tensor or array ``(Py, Px)``
-        Camera image in photon counts (>= 0, baseline removed).
+        Camera image in photons (>= 0, the camera's baseline removed): convert camera counts with
+        :func:`lfm_studio.engine.io.counts_to_photons`. The volume is in photons per voxel.
     background : float or tensor broadcastable to ``(Py, Px)``
-        Expected background counts per pixel ``b`` (>= 0).
+        Expected background photons per pixel ``b`` (>= 0), e.g. the noise floor
+        :func:`~lfm_studio.engine.io.counts_to_photons` returns.
     initial : tensor ``(Z, Y, X)``, optional
         Starting volume (>= 0, not all zero); default: flux-matched uniform volume.
     iterations : int

@@ -88,7 +88,9 @@ def tikhonov(projector: Projector, image: TensorLike, *, mu: float = 1e-3, refin
     projector : FourierProjector or LensletLatticeProjector
         Cached OTFs (e.g. ShiftInvariantProjector), or a conventional-LFM lattice projector (then
         ``mu > 0``); any other projector raises ``NotImplementedError``.
-    image : tensor or array ``(Py, Px)``, counts (finite; negative noise values are fine)
+    image : tensor or array ``(Py, Px)``
+        Camera image in photons, the camera's baseline removed (finite; negative noise values are
+        fine): convert camera counts with :func:`lfm_studio.engine.io.counts_to_photons`.
     mu : float
         Regularisation weight relative to ``max_k |H_k|^2`` (>= 0).
     refine : int

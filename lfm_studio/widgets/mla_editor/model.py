@@ -15,6 +15,7 @@ from typing import Any, Literal
 from pydantic import ValidationError
 
 from lfm_studio.engine.design import LensletSpec
+from lfm_studio.engine.errors import error_text
 from lfm_studio.widgets.mla_editor.symmetry import Point, PointIndex, Symmetry, apply, round_point
 from lfm_studio.widgets.numeric_text import NumberRule, parse_number
 
@@ -32,14 +33,6 @@ LENSLET_RULES: dict[str, NumberRule] = {
 NO_SYMMETRY = Symmetry()
 
 
-def reason(exc: Exception) -> str:
-    """The human part of a validation error (pydantic's wrapper and error codes stripped)."""
-    if isinstance(exc, ValidationError):
-        messages = [str(e.get("msg", "")).removeprefix("Value error, ") for e in exc.errors()]
-        return "; ".join(m for m in messages if m) or str(exc)
-    return str(exc)
-
-
 def lenslet(
     center_um: Point, diameter_um: float, focal_length_mm: float, shape: str = "circle"
 ) -> LensletSpec:
@@ -52,7 +45,7 @@ def lenslet(
             shape=shape,
         )
     except ValidationError as exc:
-        raise ValueError(reason(exc)) from None
+        raise ValueError(error_text(exc)) from None
 
 
 def as_lenslets(items: Iterable[Any]) -> Lenslets:
@@ -65,7 +58,7 @@ def as_lenslets(items: Iterable[Any]) -> Lenslets:
         try:
             out.append(LensletSpec.model_validate(item))
         except ValidationError as exc:
-            raise ValueError(f"lenslet {i}: {reason(exc)}") from None
+            raise ValueError(f"lenslet {i}: {error_text(exc)}") from None
     return tuple(out)
 
 

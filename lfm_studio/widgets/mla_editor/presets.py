@@ -19,7 +19,7 @@ from pydantic import ValidationError
 
 from lfm_studio.engine.design import LensletSpec, MLASpec
 from lfm_studio.engine.design.geometry import candidate_pairs
-from lfm_studio.widgets.mla_editor.model import reason
+from lfm_studio.engine.errors import error_text
 
 PresetKind = Literal["square", "hex", "xlfm"]
 PRESET_LABELS: dict[str, str] = {
@@ -88,7 +88,7 @@ def build_preset(
         else:
             raise ValueError(f"preset must be one of {', '.join(PRESET_LABELS)}; got {kind!r}.")
     except ValidationError as exc:
-        raise ValueError(reason(exc)) from None
+        raise ValueError(error_text(exc)) from None
     except (ZeroDivisionError, IndexError):
         raise ValueError("preset needs a pitch > 0 um and at least one focal length.") from None
     return tuple(mla.lenslets)

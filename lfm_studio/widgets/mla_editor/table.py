@@ -1,4 +1,7 @@
-"""The MLA editor's table of lenslets: x, y, diameter (um), focal length (mm); editable.
+"""The MLA editor's table of lenslets: x, y, diameter Ø (um), focal length f (mm); editable.
+
+The headers are short (the editor's own Ø and f) with the full meaning in their tooltips, and no
+column is narrower than its header: in a narrow dock the table scrolls rather than clip them.
 
 The model never changes the list itself: an edit becomes ``editRequested(row, field,
 text)`` and the editor validates and commits it (or refuses it with the reason),
@@ -12,13 +15,19 @@ from collections.abc import Sequence
 
 from qtpy.QtCore import QAbstractTableModel, QItemSelection, QItemSelectionModel, QModelIndex, Qt, Signal
 from qtpy.QtGui import QColor
-from qtpy.QtWidgets import QAbstractItemView, QHeaderView, QTableView
+from qtpy.QtWidgets import QAbstractItemView, QHeaderView, QStyle, QTableView
 
 from lfm_studio.engine.design import LensletSpec
 from lfm_studio.widgets.mla_editor.model import FIELDS, value_of
 from lfm_studio.widgets.mla_editor.style import ISSUE
 
-HEADERS = ("x (um)", "y (um)", "diameter (um)", "focal length (mm)")
+HEADERS = ("x (um)", "y (um)", "Ø (um)", "f (mm)")
+HEADER_TIPS = (
+    "x of the lenslet centre, um from the optical axis",
+    "y of the lenslet centre, um from the optical axis",
+    "Ø: aperture diameter, um",
+    "f: focal length, mm",
+)
 
 
 def _text(value: float) -> str:
@@ -63,10 +72,13 @@ class LensletTableModel(QAbstractTableModel):
         return 0 if parent.isValid() else len(FIELDS)
 
     def headerData(self, section, orientation, role=Qt.ItemDataRole.DisplayRole):
+        horizontal = orientation == Qt.Orientation.Horizontal and 0 <= section < len(HEADERS)
+        if role == Qt.ItemDataRole.ToolTipRole and horizontal:
+            return HEADER_TIPS[section]
         if role != Qt.ItemDataRole.DisplayRole:
             return None
         if orientation == Qt.Orientation.Horizontal:
-            return HEADERS[section] if 0 <= section < len(HEADERS) else None
+            return HEADERS[section] if horizontal else None
         return str(section)
 
     def data(self, index, role=Qt.ItemDataRole.DisplayRole):
@@ -112,10 +124,24 @@ class LensletTable(QTableView):
             | QAbstractItemView.EditTrigger.AnyKeyPressed
         )
         self.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.Stretch)
+        self.horizontalHeader().setMinimumSectionSize(self.header_width())  # never clip a header
+        frame = 2 * self.frameWidth() + self.verticalScrollBar().sizeHint().width()
+        self.setMinimumWidth(
+            len(HEADERS) * self.header_width() + self.verticalHeader().sizeHint().width() + frame
+        )
         self.verticalHeader().setDefaultSectionSize(self.fontMetrics().height() + 6)
         self.setAlternatingRowColors(True)
+        # A grey wash on the theme's own background: the palette's default (near white) left every
+        # other row white under napari's dark theme, whose light text was then unreadable.
+        self.setStyleSheet("QTableView { alternate-background-color: rgba(128, 128, 128, 40); }")
         self._quiet = False
         self.selectionModel().selectionChanged.connect(self._on_selection)
+
+    def header_width(self) -> int:
+        """Pixels the widest column header needs: its text and the header's margins on both sides."""
+        header = self.horizontalHeader()
+        margin = header.style().pixelMetric(QStyle.PixelMetric.PM_HeaderMargin, None, header)
+        return max(header.fontMetrics().horizontalAdvance(text) for text in HEADERS) + 2 * margin + 8
 
     def selected_rows(self) -> list[int]:
         """Rows selected in the table, sorted."""

@@ -9,6 +9,7 @@ All geometry is a few float64 operations: relative tolerance 1e-12 (round-off on
 from __future__ import annotations
 
 import math
+import re
 
 import pytest
 
@@ -174,3 +175,25 @@ def test_lenslet_spec_is_reused_not_revalidated_by_updated(fourier):
     lens = LensletSpec(center_um=(0.0, 0.0), aperture_diameter_um=600.0, focal_length_mm=16.8, shape="square")
     design = fourier.updated(mla=MLASpec(lenslets=(lens,)))
     assert design.mla.lenslets[0] is lens
+
+
+def _pupil_formula_agrees(message: str) -> float:
+    """The radius the message states, checked against the formula it quotes (``NA f_relay / M``)."""
+    found = re.search(r"radius ([\d.]+) um \(NA f_relay / M = ([\d.]+) x ([\d.]+) mm / ([\d.]+)\)", message)
+    assert found, message
+    radius_um, na, f_relay_mm, magnification = (float(g) for g in found.groups())
+    assert radius_um == pytest.approx(na * f_relay_mm * 1e3 / magnification, rel=1e-6)
+    return radius_um
+
+
+def test_the_pupil_messages_quote_the_radius_formula_they_evaluate(fourier):
+    # NA 0.5: radius 0.5 x 75 mm / 40 = 937.5 um (the diameter, 2 NA f_relay / M, is 1875 um); the
+    # corner lenslets reach 1272.79 um, so they are vignetted, and at NA 0.3 (562.5 um) lenslet 8's
+    # centre (600, 600) um, 848.5 um from the axis, lies outside.
+    with pytest.warns(DesignWarning, match="vignetted") as caught:
+        evolve(fourier, "objective.numerical_aperture", 0.5)
+    (vignetted,) = [str(w.message) for w in caught if "vignetted" in str(w.message)]
+    assert _pupil_formula_agrees(vignetted) == 937.5
+    with pytest.raises(ValueError, match="lie outside") as refused:
+        evolve(fourier, "objective.numerical_aperture", 0.3)
+    assert _pupil_formula_agrees(str(refused.value)) == 562.5

@@ -88,7 +88,7 @@ def test_cache_is_rebuilt_when_the_evaluator_is_pickled(flfm):
 def test_grid_search_over_the_lattice_records_every_choice(flfm):
     """A tiny FLFM with a regular array of 600 um lenslets, shape 3 x 3: square (9 lenslets), hex (9)
     and rings (7) at 600 um pitch are all valid; at 1100 um pitch the square and hex corner lenslets
-    reach beyond the pupil image (radius 2 NA f_relay / M = 1781 um; they reach 1856 and 1973 um) and
+    reach beyond the pupil image (radius NA f_relay / M = 1781 um; they reach 1856 and 1973 um) and
     are recorded with that reason, while the rings' outer apertures reach 1400 um. Every point is
     recorded, none crashes."""
     from lfm_studio.engine.design import LATTICES, RegularMLASpec

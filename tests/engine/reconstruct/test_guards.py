@@ -1,12 +1,24 @@
-"""Named errors for bad inputs: NaN/Inf, negative, zero-photon images, all-zero PSFs, wrong shapes."""
+"""Named errors for bad inputs: NaN/Inf, negative, zero-photon images, all-zero PSFs, wrong shapes; a
+warning for an integer image (raw camera counts where photons are expected)."""
 
 from __future__ import annotations
 
+import warnings
+
+import numpy as np
 import pytest
 import torch
 
 from lfm_studio.engine.operators.lenslet_lattice import LensletLatticeProjector
-from lfm_studio.engine.reconstruct import poisson_nll, richardson_lucy, richardson_lucy_iterates
+from lfm_studio.engine.reconstruct import (
+    poisson_nll,
+    reconstruct_frame,
+    richardson_lucy,
+    richardson_lucy_iterates,
+    tikhonov,
+    wiener,
+)
+from lfm_studio.engine.reconstruct.guards import RawCountsWarning
 
 
 class _ZeroProjector:
@@ -117,3 +129,49 @@ def test_objects_without_the_projector_interface_are_a_type_error(image):
 def test_poisson_nll_checks_its_volume(projector, image):
     with pytest.raises(ValueError, match=r"volume contains 1 NaN/Inf"):
         poisson_nll(projector, _with(torch.ones(projector.volume_shape), (0, 0, 0), float("nan")), image)
+
+
+RUNS = {
+    "richardson_lucy": ("image", lambda p, y: richardson_lucy(p, y, iterations=2)),
+    "wiener": ("image", lambda p, y: wiener(p, y)),
+    "tikhonov": ("image", lambda p, y: tikhonov(p, y)),
+    "reconstruct_frame rl": ("frame", lambda p, y: reconstruct_frame(p, y, method="rl", iterations=2)),
+    "reconstruct_frame wiener": ("frame", lambda p, y: reconstruct_frame(p, y, method="wiener")),
+}
+
+
+@pytest.mark.parametrize("run", RUNS)
+@pytest.mark.parametrize(
+    "as_counts",
+    [lambda y: y.round().to(torch.int32), lambda y: y.round().numpy().astype(np.uint16)],
+    ids=["int32 tensor", "uint16 array"],
+)
+def test_an_integer_image_is_reconstructed_with_one_warning_naming_the_conversion(fourier, run, as_counts):
+    """Raw camera counts (uint16 ADU) are the likely integer image; the methods take photons, baseline
+    removed. One warning, at the caller's line (this file), pointing at counts_to_photons."""
+    name, reconstruct = RUNS[run]
+    projector = fourier.setup.projector
+    volume = torch.zeros(projector.volume_shape)
+    volume[2, 46, 46] = 1e4
+    counts = as_counts(projector.forward(volume).clamp_min(0.0) + 100.0)  # a baseline-like offset
+    with pytest.warns(RawCountsWarning) as caught:
+        result = reconstruct(projector, counts)
+    (warning,) = [w for w in caught if w.category is RawCountsWarning]
+    message = str(warning.message)
+    assert (
+        f"{name} has the integer dtype {'int32' if isinstance(counts, torch.Tensor) else 'uint16'}" in message
+    )
+    assert "counts_to_photons" in message and "photons per voxel" in message
+    assert warning.filename == __file__
+    assert result.dtype == torch.float32 and bool(torch.isfinite(result).all())  # reconstructed all the same
+
+
+def test_a_float_image_gives_no_raw_counts_warning(fourier):
+    projector = fourier.setup.projector
+    volume = torch.zeros(projector.volume_shape)
+    volume[2, 46, 46] = 1e4
+    photons = projector.forward(volume).clamp_min(0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RawCountsWarning)
+        wiener(projector, photons.double().numpy())
+        wiener(projector, photons.round())  # whole numbers in a float tensor are photons

@@ -121,6 +121,21 @@ def test_a_shift_invariant_method_refuses_another_projector_and_names_the_fix(sm
     assert volume.shape == projector.volume_shape and bool(torch.isfinite(volume).all())
 
 
+def test_the_refusal_lists_every_method_that_takes_the_projector(conventional):
+    """A conventional LFM's lenslet-lattice projector: Wiener refuses it, and the fix names Tikhonov
+    (which runs there, per lattice frequency) beside the methods that take any projector."""
+    projector = conventional.setup64.projector
+    takers = [m.name for m in registry.methods() if m.supports(projector)]
+    assert "tikhonov" in takers and "wiener" not in takers and "rl" in takers
+    with pytest.raises(ValueError, match="needs a laterally shift-invariant") as refused:
+        reconstruct_frame(projector, torch.ones(projector.image_shape, dtype=torch.float64), method="wiener")
+    assert str(refused.value).endswith(f"Fix: choose {', '.join(takers)}.")
+    volume = reconstruct_frame(
+        projector, projector.forward(torch.ones(projector.volume_shape)), method="tikhonov"
+    )
+    assert volume.shape == projector.volume_shape and bool(torch.isfinite(volume).all())
+
+
 def test_a_registered_method_runs_by_name_and_leaves_again(small):
     projector, frame = small
     with toy_method.registered() as method:
