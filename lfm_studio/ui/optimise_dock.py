@@ -90,6 +90,7 @@ from lfm_studio.ui.optimise_model import (
     run_optimisation,
 )
 from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.table_fit import fit_columns, give_room
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
@@ -556,15 +557,11 @@ class OptimiseDock(QWidget):
         self.compare_table.setHorizontalHeaderLabels(["Quantity", "A", "B"])
         self.compare_table.verticalHeader().setVisible(False)
         self.compare_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        header = self.compare_table.horizontalHeader()
-        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        for section in (1, 2):
-            header.setSectionResizeMode(section, QHeaderView.ResizeMode.Stretch)
-        split = QSplitter(Qt.Orientation.Horizontal)
+        fit_columns(self.compare_table)  # values whole ("2.765 µm", not "2.… µm"); the previews give way
+        self._compare_split = split = QSplitter(Qt.Orientation.Horizontal)
         split.addWidget(self.compare_table)
         self.psf_views = pg.GraphicsLayoutWidget()
         self.psf_views.setBackground("w")
-        self.psf_views.setMaximumWidth(420)  # the metrics table keeps the room
         self.psf_images = []
         for column_index, name in enumerate(("A", "B")):
             box = self.psf_views.addViewBox(row=1, col=column_index, lockAspect=True, invertY=True)
@@ -573,11 +570,17 @@ class OptimiseDock(QWidget):
             box.addItem(image)
             self.psf_images.append(image)
             self.psf_views.addLabel(f"PSF of {name}", row=0, col=column_index, color="k")
-        self.psf_views.addLabel(
-            f"on-axis point at the native focal plane, √ intensity, central {PREVIEW_CROP}² px", row=2, col=0, colspan=2,
-            color="#555", size="8pt",
-        )  # fmt: skip
-        split.addWidget(self.psf_views)
+        note = QLabel(f"on-axis point at the native focal plane, √ intensity, central {PREVIEW_CROP}² px")
+        note.setWordWrap(True)  # a label in the plot's scene would set the previews' minimum width
+        note.setStyleSheet("color: #555; font-size: 8pt; background: white;")
+        previews = QWidget()
+        previews.setMaximumWidth(420)  # the metrics table keeps the room
+        stack = QVBoxLayout(previews)
+        stack.setContentsMargins(0, 0, 0, 0)
+        stack.setSpacing(0)
+        stack.addWidget(self.psf_views, 1)
+        stack.addWidget(note)
+        split.addWidget(previews)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 2)
         column.addWidget(split, 1)
@@ -977,6 +980,7 @@ class OptimiseDock(QWidget):
         params = lambda row: ", ".join(f"{k} = {cell_text(v)}" for k, v in row.params.items())  # noqa: E731
         self.compare_title.setText(f"<b>A</b>: {params(a)}<br><b>B</b>: {params(b)}")
         self.tabs.setCurrentIndex(1)
+        give_room(self._compare_split, self.compare_table)
         for image in self.psf_images:
             image.clear()
         self.runner.submit(PREVIEW_JOB, _preview_job, design_a, design_b, on_result=self._on_previews)

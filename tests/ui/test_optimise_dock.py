@@ -11,6 +11,7 @@ import threading
 import numpy as np
 import pytest
 from qtpy.QtCore import QSettings, Qt
+from qtpy.QtGui import QFontMetrics
 from qtpy.QtWidgets import QDockWidget
 
 from lfm_studio.engine.design import list_presets, load_preset
@@ -20,6 +21,7 @@ from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.engine.performance import closed_form_metrics
 from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.main_window import DEFAULT_SIZE
 from lfm_studio.ui.optimise_dock import JOB_NAME
 from lfm_studio.ui.optimise_model import freeable_fields
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
@@ -130,6 +132,30 @@ def test_compare_shows_both_candidates_metrics(qtbot, window):
     for img in (a_img, b_img):
         bright = np.argwhere(img > 0.5) - (np.array(img.shape) - 1) / 2
         assert len(bright) >= 4 and np.hypot(*bright.T) == pytest.approx(centre_px, abs=3.0)
+
+
+def test_compare_shows_every_value_whole_at_the_default_window_size(qtbot, window):
+    """The values and headers are not elided ("2.… µm", "andida"): each column is as wide as its text."""
+    dock = window.optimise
+    assert (window.width(), window.height()) == DEFAULT_SIZE
+    window.findChild(QDockWidget, "Optimise").raise_()
+    _run_grid(qtbot, dock)
+    qtbot.waitUntil(lambda: dock.message.text().startswith("Done"), timeout=TIMEOUT_MS)
+    dock.table.selectRow(2)
+    dock.table.selectionModel().select(
+        dock.table.model().index(3, 0), dock.table.selectionModel().SelectionFlag.Select
+        | dock.table.selectionModel().SelectionFlag.Rows,
+    )  # fmt: skip
+    dock.compare_button.click()
+    table = dock.compare_table
+    metrics = QFontMetrics(table.font())
+    header = table.horizontalHeader()
+    for c in range(table.columnCount()):
+        texts = [table.item(r, c).text() for r in range(table.rowCount())]
+        texts.append(table.horizontalHeaderItem(c).text())
+        widest = max(metrics.horizontalAdvance(t) for t in texts)
+        assert table.columnWidth(c) >= widest, (c, max(texts, key=metrics.horizontalAdvance))
+    assert header.length() <= table.viewport().width()  # no column hidden behind a horizontal scroll
 
 
 def test_cancel_mid_run_keeps_the_candidates_evaluated(qtbot, tmp_path, monkeypatch):
