@@ -240,3 +240,27 @@ def test_session_drag_preview_commit_and_refusals():
     assert session.undo() and session.undo() and session.undo()
     assert session.lenslets == (lens(0, 0), lens(300, 0))
     assert not session.undo()
+
+
+def test_add_free_takes_the_nearest_free_lattice_site_of_a_hex_array_with_the_selected_shape():
+    hexes = MLASpec.hex_grid(300.0, 2.0, rings=1, fill_factor=0.9).lenslets  # 7 circles, 270 um apertures
+    session = EditSession(hexes)
+    session.select([3])
+    added = session.add_free((0.0, 0.0), pupil_radius_um=2000.0)
+    assert added == [7] and session.last_error == ""
+    new = session.lenslets[7]
+    # one lattice step beyond a lenslet of the outer ring (sqrt(3) x 300 um from the centre: a hex site)
+    assert math.hypot(*new.center_um) == pytest.approx(300.0 * math.sqrt(3.0), abs=1e-5)
+    assert (new.shape, new.aperture_diameter_um) == (hexes[3].shape, hexes[3].aperture_diameter_um)
+    assert mla_issues(session.lenslets, 2000.0) == {}
+
+
+def test_add_free_keeps_symmetric_partners_clear_and_refuses_a_full_pupil():
+    session = EditSession([lens(0.0, 0.0)])  # one 100 um circle
+    session.symmetry = Symmetry(mirror_x=True)
+    added = session.add_free((0.0, 0.0), pupil_radius_um=1000.0)
+    assert len(added) == 2  # a site and its mirror image, both clear
+    assert mla_issues(session.lenslets, 1000.0) == {}
+    full = EditSession([lens(0.0, 0.0, d=180.0)])  # fills a 100 um pupil: nothing else fits
+    assert full.add_free((0.0, 0.0), pupil_radius_um=100.0) == []
+    assert full.last_error.startswith("add: no free spot inside the pupil") and len(full.lenslets) == 1

@@ -18,6 +18,7 @@ from qtpy.QtTest import QTest
 from qtpy.QtWidgets import QApplication, QLineEdit, QMainWindow
 
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
+from lfm_studio.ui.edits import try_changes
 from lfm_studio.widgets.mla_editor import MLAEditor
 from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params
 from lfm_studio.widgets.mla_editor.style import ISSUE
@@ -255,6 +256,31 @@ def test_add_button_and_delete_key(editor, qtbot):
     assert len(rec.committed) == 2
     assert editor.lenslets() == START[1:]
     assert editor.selected_indices() == []
+
+
+def test_add_button_grows_the_flfm_square_array_by_a_free_square_lenslet(qtbot):
+    """Add used to drop a circle on the view centre, on top of the middle square: refused at once."""
+    design = load_preset("flfm_guo2019")  # 3x3 square lenslets, 600 um pitch, touching
+    widget = MLAEditor(design.mla.lenslets, pupil_radius_um=design.pupil_diameter_at_mla / 2.0 * 1e6)
+    qtbot.addWidget(widget)
+    widget.resize(1100, 760)
+    widget.show()
+    qtbot.waitExposed(widget)
+    widget.fit()
+    rec = Recorder(widget)
+    widget.edits.add.click()
+    lenslets = widget.lenslets()
+    assert len(lenslets) == 10 and len(rec.committed) == 1 and widget.last_error() == ""
+    old, new = lenslets[0], lenslets[-1]
+    assert (new.shape, new.aperture_diameter_um, new.focal_length_mm) == (
+        "square", old.aperture_diameter_um, old.focal_length_mm,
+    )  # fmt: skip
+    assert widget.issues() == {}  # clear of the others, inside the pupil
+    outcome = try_changes(design, {"mla.lenslets": lenslets})
+    assert outcome.ok, outcome.error  # the studio accepts the layout
+    assert sorted(abs(v) for v in new.center_um) == [0.0, 1200.0]  # the lattice site next to the middle row
+    widget.edits.add.click()
+    assert len(widget.lenslets()) == 11 and widget.issues() == {}
 
 
 def test_undo_redo_restore_exact_lists_by_keys_and_buttons(editor, qtbot):

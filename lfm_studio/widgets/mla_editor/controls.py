@@ -137,7 +137,10 @@ class EditBar(QWidget):
         self.add, self.delete, self.undo, self.redo, self.fit = (
             QToolButton(text=t) for t in ("Add", "Delete", "Undo", "Redo", "Fit")
         )
-        self.add.setToolTip("Add a lenslet at the centre of the view (or double-click the canvas)")
+        self.add.setToolTip(
+            "Add a lenslet like the selected (or last) one at the free spot nearest the view centre, inside the"
+            " pupil (or double-click the canvas where it goes)"
+        )
         self.delete.setToolTip("Delete the selected lenslets (Delete)")
         self.fit.setToolTip("Show the whole pupil and every lenslet")
         self.diameter = NumericField(LENSLET_RULES["diameter_um"], 1000.0, step=10)  # the table's rules

@@ -90,7 +90,7 @@ class MLAEditor(QWidget):
         self.table.selectionEdited.connect(self._on_table_selection)
         self.presets.applyRequested.connect(self.apply_preset)
         e = self.edits
-        e.addClicked.connect(self._add_at_view_centre)
+        e.addClicked.connect(self.add_free_lenslet)
         e.deleteClicked.connect(self.delete_selected)
         e.undoClicked.connect(self.undo)
         e.redoClicked.connect(self.redo)
@@ -221,7 +221,8 @@ class MLAEditor(QWidget):
 
     def add_lenslet(self, x_um: float, y_um: float) -> list[int]:
         """Add a lenslet (and its partners) at ``(x, y)`` um, snapped if snapping is on, with the last used
-        diameter and focal length; returns the new indices (now selected)."""
+        diameter and focal length and the shape of the selected (or last) lenslet; returns the new indices
+        (now selected)."""
         added = self._session.add(x_um, y_um)
         self._done(bool(added))
         return added
@@ -288,9 +289,14 @@ class MLAEditor(QWidget):
             self.lensletsCommitted.emit(self.lenslets())
         return committed
 
-    def _add_at_view_centre(self) -> None:
+    def add_free_lenslet(self) -> list[int]:
+        """The Add button: a lenslet like the selected (or last) one at the free spot nearest the view centre,
+        inside the pupil (a free lattice site of the layout first); returns the new indices, [] if none is free."""
         (x0, x1), (y0, y1) = self.canvas.getViewBox().viewRange()
-        self.add_lenslet((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        centre = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        added = self._session.add_free(centre, pupil_radius_um=self._views.pupil_radius_um)
+        self._done(bool(added))
+        return added
 
     def _on_click(self, index: int, additive: bool) -> None:
         current = set(self._session.selected)
