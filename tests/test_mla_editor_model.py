@@ -264,3 +264,9 @@ def test_add_free_keeps_symmetric_partners_clear_and_refuses_a_full_pupil():
     full = EditSession([lens(0.0, 0.0, d=180.0)])  # fills a 100 um pupil: nothing else fits
     assert full.add_free((0.0, 0.0), pupil_radius_um=100.0) == []
     assert full.last_error.startswith("add: no free spot inside the pupil") and len(full.lenslets) == 1
+
+
+def test_an_empty_layout_says_so_without_an_ok():
+    """After deleting every lenslet the line read "no lenslets ... OK: no overlapping lenslets ..." in green."""
+    text, level = status_line((), selected=0, issues={}, last_error="", pupil_known=True, sensor_known=True)
+    assert level == "error" and text.startswith("no lenslets") and "OK" not in text

@@ -278,6 +278,8 @@ def status_line(
         head += f"; {selected} selected"
     if last_error:
         return f"Refused: {last_error}", "error"
+    if not lenslets:  # nothing to check: no "OK" under the design's refusal
+        return head, "error"
     if issues:
         return f"{head}. Problems: {summary(issues)}", "warning"
     checked = ["no overlapping lenslets"]
