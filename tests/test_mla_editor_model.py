@@ -135,7 +135,8 @@ def test_parse_value():
     assert model.parse_value("diameter_um", "150 µm") == 150.0
     assert model.parse_value("focal_length_mm", "26mm") == 26.0
     with pytest.raises(
-        ValueError, match=r"focal_length_mm must be a number; got 'abc'\. Fix: type a number from"
+        ValueError,
+        match=r"focal_length_mm must be a number; got 'abc' \(units: mm, nm, µm, m\)\. Fix: type a number from",
     ):
         model.parse_value("focal_length_mm", "abc")
     with pytest.raises(ValueError, match="x_um cannot be NaN"):  # the policy of every numeric field
