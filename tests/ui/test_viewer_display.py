@@ -13,6 +13,7 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from lfm_studio.widgets.viewer import napari_embed
 from lfm_studio.widgets.viewer.display_data import brightest_slice, psf_display, volume_display
+from lfm_studio.widgets.viewer.napari_scene import position_text
 from tests.ui.test_psf_viewer import _rgb, hide_overlays, settle, spot_stack
 
 
@@ -113,6 +114,13 @@ def beads_volume() -> torch.Tensor:
     volume[1, 8:13, 8:13] = 1.0
     volume[4, 34:39, 34:39] = 3.0  # the brightest slice is 4
     return volume
+
+
+def test_a_slice_position_that_rounds_to_zero_reads_plus_zero():
+    """The full XLFM stack's middle depth (-1e-15 um after the depth arithmetic) read "z = -0.0 µm"."""
+    assert [position_text(v) for v in (-1e-15, -0.04, 0.0, 2.5, -80.0)] == [
+        "+0.0 µm", "+0.0 µm", "+0.0 µm", "+2.5 µm", "-80.0 µm",
+    ]  # fmt: skip
 
 
 def test_brightest_slice_of_a_volume():

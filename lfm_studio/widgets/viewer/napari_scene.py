@@ -322,7 +322,7 @@ class NapariScene:
                     continue
                 value = dims.point[axis + offset] / (shown.z_stretch if label == "z" else 1.0)
                 depth = value if label == "z" else None
-                parts.append(f"{label} = {value:+.1f} µm")
+                parts.append(f"{label} = {position_text(value)}")
             factor = self.drawn_factor(shown.name)
             if factor > 1:
                 parts.append(f"3-D preview: max of {factor}×{factor} pixels")
@@ -332,6 +332,11 @@ class NapariScene:
         overlay.color = STALE_COLOR if self._stale_note and shown is not None else "white"
         overlay.text = "   ".join(parts)
         self.depth_changed.emit(depth)
+
+
+def position_text(value_um: float) -> str:
+    """A slice position for the read-out: ``+12.5 µm``; a value that rounds to zero is ``+0.0 µm``, never ``-0.0``."""
+    return f"{round(value_um, 1) + 0.0:+.1f} µm"
 
 
 def _slider_range(shown: DisplayData) -> tuple[float, float]:
