@@ -82,12 +82,29 @@ def test_a_tiny_grid_finds_the_candidate_the_closed_form_predicts(qtbot, window)
         90 / 80
     )
     assert dock.best() is rows[2]
-    # The table shows every candidate (infeasible ones with their reason); the plot marks them.
+    # The table shows every candidate (infeasible ones with their reason); the plot draws only scores
+    # (infeasible ones were drawn at the best feasible value, as if they had scored it) and counts the rest.
     table = [[dock.table.item(r, c).text() for c in range(dock.table.columnCount())] for r in range(4)]
     assert [t[-1] for t in table] == ["no: sub_image_off_sensor"] * 2 + ["yes"] * 2
-    assert list(dock.infeasible_marks.getData()[0]) == [0, 1]
+    assert dock.table.horizontalHeaderItem(2).text() == "lateral_resolution (µm)"
+    plot = dock.plot.getPlotItem()
+    assert plot.getAxis("left").labelText == "µm"  # the name is in the title ("eral_resolution (um)" was cut)
+    assert "lateral_resolution" in plot.titleLabel.text and "2 infeasible, not scored" in plot.titleLabel.text
     assert list(dock.feasible_dots.getData()[0]) == [2, 3]
     assert list(dock.best_curve.getData()[1]) == pytest.approx([rows[2].values["lateral_resolution"]] * 2)
+
+
+def test_a_run_without_a_feasible_candidate_does_not_invite_a_load(qtbot, window):
+    dock = window.optimise
+    dock.free(RELAY, 60.0, 70.0, 2)  # both sub-image patterns leave the sensor
+    dock.set_objectives(["lateral_resolution"])
+    dock.sampler.setCurrentText("grid")
+    dock.budget.setValue(2)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: dock.message.text().startswith("Done"), timeout=TIMEOUT_MS)
+    assert dock.best() is None and "none feasible" in dock.message.text()
+    assert "double-click" not in dock.message.text()
+    assert dock.feasible_dots.getData()[0] is None or len(dock.feasible_dots.getData()[0]) == 0
 
 
 def test_double_click_loads_a_candidate_and_an_infeasible_one_is_refused(qtbot, window):
