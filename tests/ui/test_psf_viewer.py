@@ -278,10 +278,10 @@ def test_the_show_combo_is_wide_enough_for_every_layer_name(qtbot):
     qtbot.waitExposed(view)
     view.show_image(torch.rand(32, 32), 6.5e-6)
     view.show_volume(torch.rand(4, 8, 8), (1e-6, 1e-6, 1e-6))
-    QApplication.processEvents()
     combo = view._combo
     widest = max(combo.fontMetrics().horizontalAdvance(combo.itemText(i)) for i in range(combo.count()))
-    assert combo.width() >= widest + 20  # the text and the drop-down arrow
+    # the text and the drop-down arrow, once the toolbar is laid out again (a posted event)
+    qtbot.waitUntil(lambda: combo.width() >= widest + 20, timeout=5_000)
     view.close_viewer()
 
 
