@@ -405,6 +405,18 @@ def test_sensor_view_shows_sub_images_and_their_overlaps(editor):
     assert "sub-image centred off the 1000 x 1000 um sensor" in editor.issues()[1]
 
 
+def test_the_sensor_title_gives_the_overlap_status_a_line_of_its_own(editor):
+    """At the default window the one-line title was cut before its most useful part ("… · no ov…")."""
+    title = editor.sensor_view.getPlotItem().titleLabel
+    editor.set_sensor((3000.0, 3000.0), 250.0)  # two overlaps
+    first, status = title.text.split("<br>")
+    assert "sub-images 500 µm across" in first and "2 overlap(s)" in status
+    editor.set_sensor((3000.0, 3000.0), 150.0)
+    assert title.text.split("<br>")[1] == "no overlap"
+    width = title.item.boundingRect().width()  # the widest line
+    assert width <= editor.sensor_view.getPlotItem().width()
+
+
 # ----- presets -----
 
 
