@@ -114,3 +114,14 @@ def test_a_design_value_error_shows_its_own_fix_once(tmp_path, capsys):
         capsys, ["info", str(path)], "depth_step_um must be a finite number > 0 um; got -10 um. Fix: e.g. 2."
     )
     assert err.count("Fix:") == 1, err
+
+
+def test_gui_help_lists_the_presets(capsys):
+    """The preset names appeared only in the error for an unknown one."""
+    from lfm_studio.engine.design import list_presets
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["gui", "--help"])
+    assert exit_.value.code == 0
+    help_text = " ".join(capsys.readouterr().out.split())  # argparse wraps the lines
+    assert list_presets() and all(name in help_text for name in list_presets())
