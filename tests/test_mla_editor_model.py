@@ -271,3 +271,13 @@ def test_an_empty_layout_says_so_without_an_ok():
     """After deleting every lenslet the line read "no lenslets ... OK: no overlapping lenslets ..." in green."""
     text, level = status_line((), selected=0, issues={}, last_error="", pupil_known=True, sensor_known=True)
     assert level == "error" and text.startswith("no lenslets") and "OK" not in text
+
+
+def test_matching_preset_names_the_builder_that_rebuilds_a_layout():
+    from lfm_studio.widgets.mla_editor.presets import matching_preset
+
+    assert matching_preset(load_preset("flfm_guo2019").mla.lenslets) == ("square", 3)
+    assert matching_preset(load_preset("xlfm_cong2017").mla.lenslets) == ("xlfm", 27)
+    assert matching_preset(build_preset("hex", PresetParams(300.0, 2, (3.0,), 200.0))) == ("hex", 2)
+    assert matching_preset(load_preset("flfm_guo2019").mla.lenslets[:8]) == ("custom", 0)  # one missing
+    assert matching_preset(()) == ("custom", 0)

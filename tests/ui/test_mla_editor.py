@@ -441,8 +441,23 @@ def test_presets_produce_the_builders_lenslets(editor):
     assert editor.lenslets() == MLASpec.hex_grid(220.0, 26.0, rings=2, fill_factor=200.0 / 220.0).lenslets
 
 
+def test_the_preset_row_shows_the_preset_of_the_layout_or_custom(qtbot, editor):
+    """On the FLFM 3x3 design it showed "XLFM-like (two focal groups)", n = 27, f = 16.8 / 18.48 mm."""
+    bar = editor.presets
+    assert bar.current_kind() == "custom" and not bar.apply.isEnabled()  # 3 lenslets in a row: no preset
+    flfm = load_preset("flfm_guo2019").mla.lenslets
+    editor.set_lenslets(flfm)  # the studio opens another design
+    assert (bar.kind.currentText(), bar.count.value()) == ("Square grid", 3)
+    assert (bar.pitch.value(), bar.diameter.value(), bar.focal_a.value()) == (600.0, 600.0, 16.8)
+    assert bar.apply.isEnabled()
+    fresh = MLAEditor(load_preset("xlfm_cong2017").mla.lenslets)
+    qtbot.addWidget(fresh)
+    assert (fresh.presets.current_kind(), fresh.presets.count.value()) == ("xlfm", 27)
+
+
 def test_preset_row_applies_and_bad_preset_is_refused(editor):
     rec = Recorder(editor)
+    editor.presets.kind.setCurrentIndex(editor.presets.kind.findData("xlfm"))  # the layout is custom
     editor.presets.count.setText("5")  # the xlfm preset needs complete shells (typed, applied)
     editor.presets.apply.click()
     assert rec.committed == [] and "complete-shell counts" in editor.last_error()

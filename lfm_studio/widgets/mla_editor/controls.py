@@ -15,6 +15,8 @@ from qtpy.QtWidgets import QCheckBox, QComboBox, QHBoxLayout, QLabel, QPushButto
 from lfm_studio.widgets.mla_editor.model import LENSLET_RULES
 from lfm_studio.widgets.mla_editor.presets import (
     COUNT_MEANING,
+    CUSTOM,
+    CUSTOM_LABEL,
     DEFAULT_COUNTS,
     PRESET_LABELS,
     PresetParams,
@@ -52,9 +54,10 @@ class PresetBar(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.kind = QComboBox()
+        self.kind.addItem(CUSTOM_LABEL, CUSTOM)  # the layout shown matches no preset
         for key, label in PRESET_LABELS.items():
             self.kind.addItem(label, key)
-        self.kind.setCurrentIndex(list(PRESET_LABELS).index("xlfm"))
+        self.kind.setCurrentIndex(self.kind.findData("xlfm"))
         defaults = PresetParams()
         self.pitch = number(
             "preset pitch", "um", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
@@ -80,7 +83,7 @@ class PresetBar(QWidget):
         self._on_kind()
 
     def current_kind(self) -> str:
-        """The chosen preset: "square", "hex" or "xlfm"."""
+        """The chosen preset: "square", "hex" or "xlfm" ("custom": the layout matches none)."""
         return str(self.kind.currentData())
 
     def params(self) -> PresetParams:
@@ -100,8 +103,27 @@ class PresetBar(QWidget):
         self.focal_b.setValue(params.focal_lengths_mm[-1])
         self.diameter.setValue(params.aperture_diameter_um)
 
+    def show_kind(self, kind: str, count: int = 0) -> None:
+        """Show preset ``kind`` (``CUSTOM`` for a layout no preset rebuilds) with ``count``, emitting nothing."""
+        if kind != CUSTOM and count:
+            self._counts[kind] = count
+        self.kind.blockSignals(True)
+        self.kind.setCurrentIndex(self.kind.findData(kind))
+        self.kind.blockSignals(False)
+        self._on_kind()
+
     def _on_kind(self, *_args) -> None:
         kind = self.current_kind()
+        custom = kind == CUSTOM
+        for widget in (*self.fields(), self.apply):
+            widget.setEnabled(not custom)
+        self.apply.setToolTip(
+            "The layout as drawn matches no preset: pick one to replace it"
+            if custom
+            else "Replace all lenslets by this preset (undo with Ctrl+Z)"
+        )
+        if custom:
+            return
         self.count.blockSignals(True)
         self.count.setValue(self._counts[kind])
         self.count.blockSignals(False)
@@ -117,7 +139,9 @@ class PresetBar(QWidget):
         return (self.pitch, self.count, self.focal_a, self.focal_b, self.diameter)
 
     def _on_apply(self) -> None:
-        if commit_all(self.fields()):  # a refused number is not replaced by the one before it
+        if self.current_kind() != CUSTOM and commit_all(
+            self.fields()
+        ):  # a refused number is not replaced by the one before it
             self.applyRequested.emit(self.current_kind(), self.params())
 
 

@@ -21,7 +21,7 @@ from qtpy.QtWidgets import QWidget
 from lfm_studio.engine.design import LensletSpec
 from lfm_studio.widgets.mla_editor import model as model
 from lfm_studio.widgets.mla_editor.keys import EditorKeys
-from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params
+from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params, matching_preset
 from lfm_studio.widgets.mla_editor.session import EditSession
 from lfm_studio.widgets.mla_editor.symmetry import Symmetry
 from lfm_studio.widgets.mla_editor.views import EditorViews
@@ -74,7 +74,7 @@ class MLAEditor(QWidget):
             None if sensor_size_um is None else (float(sensor_size_um[0]), float(sensor_size_um[1]))
         )
         self._connect()
-        self.presets.set_params(estimate_params(self._session.lenslets))
+        self._show_matching_preset()
         self._refresh()
         self.fit()
 
@@ -123,6 +123,7 @@ class MLAEditor(QWidget):
         try:
             self.canvas.cancel_drag()
             s.replace(new, reset_history=reset_history)
+            self._show_matching_preset()  # another design: its preset, not the last one's
             self._refresh()
         finally:
             self.blockSignals(blocked)
@@ -297,6 +298,12 @@ class MLAEditor(QWidget):
         added = self._session.add_free(centre, pupil_radius_um=self._views.pupil_radius_um)
         self._done(bool(added))
         return added
+
+    def _show_matching_preset(self) -> None:
+        """The preset row shows the preset that rebuilds the layout (or "custom") with its parameters."""
+        lenslets = self._session.lenslets
+        self.presets.set_params(estimate_params(lenslets))
+        self.presets.show_kind(*matching_preset(lenslets))
 
     def _on_click(self, index: int, additive: bool) -> None:
         current = set(self._session.selected)
