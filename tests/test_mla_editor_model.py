@@ -121,7 +121,7 @@ def test_add_delete_and_set_value_with_partners():
     [
         ("diameter_um", -5.0, "aperture_diameter_um must be a finite number > 0 um; got -5 um"),
         ("focal_length_mm", 0.0, "focal_length_mm must be a finite number > 0 mm; got 0 mm"),
-        ("x_um", math.nan, "x_um must be a finite number in um"),
+        ("x_um", math.nan, "x_um must be a finite number in µm"),
     ],
 )
 def test_set_value_refuses_invalid_values_with_reason(field, value, message):
@@ -170,12 +170,12 @@ def test_as_lenslets_reports_index_and_reason():
 def test_mla_issues_overlap_and_pupil():
     layout = (lens(0, 0), lens(80, 0), lens(0, 950), lens(0, 1200))
     issues = mla_issues(layout, 1000.0)
-    assert issues[0] == ["overlaps lenslet 1 by 20 um"]  # radii 50 + 50 - distance 80
-    assert issues[1] == ["overlaps lenslet 0 by 20 um"]
+    assert issues[0] == ["overlaps lenslet 1 by 20 µm"]  # radii 50 + 50 - distance 80
+    assert issues[1] == ["overlaps lenslet 0 by 20 µm"]
     assert 2 not in issues  # reaches exactly the pupil rim: touching is allowed
-    assert issues[3] == ["centre 1200 um from the axis, outside the pupil (radius 1000 um)"]
+    assert issues[3] == ["centre 1200 µm from the axis, outside the pupil (radius 1000 µm)"]
     vignetted = mla_issues((lens(0, 960),), 1000.0)
-    assert vignetted[0] == ["reaches 1010 um, beyond the pupil radius 1000 um (vignetted)"]
+    assert vignetted[0] == ["reaches 1010 µm, beyond the pupil radius 1000 µm (vignetted)"]
     assert mla_issues(layout[:1], None) == {}
     # The status summary names each overlapping pair once.
     assert summary(issues, limit=10).count("overlaps") == 1
@@ -188,10 +188,10 @@ def test_sensor_layout_overlaps_and_edges():
         sensor_size_um=(2000.0, 2000.0),
     )
     assert layout.overlaps == ((0, 1, 50.0),)
-    assert layout.issues[0] == ["sub-image overlaps that of lenslet 1 by 50 um"]
+    assert layout.issues[0] == ["sub-image overlaps that of lenslet 1 by 50 µm"]
     assert 2 not in layout.issues  # its disc touches the sensor edge exactly
-    assert layout.issues[3] == ["sub-image cut by the edge of the 2000 x 2000 um sensor"]
-    assert layout.issues[4] == ["sub-image centred off the 2000 x 2000 um sensor"]
+    assert layout.issues[3] == ["sub-image cut by the edge of the 2000 x 2000 µm sensor"]
+    assert layout.issues[4] == ["sub-image centred off the 2000 x 2000 µm sensor"]
     scaled = sensor_layout((lens(100, 0),), sub_image_radius_um=10.0, sensor_size_um=None, magnification=2.0)
     assert scaled.centers_um == ((200.0, 0.0),)
 

@@ -143,7 +143,7 @@ def test_table_edit_through_the_cell_editor_commits_the_new_value(editor, qtbot)
 @pytest.mark.parametrize(
     ("column", "text", "reason"),
     [
-        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 um"),
+        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 µm"),
         (3, "abc", "focal_length_mm must be a number; got 'abc'"),
         (0, "nan", "x_um cannot be NaN (not a number)"),
         (3, "1,000.5", "'1,000.5' has 2 decimal marks"),
@@ -373,14 +373,14 @@ def test_rotation_symmetry_moves_every_partner(qtbot):
 def test_overlap_and_outside_highlighted_with_reason(editor):
     editor.set_lenslets((lens(0, 0), lens(150, 0), lens(0, 950), lens(0, 1500)))
     issues = editor.issues()
-    assert issues[0] == ["overlaps lenslet 1 by 50 um"]
-    assert issues[2] == ["reaches 1050 um, beyond the pupil radius 1000 um (vignetted)"]
-    assert issues[3] == ["centre 1500 um from the axis, outside the pupil (radius 1000 um)"]
+    assert issues[0] == ["overlaps lenslet 1 by 50 µm"]
+    assert issues[2] == ["reaches 1050 µm, beyond the pupil radius 1000 µm (vignetted)"]
+    assert issues[3] == ["centre 1500 µm from the axis, outside the pupil (radius 1000 µm)"]
     for i in (0, 1, 2, 3):
         item = editor.canvas.body_item(i)
         assert item.pen().color().name() == ISSUE.name()
         assert issues[i][0] in item.toolTip()
-    assert "overlaps lenslet 1 by 50 um" in editor.status_text()
+    assert "overlaps lenslet 1 by 50 µm" in editor.status_text()
     assert editor.status_text().count("overlaps") == 1
     model = editor.table_model
     assert model.index(3, 0).data(Qt.ItemDataRole.ForegroundRole).name() == ISSUE.name()
@@ -398,11 +398,11 @@ def test_sensor_view_shows_sub_images_and_their_overlaps(editor):
     editor.set_sensor((3000.0, 3000.0), 250.0)  # 500 um discs, 400 um apart: two overlaps
     overlaps = editor.sensor_view.overlap_items()
     assert len(overlaps) == 2
-    assert "overlaps that of lenslet 1 by 100 um" in " ".join(editor.issues()[0])
+    assert "overlaps that of lenslet 1 by 100 µm" in " ".join(editor.issues()[0])
     assert editor.sensor_view.disc_items()[0].pen().color().name() == ISSUE.name()
     editor.set_sensor((1000.0, 1000.0), 100.0, magnification=2.0)  # centres at +-800 um: off a 1 mm sensor
     assert editor.sensor_view.disc_items()[1].rect().center().x() == 800.0
-    assert "sub-image centred off the 1000 x 1000 um sensor" in editor.issues()[1]
+    assert "sub-image centred off the 1000 x 1000 µm sensor" in editor.issues()[1]
 
 
 def test_the_sensor_title_gives_the_overlap_status_a_line_of_its_own(editor):
@@ -483,7 +483,7 @@ def test_unknown_sub_image_size_shows_centres_only(editor):
     assert editor.sensor_view.disc_items() == []
     assert "sub-images apart" not in editor.status_text()
     editor.set_sensor((500.0, 500.0), 0.0)  # lenslets 1 and 2 (x = +-400 um) are off a 0.5 mm sensor
-    assert "sub-image centred off the 500 x 500 um sensor" in editor.issues()[1]
+    assert "sub-image centred off the 500 x 500 µm sensor" in editor.issues()[1]
 
 
 def test_sub_image_overlaps_match_a_brute_force_search():

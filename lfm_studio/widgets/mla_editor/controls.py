@@ -60,7 +60,7 @@ class PresetBar(QWidget):
         self.kind.setCurrentIndex(self.kind.findData("xlfm"))
         defaults = PresetParams()
         self.pitch = number(
-            "preset pitch", "um", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
+            "preset pitch", "µm", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
         )
         self.count = number("preset n", "", minimum=0, maximum=MAX_COUNT, value=DEFAULT_COUNTS["xlfm"], step=1,
                             integer=True)  # fmt: skip
@@ -68,7 +68,7 @@ class PresetBar(QWidget):
                               step=0.5)  # fmt: skip
         self.focal_b = number("preset second f", "mm", minimum=0.001, maximum=1e5,
                               value=defaults.focal_lengths_mm[1], step=0.5)  # fmt: skip
-        self.diameter = number("preset Ø", "um", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
+        self.diameter = number("preset Ø", "µm", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
                                step=10)  # fmt: skip
         self.apply = QPushButton("Apply preset")
         self.apply.setToolTip("Replace all lenslets by this preset (undo with Ctrl+Z)")
@@ -207,7 +207,7 @@ class SymmetryBar(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.snap = QCheckBox("Snap to grid")
-        self.pitch = number("snap pitch", "um", minimum=0.001, maximum=1e6, value=100.0, step=10)
+        self.pitch = number("snap pitch", "µm", minimum=0.001, maximum=1e6, value=100.0, step=10)
         self.mirror_x = QCheckBox("Mirror x")
         self.mirror_x.setToolTip(
             "Keep mirror symmetry (x, y) -> (-x, y): edits apply to the mirrored partner"

@@ -92,7 +92,7 @@ def build_preset(
     except ValidationError as exc:
         raise ValueError(reason(exc)) from None
     except (ZeroDivisionError, IndexError):
-        raise ValueError("preset needs a pitch > 0 um and at least one focal length.") from None
+        raise ValueError("preset needs a pitch > 0 µm and at least one focal length.") from None
     return tuple(mla.lenslets)
 
 

@@ -150,7 +150,7 @@ class EditSession:
         if spot is None:
             where = "inside the pupil" if pupil_radius_um is not None else "near the view centre"
             self.refuse(
-                f"add: no free spot {where} for a {self.new_diameter_um:g} um lenslet. "
+                f"add: no free spot {where} for a {self.new_diameter_um:g} µm lenslet. "
                 "Fix: delete or shrink lenslets, or double-click where the new one goes."
             )
             return []
