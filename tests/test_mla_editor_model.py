@@ -121,7 +121,7 @@ def test_add_delete_and_set_value_with_partners():
     [
         ("diameter_um", -5.0, "aperture_diameter_um must be a finite number > 0 um; got -5 um"),
         ("focal_length_mm", 0.0, "focal_length_mm must be a finite number > 0 mm; got 0 mm"),
-        ("x_um", math.nan, "x_um must be a finite number in um"),
+        ("x_um", math.nan, "x_um must be a finite number in µm"),
     ],
 )
 def test_set_value_refuses_invalid_values_with_reason(field, value, message):
@@ -135,7 +135,8 @@ def test_parse_value():
     assert model.parse_value("diameter_um", "150 µm") == 150.0
     assert model.parse_value("focal_length_mm", "26mm") == 26.0
     with pytest.raises(
-        ValueError, match=r"focal_length_mm must be a number; got 'abc'\. Fix: type a number from"
+        ValueError,
+        match=r"focal_length_mm must be a number; got 'abc' \(units: mm, nm, µm, m\)\. Fix: type a number from",
     ):
         model.parse_value("focal_length_mm", "abc")
     with pytest.raises(ValueError, match="x_um cannot be NaN"):  # the policy of every numeric field
@@ -169,12 +170,12 @@ def test_as_lenslets_reports_index_and_reason():
 def test_mla_issues_overlap_and_pupil():
     layout = (lens(0, 0), lens(80, 0), lens(0, 950), lens(0, 1200))
     issues = mla_issues(layout, 1000.0)
-    assert issues[0] == ["overlaps lenslet 1 by 20 um"]  # radii 50 + 50 - distance 80
-    assert issues[1] == ["overlaps lenslet 0 by 20 um"]
+    assert issues[0] == ["overlaps lenslet 1 by 20 µm"]  # radii 50 + 50 - distance 80
+    assert issues[1] == ["overlaps lenslet 0 by 20 µm"]
     assert 2 not in issues  # reaches exactly the pupil rim: touching is allowed
-    assert issues[3] == ["centre 1200 um from the axis, outside the pupil (radius 1000 um)"]
+    assert issues[3] == ["centre 1200 µm from the axis, outside the pupil (radius 1000 µm)"]
     vignetted = mla_issues((lens(0, 960),), 1000.0)
-    assert vignetted[0] == ["reaches 1010 um, beyond the pupil radius 1000 um (vignetted)"]
+    assert vignetted[0] == ["reaches 1010 µm, beyond the pupil radius 1000 µm (vignetted)"]
     assert mla_issues(layout[:1], None) == {}
     # The status summary names each overlapping pair once.
     assert summary(issues, limit=10).count("overlaps") == 1
@@ -187,10 +188,10 @@ def test_sensor_layout_overlaps_and_edges():
         sensor_size_um=(2000.0, 2000.0),
     )
     assert layout.overlaps == ((0, 1, 50.0),)
-    assert layout.issues[0] == ["sub-image overlaps that of lenslet 1 by 50 um"]
+    assert layout.issues[0] == ["sub-image overlaps that of lenslet 1 by 50 µm"]
     assert 2 not in layout.issues  # its disc touches the sensor edge exactly
-    assert layout.issues[3] == ["sub-image cut by the edge of the 2000 x 2000 um sensor"]
-    assert layout.issues[4] == ["sub-image centred off the 2000 x 2000 um sensor"]
+    assert layout.issues[3] == ["sub-image cut by the edge of the 2000 x 2000 µm sensor"]
+    assert layout.issues[4] == ["sub-image centred off the 2000 x 2000 µm sensor"]
     scaled = sensor_layout((lens(100, 0),), sub_image_radius_um=10.0, sensor_size_um=None, magnification=2.0)
     assert scaled.centers_um == ((200.0, 0.0),)
 
@@ -240,3 +241,43 @@ def test_session_drag_preview_commit_and_refusals():
     assert session.undo() and session.undo() and session.undo()
     assert session.lenslets == (lens(0, 0), lens(300, 0))
     assert not session.undo()
+
+
+def test_add_free_takes_the_nearest_free_lattice_site_of_a_hex_array_with_the_selected_shape():
+    hexes = MLASpec.hex_grid(300.0, 2.0, rings=1, fill_factor=0.9).lenslets  # 7 circles, 270 um apertures
+    session = EditSession(hexes)
+    session.select([3])
+    added = session.add_free((0.0, 0.0), pupil_radius_um=2000.0)
+    assert added == [7] and session.last_error == ""
+    new = session.lenslets[7]
+    # one lattice step beyond a lenslet of the outer ring (sqrt(3) x 300 um from the centre: a hex site)
+    assert math.hypot(*new.center_um) == pytest.approx(300.0 * math.sqrt(3.0), abs=1e-5)
+    assert (new.shape, new.aperture_diameter_um) == (hexes[3].shape, hexes[3].aperture_diameter_um)
+    assert mla_issues(session.lenslets, 2000.0) == {}
+
+
+def test_add_free_keeps_symmetric_partners_clear_and_refuses_a_full_pupil():
+    session = EditSession([lens(0.0, 0.0)])  # one 100 um circle
+    session.symmetry = Symmetry(mirror_x=True)
+    added = session.add_free((0.0, 0.0), pupil_radius_um=1000.0)
+    assert len(added) == 2  # a site and its mirror image, both clear
+    assert mla_issues(session.lenslets, 1000.0) == {}
+    full = EditSession([lens(0.0, 0.0, d=180.0)])  # fills a 100 um pupil: nothing else fits
+    assert full.add_free((0.0, 0.0), pupil_radius_um=100.0) == []
+    assert full.last_error.startswith("add: no free spot inside the pupil") and len(full.lenslets) == 1
+
+
+def test_an_empty_layout_says_so_without_an_ok():
+    """After deleting every lenslet the line read "no lenslets ... OK: no overlapping lenslets ..." in green."""
+    text, level = status_line((), selected=0, issues={}, last_error="", pupil_known=True, sensor_known=True)
+    assert level == "error" and text.startswith("no lenslets") and "OK" not in text
+
+
+def test_matching_preset_names_the_builder_that_rebuilds_a_layout():
+    from lfm_studio.widgets.mla_editor.presets import matching_preset
+
+    assert matching_preset(load_preset("flfm_guo2019").mla.lenslets) == ("square", 3)
+    assert matching_preset(load_preset("xlfm_cong2017").mla.lenslets) == ("xlfm", 27)
+    assert matching_preset(build_preset("hex", PresetParams(300.0, 2, (3.0,), 200.0))) == ("hex", 2)
+    assert matching_preset(load_preset("flfm_guo2019").mla.lenslets[:8]) == ("custom", 0)  # one missing
+    assert matching_preset(()) == ("custom", 0)

@@ -24,8 +24,10 @@ from lfm_studio.cli.resolution import add_resolution_parser
 from lfm_studio.cli.simulate import add_simulate_parsers
 from lfm_studio.cli.train import add_train_parser
 from lfm_studio.engine.allocator import keep_freed_memory
+from lfm_studio.engine.design import list_presets
 from lfm_studio.engine.errors import error_text
 from lfm_studio.engine.threads import THREADS_VARIABLE, configure_threads
+from lfm_studio.ui.app import DEFAULT_PRESET  # a constant: Qt is imported only when the studio starts
 
 
 def _run_gui(args: argparse.Namespace) -> int:
@@ -55,7 +57,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     gui = sub.add_parser("gui", help="open the desktop studio (default when no command is given)")
-    gui.add_argument("design", nargs="?", default=None, help="design file or preset name to open")
+    gui.add_argument(
+        "design",
+        nargs="?",
+        default=None,
+        help=f"design file (.json) or preset name to open: {', '.join(list_presets())} (default: {DEFAULT_PRESET})",
+    )
     gui.set_defaults(handler=_run_gui)
     add_simulate_parsers(sub)
     add_info_parser(sub)

@@ -13,7 +13,7 @@ give low / high / points), the objectives (:func:`~lfm_studio.engine.optimize.ob
 the first ticked one ranks the candidates), the sampler, the budget (number of candidates)
 and an optional SQLite study file (store; tick "Resume" to continue it). Right, in tabs:
 "Run" (a live plot of the first objective against the evaluation number, each candidate a
-dot, infeasible ones a red cross on the best-so-far line, the best-so-far line itself, and
+dot, the best-so-far line, the count of infeasible ones, which have no score, in the title, and
 the table of candidates with parameters, scores and feasibility or reason) and "Compare"
 (closed-form metrics and requirement checks of two candidates side by side).
 
@@ -90,6 +90,8 @@ from lfm_studio.ui.optimise_model import (
     run_optimisation,
 )
 from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.table_fit import fit_columns, give_room
+from lfm_studio.ui.unit_text import shown_unit
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
@@ -517,10 +519,6 @@ class OptimiseDock(QWidget):
         self.feasible_dots = item.plot(
             [], [], pen=None, symbol="o", symbolSize=7, symbolBrush=pg.mkBrush(FEASIBLE), name="candidate"
         )
-        self.infeasible_marks = item.plot(
-            [], [], pen=None, symbol="x", symbolSize=10, symbolBrush=pg.mkBrush(INFEASIBLE),
-            symbolPen=pg.mkPen(INFEASIBLE), name="infeasible",
-        )  # fmt: skip
         self.plot.setMinimumHeight(120)
         column.addWidget(self.plot, 2)
         self.table = QTableWidget(0, 0)
@@ -556,15 +554,11 @@ class OptimiseDock(QWidget):
         self.compare_table.setHorizontalHeaderLabels(["Quantity", "A", "B"])
         self.compare_table.verticalHeader().setVisible(False)
         self.compare_table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        header = self.compare_table.horizontalHeader()
-        header.setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        for section in (1, 2):
-            header.setSectionResizeMode(section, QHeaderView.ResizeMode.Stretch)
-        split = QSplitter(Qt.Orientation.Horizontal)
+        fit_columns(self.compare_table)  # values whole ("2.765 µm", not "2.… µm"); the previews give way
+        self._compare_split = split = QSplitter(Qt.Orientation.Horizontal)
         split.addWidget(self.compare_table)
         self.psf_views = pg.GraphicsLayoutWidget()
         self.psf_views.setBackground("w")
-        self.psf_views.setMaximumWidth(420)  # the metrics table keeps the room
         self.psf_images = []
         for column_index, name in enumerate(("A", "B")):
             box = self.psf_views.addViewBox(row=1, col=column_index, lockAspect=True, invertY=True)
@@ -573,11 +567,17 @@ class OptimiseDock(QWidget):
             box.addItem(image)
             self.psf_images.append(image)
             self.psf_views.addLabel(f"PSF of {name}", row=0, col=column_index, color="k")
-        self.psf_views.addLabel(
-            f"on-axis point at the native focal plane, √ intensity, central {PREVIEW_CROP}² px", row=2, col=0, colspan=2,
-            color="#555", size="8pt",
-        )  # fmt: skip
-        split.addWidget(self.psf_views)
+        note = QLabel(f"on-axis point at the native focal plane, √ intensity, central {PREVIEW_CROP}² px")
+        note.setWordWrap(True)  # a label in the plot's scene would set the previews' minimum width
+        note.setStyleSheet("color: #555; font-size: 8pt; background: white;")
+        previews = QWidget()
+        previews.setMaximumWidth(420)  # the metrics table keeps the room
+        stack = QVBoxLayout(previews)
+        stack.setContentsMargins(0, 0, 0, 0)
+        stack.setSpacing(0)
+        stack.addWidget(self.psf_views, 1)
+        stack.addWidget(note)
+        split.addWidget(previews)
         split.setStretchFactor(0, 3)
         split.setStretchFactor(1, 2)
         column.addWidget(split, 1)
@@ -824,8 +824,15 @@ class OptimiseDock(QWidget):
                 )
                 return
             best = self.best()
-            where = "no feasible candidate" if best is None else f"best: candidate {best.number}"
-            self.message.setText(f"Done: {count} candidates, {where} (double-click a row to load it).")
+            if best is None:  # nothing to load: say why instead of inviting a double-click
+                self.message.setText(
+                    f"Done: {count} candidates, none feasible (reasons in the last column). "
+                    "Fix: widen or move the ranges, or change the design."
+                )
+            else:
+                self.message.setText(
+                    f"Done: {count} candidates, best: candidate {best.number} (double-click a row to load it)."
+                )
         elif outcome.state == "cancelled":
             if untouched:
                 self.message.setText(f"Cancelled: {kept}.")
@@ -869,7 +876,8 @@ class OptimiseDock(QWidget):
         request = self.request
         paths = list(request.columns()) if request is not None else []
         names = list(request.objectives) if request is not None else []
-        headers = ["#", *paths, *names, "Feasible / reason"]
+        units = {n: shown_unit(self._units.get(n, "")) for n in names}
+        headers = ["#", *paths, *(f"{n} ({units[n]})" if units[n] else n for n in names), "Feasible / reason"]
         self.table.setColumnCount(len(headers))
         self.table.setHorizontalHeaderLabels(headers)
         self.table.setRowCount(len(self.rows))
@@ -893,15 +901,18 @@ class OptimiseDock(QWidget):
         name = self.ranking
         item = self.plot.getPlotItem()
         if name is None:
-            for curve in (self.best_curve, self.feasible_dots, self.infeasible_marks):
+            for curve in (self.best_curve, self.feasible_dots):
                 curve.setData([], [])
             return
-        unit = self._units.get(name, "")
+        unit = shown_unit(self._units.get(name, ""))
         method = self.request.method if self.request is not None else "grid"
         x_label = X_LABELS["gradient" if method.startswith("gradient") else method]
-        item.setLabel("left", f"{name} ({unit})" if unit else name)
+        item.setLabel("left", unit or "score")  # the name is in the title: a long one was cut on the axis
         item.setLabel("bottom", x_label)
-        item.setTitle(f"{name} ({self._directions[name]}) against {x_label}", color="k", size="9pt")
+        # Infeasible candidates have no score: not drawn (a mark at some other value read as a score).
+        infeasible = sum(not r.feasible for r in self.rows)
+        note = f"<br>{infeasible} infeasible, not scored (see the table)" if infeasible else ""
+        item.setTitle(f"{name} ({self._directions[name]}) against {x_label}{note}", color="k", size="9pt")
         # A gradient run's steps are one path: join them (the loss curve); candidates stay dots.
         gradient = method.startswith("gradient")
         self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if gradient else None)
@@ -915,13 +926,6 @@ class OptimiseDock(QWidget):
         self.best_curve.setData([x for x, _ in line], [b for _, b in line])
         dots = [(r.number, r.values[name]) for r in self.rows if r.values is not None]
         self.feasible_dots.setData([x for x, _ in dots], [y for _, y in dots])
-        floor = min((y for _, y in dots), default=0.0)  # infeasible: on the best-so-far line (or the floor)
-        marks = [
-            (x, floor if b is None else b)
-            for x, b, r in zip(xs, best, self.rows, strict=True)
-            if not r.feasible
-        ]
-        self.infeasible_marks.setData([x for x, _ in marks], [y for _, y in marks])
 
     def selected_rows(self) -> list[CandidateRow]:
         picked = sorted({index.row() for index in self.table.selectionModel().selectedRows()})
@@ -977,6 +981,7 @@ class OptimiseDock(QWidget):
         params = lambda row: ", ".join(f"{k} = {cell_text(v)}" for k, v in row.params.items())  # noqa: E731
         self.compare_title.setText(f"<b>A</b>: {params(a)}<br><b>B</b>: {params(b)}")
         self.tabs.setCurrentIndex(1)
+        give_room(self._compare_split, self.compare_table)
         for image in self.psf_images:
             image.clear()
         self.runner.submit(PREVIEW_JOB, _preview_job, design_a, design_b, on_result=self._on_previews)

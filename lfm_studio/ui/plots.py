@@ -29,6 +29,8 @@ from lfm_studio.engine.performance.report import UNIT_SCALE
 from lfm_studio.ui.measured_note import MEASURED_LATER, MEASURED_LATER_WHY, measured_note
 from lfm_studio.ui.results import PSFResult
 from lfm_studio.ui.state import StudioState
+from lfm_studio.ui.table_fit import fit_columns
+from lfm_studio.ui.unit_text import shown_unit
 from lfm_studio.widgets.stale_mark import StaleMark
 
 PASS, FAIL, UNKNOWN = QColor("#2e7d32"), QColor("#c62828"), QColor("#757575")
@@ -107,6 +109,9 @@ class _StateView(QWidget):
         self._connections.clear()
 
 
+FULL_NAME, PREVIEW_NAME = "full PSF", "quick preview"  # the profile plots' legend
+
+
 class ProfilePlots(_StateView):
     """Lateral and axial PSF profiles of the current full stack (dashed: the quick preview)."""
 
@@ -120,10 +125,17 @@ class ProfilePlots(_StateView):
             pg.mkPen("#1565c0", width=2),
             pg.mkPen("#1565c0", width=1.5, style=Qt.PenStyle.DashLine),
         )
-        self.lateral_curve = self.lateral_plot.plot(pen=solid)
-        self.axial_curve = self.axial_plot.plot(pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0")
-        self.lateral_preview = self.lateral_plot.plot(pen=dashed)
-        self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5)
+        for plot in (
+            self.lateral_plot,
+            self.axial_plot,
+        ):  # which curve is which (the dashed one is not obvious)
+            plot.getPlotItem().addLegend(offset=(-5, 5), labelTextSize="8pt")
+        self.lateral_curve = self.lateral_plot.plot(pen=solid, name=FULL_NAME)
+        self.axial_curve = self.axial_plot.plot(
+            pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0", name=FULL_NAME
+        )
+        self.lateral_preview = self.lateral_plot.plot(pen=dashed, name=PREVIEW_NAME)
+        self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5, name=PREVIEW_NAME)
         self._dimmed = [self.lateral_curve, self.axial_curve, self.lateral_preview, self.axial_preview]
         if state is not None:
             self._observe(state.psf_changed, self.show_result, state.psf)
@@ -176,8 +188,8 @@ class RequirementsView(_StateView):
         self.table.setHorizontalHeaderLabels(["Requirement", "Basis", "Value", "Result"])
         self.table.verticalHeader().setVisible(False)
         self.table.setEditTriggers(QAbstractItemView.EditTrigger.NoEditTriggers)
-        self.table.horizontalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
-        self.table.horizontalHeader().setStretchLastSection(True)
+        fit_columns(self.table)  # a stretched last column kept 100 px and pushed the others out of view
+        self.table.verticalHeader().setSectionResizeMode(QHeaderView.ResizeMode.ResizeToContents)
         layout.addWidget(self.table, 1)
         self._bars: list[pg.GraphicsObject] = []
         if state is not None:
@@ -213,12 +225,12 @@ class RequirementsView(_StateView):
         )
         ticks, scores, brushes = [], [], []
         for row, check in enumerate(checks):
-            scale, unit = UNIT_SCALE[check.unit], f" {check.unit}" if check.unit else ""
+            scale, unit = UNIT_SCALE[check.unit], f" {shown_unit(check.unit)}" if check.unit else ""
             symbol = {">=": "≥", "<=": "≤"}.get(check.comparison, check.comparison)
             quantity = _QUANTITY.get(check.quantity, check.quantity)
-            if check.criterion:  # e.g. "Lateral res. (Rayleigh 0.61 lambda/NA)"
-                quantity = f"{quantity} ({check.criterion})"
             name = f"{quantity} {symbol} {check.limit / scale:.4g}{unit}"
+            if check.criterion:  # on a line of its own: one long line pushed Value out of the narrow dock
+                name = f"{name}\n{check.criterion}"
             value = "n/a" if check.value is None else f"{check.value / scale:.4g}{unit}"
             result = {True: "PASS", False: "FAIL", None: "?"}[check.passed]
             colour = {True: PASS, False: FAIL, None: UNKNOWN}[check.passed]

@@ -24,6 +24,22 @@ JOB_TITLES = {
 }
 
 
+def headline(name: str, message: str) -> str:
+    """The status bar's line for job ``name``: its title, then ``message`` without a prefix that repeats it.
+
+    "image: building the projector" reads "Light-field image: building the projector" (not "Light-field
+    image: image: ..."), and "reconstruction: iteration 3 of 10" starts with a capital as "Reconstruction:
+    done" does.
+    """
+    title = JOB_TITLES.get(name, name)
+    lowered = message.lower()
+    if lowered.startswith(f"{name.lower()}: "):
+        return f"{title}: {message[len(name) + 2 :]}"
+    if lowered.startswith(title.lower()):
+        return title + message[len(title) :]
+    return f"{title}: {message}"
+
+
 class JobStatusBar(QWidget):
     """Shows the most recent active job (else the last that ended); ``cancel_requested`` on Cancel."""
 
@@ -83,10 +99,7 @@ class JobStatusBar(QWidget):
             self.message.setText("Ready")
             self.progress.setVisible(False)
             return
-        title = JOB_TITLES.get(shown.name, shown.name)
-        text = (
-            shown.message if shown.message.lower().startswith(title.lower()) else f"{title}: {shown.message}"
-        )
+        text = headline(shown.name, shown.message)
         if len(active) > 1:
             text += f"  (+{len(active) - 1} more running)"
         self.message.setText(text)

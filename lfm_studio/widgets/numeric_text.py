@@ -5,7 +5,8 @@ The policy (:func:`parse_number`):
 - the decimal mark is ``.`` or ``,`` whatever the locale (``0,5`` is 0.5 under C and
   de_DE alike): a comma is never a thousands separator, and a number with two marks
   (``1,000.5``) is refused rather than guessed;
-- a trailing unit (the field's own, e.g. ``mm``; ``um`` and ``µm`` alike) is allowed;
+- a trailing unit (the field's own, e.g. ``mm``; ``um`` and ``µm`` alike) is allowed; a length
+  field also converts another length unit (``0.0065 mm`` in a µm field is 6.5);
 - anything that is not a plain decimal number (``abc``, ``1_000``, ``0x10``, ``''``) is
   refused with the reason; ``nan`` and ``inf`` are refused by name;
 - out of range is refused with the range, never clamped; ``1e308`` is 1e308;
@@ -25,6 +26,10 @@ _NUMBER = re.compile(r"[+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?")
 _NOT_FINITE = re.compile(r"[+-]?(nan|inf|infinity)", re.IGNORECASE)
 _UNIT_ALIASES = {"µm": "um", "μm": "um", "e⁻ rms": "e- rms"}
 _MINUS_SIGNS = ("\u2212", "\u2013")  # typographic minus and en dash, as pasted from documents
+#: Length units a length field converts from, in micrometres (the canonical spelling of ``µm`` is ``um``).
+LENGTH_UNITS = {"nm": 1e-3, "um": 1.0, "mm": 1e3, "m": 1e6}
+_SHOWN = {"um": "µm"}
+_TRAILING_UNIT = re.compile(r"\s*([a-zA-Z]+)$")
 
 
 @dataclass(frozen=True)
@@ -72,12 +77,30 @@ def _inside(rule: NumberRule) -> float:
     return rule.minimum if rule.minimum != 0 or rule.maximum == 0 else rule.maximum
 
 
-def _strip_unit(text: str, unit: str) -> str:
+def _strip_unit(text: str, unit: str) -> tuple[str, float]:
+    """The number's text without its unit, and the factor that takes the typed unit to the field's.
+
+    A length field takes any length unit of :data:`LENGTH_UNITS` ("0.0065 mm" in a µm field is 6.5).
+    """
     if not unit:
-        return text
+        return text, 1.0
     for alias, canonical in _UNIT_ALIASES.items():
         text, unit = text.replace(alias, canonical), unit.replace(alias, canonical)
-    return text[: -len(unit)].rstrip() if text.endswith(unit) else text
+    if text.endswith(unit):
+        return text[: -len(unit)].rstrip(), 1.0
+    typed = _TRAILING_UNIT.search(text)
+    if unit in LENGTH_UNITS and typed is not None and typed.group(1) in LENGTH_UNITS:
+        return text[: typed.start()].rstrip(), LENGTH_UNITS[typed.group(1)] / LENGTH_UNITS[unit]
+    return text, 1.0
+
+
+def _accepted_units(unit: str) -> str:
+    """ " (units: µm, nm, mm, m)" for a length field in µm, " (unit: fold)" for others, "" without a unit."""
+    canonical = _UNIT_ALIASES.get(unit, unit)
+    if canonical in LENGTH_UNITS:
+        others = ", ".join(_SHOWN.get(u, u) for u in LENGTH_UNITS if u != canonical)
+        return f" (units: {unit}, {others})"
+    return f" (unit: {unit})" if unit else ""
 
 
 def parse_number(text: str, rule: NumberRule) -> float | int:
@@ -86,7 +109,7 @@ def parse_number(text: str, rule: NumberRule) -> float | int:
     Returns an ``int`` for integer rules, else a ``float``.
     """
     typed = str(text)
-    body = _strip_unit(typed.strip(), rule.unit.strip())
+    body, factor = _strip_unit(typed.strip(), rule.unit.strip())
     for sign in _MINUS_SIGNS:
         body = body.replace(sign, "-")
     if rule.special_text and body.lower() == rule.special_text.lower():
@@ -104,8 +127,10 @@ def parse_number(text: str, rule: NumberRule) -> float | int:
         )
     body = body.replace(",", ".")
     if not _NUMBER.fullmatch(body):
-        raise ValueError(f"{rule.name} must be a number; got {typed!r}. {rule.fix()}")
-    value = float(body)
+        raise ValueError(
+            f"{rule.name} must be a number; got {typed!r}{_accepted_units(rule.unit.strip())}. {rule.fix()}"
+        )
+    value = float(body) * factor
     if not math.isfinite(value):
         raise ValueError(f"{rule.name}: {typed!r} is too large to represent. {rule.fix()}")
     if rule.integer and not value.is_integer():

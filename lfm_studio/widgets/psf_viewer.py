@@ -302,6 +302,7 @@ class PSFViewer(QWidget):
         bar.setContentsMargins(4, 2, 4, 2)
         self._combo = QComboBox()
         self._combo.setToolTip("Layer to show")
+        self._combo.setSizeAdjustPolicy(QComboBox.SizeAdjustPolicy.AdjustToContents)  # "reconstruction" whole
         self._combo.currentTextChanged.connect(self._on_combo)
         self._button_3d = _toggle("3D", "Render the stack in 3-D (depth axis may be stretched for display)")
         self._button_3d.toggled.connect(self.set_3d)

@@ -132,3 +132,14 @@ def test_a_design_refused_by_validation_prints_our_message_without_pydantic_wrap
         "Value error, ",
     ):
         assert boilerplate not in err, err
+
+
+def test_gui_help_lists_the_presets(capsys):
+    """The preset names appeared only in the error for an unknown one."""
+    from lfm_studio.engine.design import list_presets
+
+    with pytest.raises(SystemExit) as exit_:
+        main(["gui", "--help"])
+    assert exit_.value.code == 0
+    help_text = " ".join(capsys.readouterr().out.split())  # argparse wraps the lines
+    assert list_presets() and all(name in help_text for name in list_presets())

@@ -14,7 +14,7 @@ from qtpy.QtWidgets import QApplication, QDockWidget, QMessageBox, QTabBar
 from lfm_studio.engine.design import save_design
 from lfm_studio.ui.app import DEFAULT_PRESET, _open, build_studio
 from lfm_studio.ui.edits import apply_changes
-from lfm_studio.ui.main_window import MainWindow
+from lfm_studio.ui.main_window import DEFAULT_SIZE, MainWindow
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
 
 TIMEOUT_MS = 30_000
@@ -174,3 +174,10 @@ def test_real_widgets_show_a_non_blank_napari_render_and_edits_recompute_one_len
     napari_embed.flush_deletions()
     gc.collect()
     assert napari_embed.live_qt_viewers() == 0
+
+
+def test_the_requirements_table_fits_its_dock_at_the_default_size(small_studio):
+    """Its Value column was cut off at 1600x1000 (a long criterion made the first column too wide)."""
+    table = small_studio.requirements.table
+    assert table.rowCount() and (small_studio.width(), small_studio.height()) == DEFAULT_SIZE
+    assert table.horizontalHeader().length() <= table.viewport().width()

@@ -18,6 +18,7 @@ from qtpy.QtTest import QTest
 from qtpy.QtWidgets import QApplication, QLineEdit, QMainWindow
 
 from lfm_studio.engine.design import LensletSpec, MLASpec, load_preset
+from lfm_studio.ui.edits import try_changes
 from lfm_studio.widgets.mla_editor import MLAEditor
 from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params
 from lfm_studio.widgets.mla_editor.style import ISSUE
@@ -142,7 +143,7 @@ def test_table_edit_through_the_cell_editor_commits_the_new_value(editor, qtbot)
 @pytest.mark.parametrize(
     ("column", "text", "reason"),
     [
-        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 um"),
+        (2, "-5", "diameter_um -5 is out of range. Fix: type a number from 0.001 to 1000000 µm"),
         (3, "abc", "focal_length_mm must be a number; got 'abc'"),
         (0, "nan", "x_um cannot be NaN (not a number)"),
         (3, "1,000.5", "'1,000.5' has 2 decimal marks"),
@@ -257,6 +258,31 @@ def test_add_button_and_delete_key(editor, qtbot):
     assert editor.selected_indices() == []
 
 
+def test_add_button_grows_the_flfm_square_array_by_a_free_square_lenslet(qtbot):
+    """Add used to drop a circle on the view centre, on top of the middle square: refused at once."""
+    design = load_preset("flfm_guo2019")  # 3x3 square lenslets, 600 um pitch, touching
+    widget = MLAEditor(design.mla.lenslets, pupil_radius_um=design.pupil_diameter_at_mla / 2.0 * 1e6)
+    qtbot.addWidget(widget)
+    widget.resize(1100, 760)
+    widget.show()
+    qtbot.waitExposed(widget)
+    widget.fit()
+    rec = Recorder(widget)
+    widget.edits.add.click()
+    lenslets = widget.lenslets()
+    assert len(lenslets) == 10 and len(rec.committed) == 1 and widget.last_error() == ""
+    old, new = lenslets[0], lenslets[-1]
+    assert (new.shape, new.aperture_diameter_um, new.focal_length_mm) == (
+        "square", old.aperture_diameter_um, old.focal_length_mm,
+    )  # fmt: skip
+    assert widget.issues() == {}  # clear of the others, inside the pupil
+    outcome = try_changes(design, {"mla.lenslets": lenslets})
+    assert outcome.ok, outcome.error  # the studio accepts the layout
+    assert sorted(abs(v) for v in new.center_um) == [0.0, 1200.0]  # the lattice site next to the middle row
+    widget.edits.add.click()
+    assert len(widget.lenslets()) == 11 and widget.issues() == {}
+
+
 def test_undo_redo_restore_exact_lists_by_keys_and_buttons(editor, qtbot):
     rec = Recorder(editor)
     states = [editor.lenslets()]
@@ -347,14 +373,14 @@ def test_rotation_symmetry_moves_every_partner(qtbot):
 def test_overlap_and_outside_highlighted_with_reason(editor):
     editor.set_lenslets((lens(0, 0), lens(150, 0), lens(0, 950), lens(0, 1500)))
     issues = editor.issues()
-    assert issues[0] == ["overlaps lenslet 1 by 50 um"]
-    assert issues[2] == ["reaches 1050 um, beyond the pupil radius 1000 um (vignetted)"]
-    assert issues[3] == ["centre 1500 um from the axis, outside the pupil (radius 1000 um)"]
+    assert issues[0] == ["overlaps lenslet 1 by 50 µm"]
+    assert issues[2] == ["reaches 1050 µm, beyond the pupil radius 1000 µm (vignetted)"]
+    assert issues[3] == ["centre 1500 µm from the axis, outside the pupil (radius 1000 µm)"]
     for i in (0, 1, 2, 3):
         item = editor.canvas.body_item(i)
         assert item.pen().color().name() == ISSUE.name()
         assert issues[i][0] in item.toolTip()
-    assert "overlaps lenslet 1 by 50 um" in editor.status_text()
+    assert "overlaps lenslet 1 by 50 µm" in editor.status_text()
     assert editor.status_text().count("overlaps") == 1
     model = editor.table_model
     assert model.index(3, 0).data(Qt.ItemDataRole.ForegroundRole).name() == ISSUE.name()
@@ -372,11 +398,23 @@ def test_sensor_view_shows_sub_images_and_their_overlaps(editor):
     editor.set_sensor((3000.0, 3000.0), 250.0)  # 500 um discs, 400 um apart: two overlaps
     overlaps = editor.sensor_view.overlap_items()
     assert len(overlaps) == 2
-    assert "overlaps that of lenslet 1 by 100 um" in " ".join(editor.issues()[0])
+    assert "overlaps that of lenslet 1 by 100 µm" in " ".join(editor.issues()[0])
     assert editor.sensor_view.disc_items()[0].pen().color().name() == ISSUE.name()
     editor.set_sensor((1000.0, 1000.0), 100.0, magnification=2.0)  # centres at +-800 um: off a 1 mm sensor
     assert editor.sensor_view.disc_items()[1].rect().center().x() == 800.0
-    assert "sub-image centred off the 1000 x 1000 um sensor" in editor.issues()[1]
+    assert "sub-image centred off the 1000 x 1000 µm sensor" in editor.issues()[1]
+
+
+def test_the_sensor_title_gives_the_overlap_status_a_line_of_its_own(editor):
+    """At the default window the one-line title was cut before its most useful part ("… · no ov…")."""
+    title = editor.sensor_view.getPlotItem().titleLabel
+    editor.set_sensor((3000.0, 3000.0), 250.0)  # two overlaps
+    first, status = title.text.split("<br>")
+    assert "sub-images 500 µm across" in first and "2 overlap(s)" in status
+    editor.set_sensor((3000.0, 3000.0), 150.0)
+    assert title.text.split("<br>")[1] == "no overlap"
+    width = title.item.boundingRect().width()  # the widest line
+    assert width <= editor.sensor_view.getPlotItem().width()
 
 
 # ----- presets -----
@@ -403,8 +441,23 @@ def test_presets_produce_the_builders_lenslets(editor):
     assert editor.lenslets() == MLASpec.hex_grid(220.0, 26.0, rings=2, fill_factor=200.0 / 220.0).lenslets
 
 
+def test_the_preset_row_shows_the_preset_of_the_layout_or_custom(qtbot, editor):
+    """On the FLFM 3x3 design it showed "XLFM-like (two focal groups)", n = 27, f = 16.8 / 18.48 mm."""
+    bar = editor.presets
+    assert bar.current_kind() == "custom" and not bar.apply.isEnabled()  # 3 lenslets in a row: no preset
+    flfm = load_preset("flfm_guo2019").mla.lenslets
+    editor.set_lenslets(flfm)  # the studio opens another design
+    assert (bar.kind.currentText(), bar.count.value()) == ("Square grid", 3)
+    assert (bar.pitch.value(), bar.diameter.value(), bar.focal_a.value()) == (600.0, 600.0, 16.8)
+    assert bar.apply.isEnabled()
+    fresh = MLAEditor(load_preset("xlfm_cong2017").mla.lenslets)
+    qtbot.addWidget(fresh)
+    assert (fresh.presets.current_kind(), fresh.presets.count.value()) == ("xlfm", 27)
+
+
 def test_preset_row_applies_and_bad_preset_is_refused(editor):
     rec = Recorder(editor)
+    editor.presets.kind.setCurrentIndex(editor.presets.kind.findData("xlfm"))  # the layout is custom
     editor.presets.count.setText("5")  # the xlfm preset needs complete shells (typed, applied)
     editor.presets.apply.click()
     assert rec.committed == [] and "complete-shell counts" in editor.last_error()
@@ -430,7 +483,7 @@ def test_unknown_sub_image_size_shows_centres_only(editor):
     assert editor.sensor_view.disc_items() == []
     assert "sub-images apart" not in editor.status_text()
     editor.set_sensor((500.0, 500.0), 0.0)  # lenslets 1 and 2 (x = +-400 um) are off a 0.5 mm sensor
-    assert "sub-image centred off the 500 x 500 um sensor" in editor.issues()[1]
+    assert "sub-image centred off the 500 x 500 µm sensor" in editor.issues()[1]
 
 
 def test_sub_image_overlaps_match_a_brute_force_search():

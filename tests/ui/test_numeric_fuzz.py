@@ -96,6 +96,23 @@ def test_anything_else_is_refused_with_the_reason_and_the_fix(text, reason):
     assert "Fix: type a number from 0 to 1000 µm, e.g. 6.5." in str(error.value)
 
 
+@pytest.mark.parametrize(
+    ("text", "unit", "value"),
+    [("0.0065 mm", "µm", 6.5), ("0,0065mm", "um", 6.5), ("6500 nm", "µm", 6.5), ("6.5e-6 m", "µm", 6.5),
+     ("0.2 m", "mm", 200.0), ("0.68 µm", "nm", 680.0)],
+)  # fmt: skip
+def test_a_length_field_converts_another_length_unit(text, unit, value):
+    """ "0.0065 mm" in the pixel pitch (µm) was refused as not a number while "6.5 um" was taken."""
+    assert parse_number(text, NumberRule("Pixel pitch", 0.0, 1e3, unit)) == pytest.approx(value, rel=1e-12)
+
+
+def test_a_unit_the_field_cannot_take_is_refused_naming_the_units_it_takes():
+    with pytest.raises(ValueError, match=r"got '5 kg' \(units: µm, nm, mm, m\)"):
+        parse_number("5 kg", NumberRule("Pixel pitch", 0.0, 1e3, "µm"))
+    with pytest.raises(ValueError, match=r"got '5 mm' \(unit: fold\)"):
+        parse_number("5 mm", NumberRule("rotation", 1, 12, "fold", integer=True))
+
+
 def test_integers_refuse_fractions_and_special_words_mean_the_minimum():
     rule = NumberRule("rotation", 1, 12, "fold", integer=True, special_text="off")
     assert parse_number("1e1", rule) == 10 and isinstance(parse_number("3", rule), int)

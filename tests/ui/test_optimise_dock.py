@@ -11,6 +11,7 @@ import threading
 import numpy as np
 import pytest
 from qtpy.QtCore import QSettings, Qt
+from qtpy.QtGui import QFontMetrics
 from qtpy.QtWidgets import QDockWidget
 
 from lfm_studio.engine.design import list_presets, load_preset
@@ -20,6 +21,7 @@ from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.engine.performance import closed_form_metrics
 from lfm_studio.ui.app import build_studio
 from lfm_studio.ui.edits import apply_changes
+from lfm_studio.ui.main_window import DEFAULT_SIZE
 from lfm_studio.ui.optimise_dock import JOB_NAME
 from lfm_studio.ui.optimise_model import freeable_fields
 from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
@@ -80,12 +82,29 @@ def test_a_tiny_grid_finds_the_candidate_the_closed_form_predicts(qtbot, window)
         90 / 80
     )
     assert dock.best() is rows[2]
-    # The table shows every candidate (infeasible ones with their reason); the plot marks them.
+    # The table shows every candidate (infeasible ones with their reason); the plot draws only scores
+    # (infeasible ones were drawn at the best feasible value, as if they had scored it) and counts the rest.
     table = [[dock.table.item(r, c).text() for c in range(dock.table.columnCount())] for r in range(4)]
     assert [t[-1] for t in table] == ["no: sub_image_off_sensor"] * 2 + ["yes"] * 2
-    assert list(dock.infeasible_marks.getData()[0]) == [0, 1]
+    assert dock.table.horizontalHeaderItem(2).text() == "lateral_resolution (µm)"
+    plot = dock.plot.getPlotItem()
+    assert plot.getAxis("left").labelText == "µm"  # the name is in the title ("eral_resolution (um)" was cut)
+    assert "lateral_resolution" in plot.titleLabel.text and "2 infeasible, not scored" in plot.titleLabel.text
     assert list(dock.feasible_dots.getData()[0]) == [2, 3]
     assert list(dock.best_curve.getData()[1]) == pytest.approx([rows[2].values["lateral_resolution"]] * 2)
+
+
+def test_a_run_without_a_feasible_candidate_does_not_invite_a_load(qtbot, window):
+    dock = window.optimise
+    dock.free(RELAY, 60.0, 70.0, 2)  # both sub-image patterns leave the sensor
+    dock.set_objectives(["lateral_resolution"])
+    dock.sampler.setCurrentText("grid")
+    dock.budget.setValue(2)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: dock.message.text().startswith("Done"), timeout=TIMEOUT_MS)
+    assert dock.best() is None and "none feasible" in dock.message.text()
+    assert "double-click" not in dock.message.text()
+    assert dock.feasible_dots.getData()[0] is None or len(dock.feasible_dots.getData()[0]) == 0
 
 
 def test_double_click_loads_a_candidate_and_an_infeasible_one_is_refused(qtbot, window):
@@ -130,6 +149,30 @@ def test_compare_shows_both_candidates_metrics(qtbot, window):
     for img in (a_img, b_img):
         bright = np.argwhere(img > 0.5) - (np.array(img.shape) - 1) / 2
         assert len(bright) >= 4 and np.hypot(*bright.T) == pytest.approx(centre_px, abs=3.0)
+
+
+def test_compare_shows_every_value_whole_at_the_default_window_size(qtbot, window):
+    """The values and headers are not elided ("2.… µm", "andida"): each column is as wide as its text."""
+    dock = window.optimise
+    assert (window.width(), window.height()) == DEFAULT_SIZE
+    window.findChild(QDockWidget, "Optimise").raise_()
+    _run_grid(qtbot, dock)
+    qtbot.waitUntil(lambda: dock.message.text().startswith("Done"), timeout=TIMEOUT_MS)
+    dock.table.selectRow(2)
+    dock.table.selectionModel().select(
+        dock.table.model().index(3, 0), dock.table.selectionModel().SelectionFlag.Select
+        | dock.table.selectionModel().SelectionFlag.Rows,
+    )  # fmt: skip
+    dock.compare_button.click()
+    table = dock.compare_table
+    metrics = QFontMetrics(table.font())
+    header = table.horizontalHeader()
+    for c in range(table.columnCount()):
+        texts = [table.item(r, c).text() for r in range(table.rowCount())]
+        texts.append(table.horizontalHeaderItem(c).text())
+        widest = max(metrics.horizontalAdvance(t) for t in texts)
+        assert table.columnWidth(c) >= widest, (c, max(texts, key=metrics.horizontalAdvance))
+    assert header.length() <= table.viewport().width()  # no column hidden behind a horizontal scroll
 
 
 def test_cancel_mid_run_keeps_the_candidates_evaluated(qtbot, tmp_path, monkeypatch):

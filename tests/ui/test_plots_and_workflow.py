@@ -39,17 +39,20 @@ def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
     state.set_metrics(metrics)
     x, y = profiles.lateral_curve.getData()
     assert len(x) > 10 and y.max() == pytest.approx(1.0) and abs(x[y.argmax()]) < 1e-9
+    for plot in (profiles.lateral_plot, profiles.axial_plot):  # the dashed curve is named
+        legend = plot.getPlotItem().legend
+        assert [label.text for _, label in legend.items] == ["full PSF", "quick preview"]
     z, peak = profiles.axial_curve.getData()
     assert list(z) == pytest.approx([-10.0, 0.0, 10.0]) and peak.max() == pytest.approx(1.0)
     rows = requirements.rows()
     assert len(rows) == len(metrics.requirements)
     results = {(r[0].split(" ")[0], r[1]): r[3] for r in rows}
     assert results[("FoV", "formula")] == "FAIL"  # 50 um field stop vs 800 um required
-    assert rows[0][0] == "FoV ≥ 800 um" and rows[0][2] == "50 um"
-    # the lateral criterion is named (issue 22): Rayleigh for the formula, the two-point dip when measured
+    assert rows[0][0] == "FoV ≥ 800 µm" and rows[0][2] == "50 µm"
+    # the lateral criterion is named (issue 22), on a line of its own (the long line pushed Value out of view)
     lateral = {r[1]: r[0] for r in rows if r[0].startswith("Lateral res.")}
-    assert lateral["formula"] == "Lateral res. (Rayleigh 0.61 lambda/NA) ≤ 3 um"
-    assert lateral["measured"] == "Lateral res. (two-point dip < 0.735) ≤ 3 um"
+    assert lateral["formula"] == "Lateral res. ≤ 3 µm\nRayleigh 0.61 lambda/NA"
+    assert lateral["measured"] == "Lateral res. ≤ 3 µm\ntwo-point dip < 0.735"
     assert {r[1] for r in rows} == {"formula", "measured"}
     assert "Does not meet" in requirements.summary.text()
     state.set_convergence((10.0, 12.0, 13.0), (0.5, 0.2, 0.1))

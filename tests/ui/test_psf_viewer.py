@@ -269,6 +269,22 @@ def test_fallback_shows_why_and_still_shows_the_data(qtbot):
     view.close_viewer()
 
 
+def test_the_show_combo_is_wide_enough_for_every_layer_name(qtbot):
+    """At the default window it read "reconstr" and "light fiel"."""
+    view = PSFViewer(use_napari=False)
+    qtbot.addWidget(view)
+    view.resize(640, 480)
+    view.show()
+    qtbot.waitExposed(view)
+    view.show_image(torch.rand(32, 32), 6.5e-6)
+    view.show_volume(torch.rand(4, 8, 8), (1e-6, 1e-6, 1e-6))
+    combo = view._combo
+    widest = max(combo.fontMetrics().horizontalAdvance(combo.itemText(i)) for i in range(combo.count()))
+    # the text and the drop-down arrow, once the toolbar is laid out again (a posted event)
+    qtbot.waitUntil(lambda: combo.width() >= widest + 20, timeout=5_000)
+    view.close_viewer()
+
+
 def test_environment_switch_forces_the_fallback(qtbot, monkeypatch):
     monkeypatch.setenv(napari_embed.VIEWER_ENV, "pyqtgraph")
     view = PSFViewer()

@@ -13,6 +13,7 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from lfm_studio.widgets.viewer import napari_embed
 from lfm_studio.widgets.viewer.display_data import brightest_slice, psf_display, volume_display
+from lfm_studio.widgets.viewer.napari_scene import position_text
 from tests.ui.test_psf_viewer import _rgb, hide_overlays, settle, spot_stack
 
 
@@ -115,6 +116,13 @@ def beads_volume() -> torch.Tensor:
     return volume
 
 
+def test_a_slice_position_that_rounds_to_zero_reads_plus_zero():
+    """The full XLFM stack's middle depth (-1e-15 um after the depth arithmetic) read "z = -0.0 µm"."""
+    assert [position_text(v) for v in (-1e-15, -0.04, 0.0, 2.5, -80.0)] == [
+        "+0.0 µm", "+0.0 µm", "+0.0 µm", "+2.5 µm", "-80.0 µm",
+    ]  # fmt: skip
+
+
 def test_brightest_slice_of_a_volume():
     volume = beads_volume().numpy()
     assert brightest_slice(volume) == 4
@@ -126,10 +134,15 @@ def test_a_volume_opens_at_its_brightest_slice_and_mip_shows_every_bead(qtbot, h
     view = _napari_view(qtbot)
     view.show()
     qtbot.waitExposed(view)
+    view.show_psf(spot_stack())
+    assert not view.is_mip()  # a PSF opens on one depth
     view.show_volume(beads_volume(), (2e-6, 1e-6, 1e-6), name="phantom")
+    # A sample volume opens as its MIP (one slice of a bead volume holds few beads: it read as empty).
+    assert view.is_mip() and view._button_mip.isChecked() and view.layer("phantom").projection_mode == "max"
+    view.set_mip(False)
     hide_overlays(view)
     dims = view._scene.model.dims
-    assert dims.current_step[0] == 4  # opened at the brightest slice, not z = 0
+    assert dims.current_step[0] == 4  # the slice view is at the brightest slice, not z = 0
     dims.set_current_step(0, 2)  # an empty slice: nothing drawn
     assert _lit(view, qtbot) == 0
     view._button_mip.click()  # the toolbar toggle
@@ -143,5 +156,27 @@ def test_a_volume_opens_at_its_brightest_slice_and_mip_shows_every_bead(qtbot, h
     # MIP draws both beads (equal areas), the brightest slice one of them.
     assert one > 0 and both == pytest.approx(2 * one, rel=0.25), (both, one)
     assert not view._button_mip.isChecked() and view.layer("phantom").projection_mode == "none"
+    view.focus("PSF")  # each space keeps its own choice
+    assert not view.is_mip() and view.layer("PSF").projection_mode == "none"
     assert hook_errors == []
     view.close_viewer()
+
+
+def test_a_bead_reconstruction_is_drawn_against_its_bright_voxels_not_its_single_brightest():
+    """RL beads: a bright peak voxel over a blur and a faint positive floor. With the maximum as the
+    upper limit (linear), only each bead's peak voxel lit: about a screen pixel, and the view read empty."""
+    rng = np.random.default_rng(1)
+    volume = rng.uniform(0.5, 5.0, (8, 200, 200)).astype(np.float32)  # the floor RL leaves everywhere
+    peaks = rng.uniform(3e5, 9e5, 20)
+    for k, (z, y, x) in enumerate(
+        zip(rng.integers(1, 7, 20), rng.integers(5, 195, 20), rng.integers(5, 195, 20), strict=True)
+    ):
+        volume[z, y - 2 : y + 3, x - 2 : x + 3] = peaks[k] * 1e-3  # the blur around the peak
+        volume[z, y, x] = peaks[k]
+    shown = volume_display(torch.from_numpy(volume), (5e-6, 2.5e-6, 2.5e-6))
+    low, high = shown.contrast_limits
+    nonzero = volume[volume != 0]
+    assert high == pytest.approx(np.percentile(nonzero, 99.99), rel=0.02)  # independent numpy reference
+    assert low == pytest.approx(volume.min()) and high < 0.01 * volume.max()
+    blur_level = ((peaks.min() * 1e-3 - low) / (high - low)) ** shown.gamma
+    assert blur_level > 0.3  # a bead's blur is drawn visibly, not only its peak voxel

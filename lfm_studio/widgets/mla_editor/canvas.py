@@ -90,7 +90,7 @@ class MLACanvas(pg.PlotWidget):
     def __init__(self, parent=None) -> None:
         self._events = _Events()
         super().__init__(parent=parent, viewBox=_EditViewBox(self._events))
-        style.style_plot(self, x_label="x (um) at the MLA", y_label="y (um)")
+        style.style_plot(self, x_label="x (µm) at the MLA", y_label="y (µm)")
         self.setFocusPolicy(Qt.FocusPolicy.StrongFocus)
         self._events.click.connect(self._on_click)
         self._events.drag.connect(self._on_drag)
@@ -340,7 +340,7 @@ class MLACanvas(pg.PlotWidget):
             body.setPen(style.pen(style.ISSUE, 2.5) if issues else style.pen(color.lighter(140), 1.2))
             x, y = lens.center_um
             tip = (
-                f"lenslet {i}: centre ({fmt(x)}, {fmt(y)}) um, diameter {fmt(lens.aperture_diameter_um)} um, "
+                f"lenslet {i}: centre ({fmt(x)}, {fmt(y)}) µm, diameter {fmt(lens.aperture_diameter_um)} µm, "
                 f"f {fmt(lens.focal_length_mm)} mm"
             )
             body.setToolTip("\n".join([tip, *(f"• {t}" for t in issues)]))

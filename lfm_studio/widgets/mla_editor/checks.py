@@ -39,21 +39,21 @@ def mla_issues(lenslets: Sequence[LensletSpec], pupil_radius_um: float | None) -
     for i, j in candidate_pairs([lens.center_um for lens in lenslets], reach):
         depth = overlap_depth_um(lenslets[i], lenslets[j])
         if depth > TOLERANCE_UM:
-            _note(issues, i, f"overlaps lenslet {j} by {fmt(depth)} um")
-            _note(issues, j, f"overlaps lenslet {i} by {fmt(depth)} um")
+            _note(issues, i, f"overlaps lenslet {j} by {fmt(depth)} µm")
+            _note(issues, j, f"overlaps lenslet {i} by {fmt(depth)} µm")
     if pupil_radius_um is not None:
         r = fmt(pupil_radius_um)
         for i, lens in enumerate(lenslets):
             distance = math.hypot(*lens.center_um)
             if distance > pupil_radius_um:
                 _note(
-                    issues, i, f"centre {fmt(distance)} um from the axis, outside the pupil (radius {r} um)"
+                    issues, i, f"centre {fmt(distance)} µm from the axis, outside the pupil (radius {r} µm)"
                 )
             elif lens.reach_um > pupil_radius_um + TOLERANCE_UM:
                 _note(
                     issues,
                     i,
-                    f"reaches {fmt(lens.reach_um)} um, beyond the pupil radius {r} um (vignetted)",
+                    f"reaches {fmt(lens.reach_um)} µm, beyond the pupil radius {r} µm (vignetted)",
                 )
     return issues
 
@@ -101,11 +101,11 @@ def sensor_layout(
         return SensorLayout(centers, r)
     overlaps = tuple(disc_overlaps(centers, r, tolerance_um)) if r > 0 else ()  # grid search, O(n)
     for i, j, depth in overlaps:
-        _note(issues, i, f"sub-image overlaps that of lenslet {j} by {fmt(depth)} um")
-        _note(issues, j, f"sub-image overlaps that of lenslet {i} by {fmt(depth)} um")
+        _note(issues, i, f"sub-image overlaps that of lenslet {j} by {fmt(depth)} µm")
+        _note(issues, j, f"sub-image overlaps that of lenslet {i} by {fmt(depth)} µm")
     if sensor_size_um is not None:
         half_w, half_h = sensor_size_um[0] / 2.0, sensor_size_um[1] / 2.0
-        size = f"{fmt(sensor_size_um[0])} x {fmt(sensor_size_um[1])} um sensor"
+        size = f"{fmt(sensor_size_um[0])} x {fmt(sensor_size_um[1])} µm sensor"
         for i, (x, y) in enumerate(centers):
             if abs(x) > half_w or abs(y) > half_h:
                 _note(issues, i, f"sub-image centred off the {size}")

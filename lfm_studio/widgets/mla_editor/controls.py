@@ -15,6 +15,8 @@ from qtpy.QtWidgets import QCheckBox, QComboBox, QHBoxLayout, QLabel, QPushButto
 from lfm_studio.widgets.mla_editor.model import LENSLET_RULES
 from lfm_studio.widgets.mla_editor.presets import (
     COUNT_MEANING,
+    CUSTOM,
+    CUSTOM_LABEL,
     DEFAULT_COUNTS,
     PRESET_LABELS,
     PresetParams,
@@ -52,12 +54,13 @@ class PresetBar(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.kind = QComboBox()
+        self.kind.addItem(CUSTOM_LABEL, CUSTOM)  # the layout shown matches no preset
         for key, label in PRESET_LABELS.items():
             self.kind.addItem(label, key)
-        self.kind.setCurrentIndex(list(PRESET_LABELS).index("xlfm"))
+        self.kind.setCurrentIndex(self.kind.findData("xlfm"))
         defaults = PresetParams()
         self.pitch = number(
-            "preset pitch", "um", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
+            "preset pitch", "µm", minimum=0.001, maximum=1e6, value=defaults.pitch_um, step=10
         )
         self.count = number("preset n", "", minimum=0, maximum=MAX_COUNT, value=DEFAULT_COUNTS["xlfm"], step=1,
                             integer=True)  # fmt: skip
@@ -65,7 +68,7 @@ class PresetBar(QWidget):
                               step=0.5)  # fmt: skip
         self.focal_b = number("preset second f", "mm", minimum=0.001, maximum=1e5,
                               value=defaults.focal_lengths_mm[1], step=0.5)  # fmt: skip
-        self.diameter = number("preset Ø", "um", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
+        self.diameter = number("preset Ø", "µm", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
                                step=10)  # fmt: skip
         self.apply = QPushButton("Apply preset")
         self.apply.setToolTip("Replace all lenslets by this preset (undo with Ctrl+Z)")
@@ -80,7 +83,7 @@ class PresetBar(QWidget):
         self._on_kind()
 
     def current_kind(self) -> str:
-        """The chosen preset: "square", "hex" or "xlfm"."""
+        """The chosen preset: "square", "hex" or "xlfm" ("custom": the layout matches none)."""
         return str(self.kind.currentData())
 
     def params(self) -> PresetParams:
@@ -100,8 +103,27 @@ class PresetBar(QWidget):
         self.focal_b.setValue(params.focal_lengths_mm[-1])
         self.diameter.setValue(params.aperture_diameter_um)
 
+    def show_kind(self, kind: str, count: int = 0) -> None:
+        """Show preset ``kind`` (``CUSTOM`` for a layout no preset rebuilds) with ``count``, emitting nothing."""
+        if kind != CUSTOM and count:
+            self._counts[kind] = count
+        self.kind.blockSignals(True)
+        self.kind.setCurrentIndex(self.kind.findData(kind))
+        self.kind.blockSignals(False)
+        self._on_kind()
+
     def _on_kind(self, *_args) -> None:
         kind = self.current_kind()
+        custom = kind == CUSTOM
+        for widget in (*self.fields(), self.apply):
+            widget.setEnabled(not custom)
+        self.apply.setToolTip(
+            "The layout as drawn matches no preset: pick one to replace it"
+            if custom
+            else "Replace all lenslets by this preset (undo with Ctrl+Z)"
+        )
+        if custom:
+            return
         self.count.blockSignals(True)
         self.count.setValue(self._counts[kind])
         self.count.blockSignals(False)
@@ -117,7 +139,9 @@ class PresetBar(QWidget):
         return (self.pitch, self.count, self.focal_a, self.focal_b, self.diameter)
 
     def _on_apply(self) -> None:
-        if commit_all(self.fields()):  # a refused number is not replaced by the one before it
+        if self.current_kind() != CUSTOM and commit_all(
+            self.fields()
+        ):  # a refused number is not replaced by the one before it
             self.applyRequested.emit(self.current_kind(), self.params())
 
 
@@ -137,7 +161,10 @@ class EditBar(QWidget):
         self.add, self.delete, self.undo, self.redo, self.fit = (
             QToolButton(text=t) for t in ("Add", "Delete", "Undo", "Redo", "Fit")
         )
-        self.add.setToolTip("Add a lenslet at the centre of the view (or double-click the canvas)")
+        self.add.setToolTip(
+            "Add a lenslet like the selected (or last) one at the free spot nearest the view centre, inside the"
+            " pupil (or double-click the canvas where it goes)"
+        )
         self.delete.setToolTip("Delete the selected lenslets (Delete)")
         self.fit.setToolTip("Show the whole pupil and every lenslet")
         self.diameter = NumericField(LENSLET_RULES["diameter_um"], 1000.0, step=10)  # the table's rules
@@ -180,7 +207,7 @@ class SymmetryBar(QWidget):
     def __init__(self, parent=None) -> None:
         super().__init__(parent)
         self.snap = QCheckBox("Snap to grid")
-        self.pitch = number("snap pitch", "um", minimum=0.001, maximum=1e6, value=100.0, step=10)
+        self.pitch = number("snap pitch", "µm", minimum=0.001, maximum=1e6, value=100.0, step=10)
         self.mirror_x = QCheckBox("Mirror x")
         self.mirror_x.setToolTip(
             "Keep mirror symmetry (x, y) -> (-x, y): edits apply to the mirrored partner"

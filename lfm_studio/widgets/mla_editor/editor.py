@@ -21,7 +21,7 @@ from qtpy.QtWidgets import QWidget
 from lfm_studio.engine.design import LensletSpec
 from lfm_studio.widgets.mla_editor import model as model
 from lfm_studio.widgets.mla_editor.keys import EditorKeys
-from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params
+from lfm_studio.widgets.mla_editor.presets import PresetParams, estimate_params, matching_preset
 from lfm_studio.widgets.mla_editor.session import EditSession
 from lfm_studio.widgets.mla_editor.symmetry import Symmetry
 from lfm_studio.widgets.mla_editor.views import EditorViews
@@ -74,7 +74,7 @@ class MLAEditor(QWidget):
             None if sensor_size_um is None else (float(sensor_size_um[0]), float(sensor_size_um[1]))
         )
         self._connect()
-        self.presets.set_params(estimate_params(self._session.lenslets))
+        self._show_matching_preset()
         self._refresh()
         self.fit()
 
@@ -90,7 +90,7 @@ class MLAEditor(QWidget):
         self.table.selectionEdited.connect(self._on_table_selection)
         self.presets.applyRequested.connect(self.apply_preset)
         e = self.edits
-        e.addClicked.connect(self._add_at_view_centre)
+        e.addClicked.connect(self.add_free_lenslet)
         e.deleteClicked.connect(self.delete_selected)
         e.undoClicked.connect(self.undo)
         e.redoClicked.connect(self.redo)
@@ -123,6 +123,7 @@ class MLAEditor(QWidget):
         try:
             self.canvas.cancel_drag()
             s.replace(new, reset_history=reset_history)
+            self._show_matching_preset()  # another design: its preset, not the last one's
             self._refresh()
         finally:
             self.blockSignals(blocked)
@@ -221,7 +222,8 @@ class MLAEditor(QWidget):
 
     def add_lenslet(self, x_um: float, y_um: float) -> list[int]:
         """Add a lenslet (and its partners) at ``(x, y)`` um, snapped if snapping is on, with the last used
-        diameter and focal length; returns the new indices (now selected)."""
+        diameter and focal length and the shape of the selected (or last) lenslet; returns the new indices
+        (now selected)."""
         added = self._session.add(x_um, y_um)
         self._done(bool(added))
         return added
@@ -288,9 +290,20 @@ class MLAEditor(QWidget):
             self.lensletsCommitted.emit(self.lenslets())
         return committed
 
-    def _add_at_view_centre(self) -> None:
+    def add_free_lenslet(self) -> list[int]:
+        """The Add button: a lenslet like the selected (or last) one at the free spot nearest the view centre,
+        inside the pupil (a free lattice site of the layout first); returns the new indices, [] if none is free."""
         (x0, x1), (y0, y1) = self.canvas.getViewBox().viewRange()
-        self.add_lenslet((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        centre = ((x0 + x1) / 2.0, (y0 + y1) / 2.0)
+        added = self._session.add_free(centre, pupil_radius_um=self._views.pupil_radius_um)
+        self._done(bool(added))
+        return added
+
+    def _show_matching_preset(self) -> None:
+        """The preset row shows the preset that rebuilds the layout (or "custom") with its parameters."""
+        lenslets = self._session.lenslets
+        self.presets.set_params(estimate_params(lenslets))
+        self.presets.show_kind(*matching_preset(lenslets))
 
     def _on_click(self, index: int, additive: bool) -> None:
         current = set(self._session.selected)

@@ -22,12 +22,12 @@ from lfm_studio.widgets.numeric_text import NumberRule, parse_number
 Lenslets = tuple[LensletSpec, ...]
 Field = Literal["x_um", "y_um", "diameter_um", "focal_length_mm"]
 FIELDS: tuple[Field, ...] = ("x_um", "y_um", "diameter_um", "focal_length_mm")
-FIELD_UNITS = {"x_um": "um", "y_um": "um", "diameter_um": "um", "focal_length_mm": "mm"}
+FIELD_UNITS = {"x_um": "µm", "y_um": "µm", "diameter_um": "µm", "focal_length_mm": "mm"}
 MAX_EXTENT_UM = 1e7  # 10 m: far beyond any MLA; a typo, not a design
 LENSLET_RULES: dict[str, NumberRule] = {
-    "x_um": NumberRule("x_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "um", example=0.0),
-    "y_um": NumberRule("y_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "um", example=0.0),
-    "diameter_um": NumberRule("diameter_um", 0.001, 1e6, "um", example=1000.0),
+    "x_um": NumberRule("x_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "µm", example=0.0),
+    "y_um": NumberRule("y_um", -MAX_EXTENT_UM, MAX_EXTENT_UM, "µm", example=0.0),
+    "diameter_um": NumberRule("diameter_um", 0.001, 1e6, "µm", example=1000.0),
     "focal_length_mm": NumberRule("focal_length_mm", 0.001, 1e5, "mm", example=26.0),
 }
 NO_SYMMETRY = Symmetry()
@@ -76,7 +76,7 @@ def _with(lens: LensletSpec, **changes: Any) -> LensletSpec:
 def snap(p: Point, pitch_um: float) -> Point:
     """``p`` rounded to the nearest node of a square grid of ``pitch_um`` through the axis."""
     if not (math.isfinite(pitch_um) and pitch_um > 0):
-        raise ValueError(f"snap pitch must be > 0 um; got {pitch_um} um. Fix: e.g. 100.")
+        raise ValueError(f"snap pitch must be > 0 µm; got {pitch_um} µm. Fix: e.g. 100.")
     return round_point((round(p[0] / pitch_um) * pitch_um, round(p[1] / pitch_um) * pitch_um))
 
 

@@ -22,6 +22,8 @@ from lfm_studio.engine.design.geometry import candidate_pairs
 from lfm_studio.engine.errors import error_text
 
 PresetKind = Literal["square", "hex", "xlfm"]
+CUSTOM = "custom"  # a layout no preset rebuilds (shown in the preset row; not a preset to apply)
+CUSTOM_LABEL = "Custom (as drawn)"
 PRESET_LABELS: dict[str, str] = {
     "square": "Square grid",
     "hex": "Hex grid",
@@ -90,7 +92,7 @@ def build_preset(
     except ValidationError as exc:
         raise ValueError(error_text(exc)) from None
     except (ZeroDivisionError, IndexError):
-        raise ValueError("preset needs a pitch > 0 um and at least one focal length.") from None
+        raise ValueError("preset needs a pitch > 0 µm and at least one focal length.") from None
     return tuple(mla.lenslets)
 
 
@@ -114,3 +116,33 @@ def estimate_params(lenslets: Sequence[LensletSpec], default: PresetParams = Pre
         focal_lengths_mm=tuple(focals[:2]),
         aperture_diameter_um=diameter,
     )
+
+
+def matching_preset(lenslets: Sequence[LensletSpec]) -> tuple[str, int]:
+    """The preset kind and count that rebuild the centres and focal lengths of ``lenslets``, with the
+    parameters :func:`estimate_params` reads off them; ``(CUSTOM, 0)`` when none does."""
+    n = len(lenslets)
+    if not n:
+        return CUSTOM, 0
+    estimate = estimate_params(lenslets)
+    focals = tuple(sorted({lens.focal_length_mm for lens in lenslets}))
+    counts = {
+        "square": round(math.sqrt(n)),
+        "hex": round((math.sqrt(9.0 + 12.0 * (n - 1)) - 3.0) / 6.0),  # n = 1 + 3 r (r + 1)
+        "xlfm": n,
+    }
+    wanted = sorted(_key(lens) for lens in lenslets)
+    for kind, count in counts.items():
+        params = PresetParams(estimate.pitch_um, count, focals, estimate.aperture_diameter_um)
+        try:
+            built = build_preset(kind, params)  # type: ignore[arg-type]
+        except ValueError:
+            continue
+        if len(built) == n and sorted(_key(lens) for lens in built) == wanted:
+            return kind, count
+    return CUSTOM, 0
+
+
+def _key(lens: LensletSpec) -> tuple[float, float, float]:
+    x, y = lens.center_um
+    return round(x, 3) + 0.0, round(y, 3) + 0.0, lens.focal_length_mm

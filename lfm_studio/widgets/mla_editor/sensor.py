@@ -57,7 +57,7 @@ class SensorView(pg.PlotWidget):
 
     def __init__(self, parent=None) -> None:
         super().__init__(parent=parent)
-        style.style_plot(self, x_label="x (um) on the sensor", y_label="y (um)")
+        style.style_plot(self, x_label="x (µm) on the sensor", y_label="y (µm)")
         self.getViewBox().setMenuEnabled(False)
         self._sensor = QGraphicsRectItem()
         self._sensor.setPen(style.pen(style.SENSOR, 1.5))
@@ -163,15 +163,14 @@ class SensorView(pg.PlotWidget):
         if sensor_size_um is not None:
             parts.append(f"sensor {fmt(sensor_size_um[0] / 1000)} x {fmt(sensor_size_um[1] / 1000)} mm")
         if layout is not None and layout.radius_um > 0:
-            parts.append(f"sub-images {fmt(2 * layout.radius_um)} um across")
+            parts.append(f"sub-images {fmt(2 * layout.radius_um)} µm across")
             bad = len(layout.overlaps)
             drawn = f" ({MAX_OVERLAPS_DRAWN} drawn)" if bad > MAX_OVERLAPS_DRAWN else ""
-            parts.append(
-                f"<span style='color:#ff6b6b'>{bad} overlap(s){drawn}</span>" if bad else "no overlap"
-            )
+            status = f"<span style='color:#ff6b6b'>{bad} overlap(s){drawn}</span>" if bad else "no overlap"
         else:
-            parts.append("sub-image size unknown")
-        self.setTitle(" · ".join(parts), color=style.FOREGROUND, size="9pt")
+            status = "sub-image size unknown"
+        # the status on a line of its own: the view is narrow, and a cut title lost it first
+        self.setTitle(" · ".join(parts) + "<br>" + status, color=style.FOREGROUND, size="9pt")
 
     def fit(self) -> None:
         """Show the whole sensor and every sub-image."""

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from lfm_studio.widgets.mla_editor import model as model
 from lfm_studio.widgets.mla_editor.checks import summary
+from lfm_studio.widgets.mla_editor.placement import free_spot
 from lfm_studio.widgets.mla_editor.presets import PresetParams, build_preset
 from lfm_studio.widgets.mla_editor.symmetry import Symmetry
 
@@ -121,7 +122,7 @@ class EditSession:
     def add(self, x_um: float, y_um: float) -> list[int]:
         """Add a lenslet (and its partners) at ``(x, y)`` um, snapped; the new indices (selected), [] if refused."""
         p = (x_um, y_um)
-        shape = self.lenslets[self.selected[-1]].shape if self.selected else "circle"
+        shape = self._new_shape()
         try:
             if self.snap_pitch_um is not None:
                 p = model.snap(p, self.snap_pitch_um)
@@ -138,6 +139,28 @@ class EditSession:
             return []
         self.commit(new, "add", selection=added)
         return added
+
+    def add_free(self, near_um: tuple[float, float], *, pupil_radius_um: float | None) -> list[int]:
+        """Add a lenslet at the free spot nearest ``near_um`` (see :func:`~.placement.free_spot`); [] if refused."""
+        spot = free_spot(
+            self.lenslets, diameter_um=self.new_diameter_um, focal_length_mm=self.new_focal_length_mm,
+            shape=self._new_shape(), near=near_um, pupil_radius_um=pupil_radius_um, symmetry=self.symmetry,
+            snap_pitch_um=self.snap_pitch_um,
+        )  # fmt: skip
+        if spot is None:
+            where = "inside the pupil" if pupil_radius_um is not None else "near the view centre"
+            self.refuse(
+                f"add: no free spot {where} for a {self.new_diameter_um:g} µm lenslet. "
+                "Fix: delete or shrink lenslets, or double-click where the new one goes."
+            )
+            return []
+        return self.add(*spot)
+
+    def _new_shape(self) -> str:
+        """The shape of new lenslets: the selected lenslet's, else the last lenslet's (circle in an empty layout)."""
+        if self.selected:
+            return self.lenslets[self.selected[-1]].shape
+        return self.lenslets[-1].shape if self.lenslets else "circle"
 
     def delete_selected(self) -> bool:
         """Delete the selection and its partners."""
@@ -255,6 +278,8 @@ def status_line(
         head += f"; {selected} selected"
     if last_error:
         return f"Refused: {last_error}", "error"
+    if not lenslets:  # nothing to check: no "OK" under the design's refusal
+        return head, "error"
     if issues:
         return f"{head}. Problems: {summary(issues)}", "warning"
     checked = ["no overlapping lenslets"]

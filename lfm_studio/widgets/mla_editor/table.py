@@ -1,4 +1,4 @@
-"""The MLA editor's table of lenslets: x, y, diameter Ø (um), focal length f (mm); editable.
+"""The MLA editor's table of lenslets: x, y, diameter Ø (µm), focal length f (mm); editable.
 
 The headers are short (the editor's own Ø and f) with the full meaning in their tooltips, and no
 column is narrower than its header: in a narrow dock the table scrolls rather than clip them.
@@ -21,11 +21,11 @@ from lfm_studio.engine.design import LensletSpec
 from lfm_studio.widgets.mla_editor.model import FIELDS, value_of
 from lfm_studio.widgets.mla_editor.style import ISSUE
 
-HEADERS = ("x (um)", "y (um)", "Ø (um)", "f (mm)")
+HEADERS = ("x (µm)", "y (µm)", "Ø (µm)", "f (mm)")
 HEADER_TIPS = (
-    "x of the lenslet centre, um from the optical axis",
-    "y of the lenslet centre, um from the optical axis",
-    "Ø: aperture diameter, um",
+    "x of the lenslet centre, µm from the optical axis",
+    "y of the lenslet centre, µm from the optical axis",
+    "Ø: aperture diameter, µm",
     "f: focal length, mm",
 )
 

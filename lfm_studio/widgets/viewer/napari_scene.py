@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from psygnal import Signal
 
-from lfm_studio.widgets.viewer.display_data import depth_axis_um, nearest_depth_index
+from lfm_studio.widgets.viewer.display_data import SAMPLE, depth_axis_um, nearest_depth_index
 from lfm_studio.widgets.viewer.napari_embed import (
     canvas_screenshot,
     close_qt_viewer,
@@ -27,6 +27,7 @@ from lfm_studio.widgets.viewer.napari_embed import (
 if TYPE_CHECKING:
     from lfm_studio.widgets.viewer.display_data import DisplayData
 
+MIP_BY_DEFAULT = (SAMPLE,)  # spaces whose 2-D views start as a maximum-intensity projection
 _PLANES = {"xy": (0, 1, 2), "xz": (1, 0, 2), "yz": (2, 0, 1)}  # order of the last three axes
 #: Camera angles (degrees) of a fresh 3-D view: oblique, so depth shows at once.
 CAMERA_ANGLES_3D = (0.0, -35.0, 60.0)
@@ -54,7 +55,10 @@ class NapariScene:
         self._layers: dict[str, Any] = {}
         self._shown: dict[str, DisplayData] = {}
         self.focused: str | None = None
-        self._mip = False  # maximum-intensity projection over depth in 2-D views
+        # Spaces whose 2-D views show the maximum-intensity projection over depth. Sample volumes
+        # (phantom, reconstruction: sparse beads) start projected, since one slice holds few beads;
+        # PSFs and camera images start on one slice.
+        self._mip_spaces: set[str] = set(MIP_BY_DEFAULT)
         self._stale_note = ""  # appended to the canvas read-out while the focused layer is out of date
         self.widget, self.panel = QStackedWidget(), QStackedWidget()
         self.panel.setMinimumWidth(300)  # napari controls are unreadable narrower
@@ -157,7 +161,7 @@ class NapariScene:
         else:
             layer.auto_contrast = False
             layer.contrast_limits = shown.contrast_limits
-        layer.projection_mode = "max" if self._mip and shown.has_depth else "none"
+        layer.projection_mode = "max" if shown.space in self._mip_spaces and shown.has_depth else "none"
         self._apply_mip(shown.space)
         if created and (refocus or not replaced or self.focused is None):  # else: stays hidden
             self.focus(shown.name)
@@ -241,20 +245,25 @@ class NapariScene:
     # -- view -----------------------------------------------------------------------------
     @property
     def mip(self) -> bool:
-        """Whether 2-D views show the maximum-intensity projection over depth (not one slice)."""
-        return self._mip
+        """Whether the 2-D view of the space on screen shows the maximum-intensity projection over depth."""
+        return self._space in self._mip_spaces
 
     def set_mip(self, on: bool) -> None:
-        """Maximum-intensity projection over depth for every layer with a depth axis (2-D views).
+        """Maximum-intensity projection over depth for the layers with a depth axis of the space on screen
+        (2-D views; each space keeps its own choice).
 
         napari's thick slicing: the depth margins of each canvas cover the whole stack and the
         layers project with ``"max"``. 3-D views render a MIP anyway.
         """
-        self._mip = bool(on)
+        if on:
+            self._mip_spaces.add(self._space)
+        else:
+            self._mip_spaces.discard(self._space)
         for name, layer in self._layers.items():
-            layer.projection_mode = "max" if self._mip and self._shown[name].has_depth else "none"
-        for space in self._views:
-            self._apply_mip(space)
+            if layer.metadata["space"] == self._space:
+                layer.projection_mode = "max" if on and self._shown[name].has_depth else "none"
+        if self._space in self._views:
+            self._apply_mip(self._space)
         self._on_step()
 
     def _apply_mip(self, space: str) -> None:
@@ -265,7 +274,7 @@ class NapariScene:
             return
         axis = dims.ndim - 3
         world = dims.range[axis]
-        extent = 2.0 * (world.stop - world.start) + world.step if self._mip else 0.0
+        extent = 2.0 * (world.stop - world.start) + world.step if space in self._mip_spaces else 0.0
         if dims.thickness[axis] != extent:
             thickness = list(dims.thickness)
             thickness[axis] = extent
@@ -349,12 +358,12 @@ class NapariScene:
             if dims.ndisplay == 3 and shown.z_stretch != 1:
                 parts.append(f"depth axis drawn ×{shown.z_stretch:g}")
             for label, axis in sliced[:1]:
-                if label == "z" and self._mip and dims.ndisplay == 2:
+                if label == "z" and shown.space in self._mip_spaces and dims.ndisplay == 2:
                     parts.append("maximum over all depths (MIP)")
                     continue
                 value = dims.point[axis + offset] / (shown.z_stretch if label == "z" else 1.0)
                 depth = value if label == "z" else None
-                parts.append(f"{label} = {value:+.1f} µm")
+                parts.append(f"{label} = {position_text(value)}")
             factor = self.drawn_factor(shown.name)
             if factor > 1:
                 parts.append(f"3-D preview: max of {factor}×{factor} pixels")
@@ -364,6 +373,11 @@ class NapariScene:
         overlay.color = STALE_COLOR if self._stale_note and shown is not None else "white"
         overlay.text = "   ".join(parts)
         self.depth_changed.emit(depth)
+
+
+def position_text(value_um: float) -> str:
+    """A slice position for the read-out: ``+12.5 µm``; a value that rounds to zero is ``+0.0 µm``, never ``-0.0``."""
+    return f"{round(value_um, 1) + 0.0:+.1f} µm"
 
 
 def _slider_range(shown: DisplayData) -> tuple[float, float]:
