@@ -62,3 +62,27 @@ def require_finite_tensor(name: str, tensor: torch.Tensor) -> None:
             f"{name} contains {bad} NaN/Inf value(s) of {tensor.numel()}. "
             "Fix: check the input data or the upstream computation that produced it."
         )
+
+
+def as_real_tensor(name: str, value: object, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """``value`` (tensor or array-like: numpy, lists) as a real floating tensor on ``device`` with
+    ``dtype``: the one conversion at a public boundary that takes arrays (no copy when ``value``
+    already is such a tensor; autograd passes through)."""
+    tensor = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
+    if tensor.is_complex():
+        raise ValueError(f"{name} must be real (intensities); got a complex {tensor.dtype} tensor.")
+    if tensor.dtype == torch.bool:
+        raise ValueError(f"{name} must hold numbers; got a boolean tensor.")
+    return tensor.to(device=device, dtype=dtype)
+
+
+def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
+    """Raise ``ValueError`` naming the count and the minimum if ``tensor`` has negative values."""
+    require_finite_tensor(name, tensor.detach())
+    if tensor.numel() and bool((tensor.detach() < 0).any()):
+        bad = int((tensor.detach() < 0).sum())
+        low = float(tensor.detach().min())
+        raise ValueError(
+            f"{name} must be >= 0 (photon counts or intensities); got {bad} negative value(s), "
+            f"minimum {low:.6g}. Fix: {fix}"
+        )
