@@ -16,10 +16,9 @@ import re
 import sys
 from pathlib import Path
 
-import torch
-
 from lfm_studio.cli.input_files import require_file
 from lfm_studio.cli.progress import progress_bar
+from lfm_studio.engine.errors import require_device
 
 #: The phantoms ``image --phantom`` makes itself; any other value is a volume TIFF's path.
 PHANTOMS = ("beads", "cells")
@@ -59,8 +58,7 @@ def parse_depths(text: str | None) -> tuple[float, float, float] | None:
 
 
 def resolve_device(name: str) -> str:
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: no CUDA device is available here. Fix: use --device cpu.")
+    require_device(name, name="--device", fix="use --device cpu.")
     return name
 
 

@@ -86,3 +86,28 @@ def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
             f"{name} must be >= 0 (photon counts or intensities); got {bad} negative value(s), "
             f"minimum {low:.6g}. Fix: {fix}"
         )
+
+
+def require_device(
+    device: torch.device | str, *, name: str = "device", fix: str = "pass device='cpu'."
+) -> torch.device:
+    """``device`` as a ``torch.device`` that this torch build can use, else a ``ValueError`` naming
+    ``name``, the device and ``fix`` (CUDA asked for where torch has no CUDA or sees no GPU; an
+    unknown device string)."""
+    try:
+        checked = torch.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(
+            f"{name} must be a torch device such as 'cpu' or 'cuda'; got {device!r} ({error}). Fix: {fix}"
+        ) from None
+    if checked.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(
+            f"{name} {str(checked)!r}: no CUDA device is available here (torch.cuda.is_available() is False: "
+            f"a CPU-only torch build, or no GPU visible). Fix: {fix}"
+        )
+    if checked.type == "cuda" and checked.index is not None and checked.index >= torch.cuda.device_count():
+        raise ValueError(
+            f"{name} {str(checked)!r}: this machine has {torch.cuda.device_count()} CUDA device(s), numbered "
+            f"from 0. Fix: {fix}"
+        )
+    return checked

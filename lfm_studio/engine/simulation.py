@@ -7,11 +7,15 @@ light-field image with camera noise. Each step is a plain function; none imports
 from __future__ import annotations
 
 import math
+import os
+import warnings
+from collections.abc import Sequence
 
 import torch
 
-from lfm_studio.engine.design import Design
+from lfm_studio.engine.design import Design, DesignWarning, list_presets
 from lfm_studio.engine.dtypes import real_dtype_named
+from lfm_studio.engine.errors import require_device
 from lfm_studio.engine.memory import require_memory, tensor_bytes
 from lfm_studio.engine.optics.camera import Camera, simulate_sensor
 from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
@@ -20,6 +24,7 @@ from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
 from lfm_studio.engine.systems.kinds import ImagingSetup, Projector, kind_of, stack_kind
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
+from lfm_studio.engine.units import um
 
 __all__ = [
     "ImagingSetup",
@@ -33,6 +38,7 @@ __all__ = [
     "photons_per_unit",
     "require_psf_memory",
     "simulate_psf",
+    "source_depths",
 ]
 
 
@@ -63,12 +69,111 @@ def design_depths(design: Design, depths_um: tuple[float, float, float] | None =
     return tuple(design.depths.values) if depths_um is None else depth_grid(depths_um)
 
 
+MAX_DEPTH = 1e-3
+"""Largest ``|depth|`` (m) :func:`simulate_psf` takes beyond a design's own depth range: a
+microscope images a few hundred um around focus, and a depth of 1 mm or more is almost
+surely micrometres passed as metres (10 "um" = 10 m)."""
+
+FAR_MARGIN = 20e-6
+"""Smallest distance (m) beyond a design's depth range at which :func:`source_depths` warns
+(else the range's own width)."""
+
+
+def _listed(values: Sequence[float], scale: float = 1.0, unit: str = "", most: int = 5) -> str:
+    """``values / scale`` as ``"a, b, c"``, each followed by ``unit`` (at most ``most``, then ``...``)."""
+    shown = ", ".join(f"{v / scale:g}{unit}" for v in values[:most])
+    return shown + (", ..." if len(values) > most else "")
+
+
+def _design_of(design: object) -> Design:
+    """``design`` if it is a :class:`Design`; a preset name or file path is refused with the call
+    that loads it (simulate_psf returns a stack whose design the rest of the pipeline reads)."""
+    if isinstance(design, Design):
+        return design
+    if isinstance(design, (str, os.PathLike)):
+        text = os.fspath(design)
+        if text in list_presets():
+            fix = f"design = load_preset({text!r})"
+        elif text.endswith(".json") or os.path.isfile(text):
+            fix = f"design = load_design({text!r})"
+        else:
+            fix = f"design = load_preset(name) ({', '.join(list_presets())}) or load_design(path) for a .json file"
+        raise TypeError(
+            f"design must be a Design; got the {type(design).__name__} {text!r}. Fix: {fix} "
+            "(from lfm_studio.engine.design), then simulate_psf(design, ...)."
+        )
+    raise TypeError(
+        f"design must be a Design; got an object of type {type(design).__name__}. Fix: load one with load_preset(name) or "
+        "load_design(path) (from lfm_studio.engine.design)."
+    )
+
+
+def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor | None) -> tuple[float, ...]:
+    """The depths in metres :func:`simulate_psf` computes, checked before any work.
+
+    ``None``: the design's (:func:`design_depths`); one number: that one depth. Refused with a
+    ``ValueError`` naming ``depths``: a value that is not a finite number, and a ``|depth|`` of
+    :data:`MAX_DEPTH` (1 mm) or more beyond the design's own range (micrometres passed as
+    metres). Depths farther than the range's width (at least :data:`FAR_MARGIN`) outside it
+    give a :class:`DesignWarning`: the design was not sized for them (views may leave a crop).
+    """
+    own = design_depths(design)
+    if depths is None:
+        return own
+    if isinstance(depths, (str, bytes)):
+        raise TypeError(
+            f"depths must be numbers in metres, not text; got {depths!r}. Fix: e.g. depths=(-10 * um, 0.0, 10 * um) "
+            "with um from lfm_studio.engine.units (a START:STOP:STEP range in um: depth_grid((-10, 10, 5)))."
+        )
+    try:
+        items = list(depths)  # type: ignore[arg-type]
+    except TypeError:  # one number (also a 0-d tensor or array)
+        items = [depths]
+    try:
+        values = tuple(float(z) for z in items)
+    except (TypeError, ValueError):
+        raise TypeError(
+            f"depths must be a number or a sequence of numbers in metres; got {depths!r}. "
+            "Fix: e.g. depths=(-10 * um, 0.0, 10 * um) with um from lfm_studio.engine.units."
+        ) from None
+    if not all(math.isfinite(z) for z in values):
+        raise ValueError(
+            f"depths must be finite numbers in metres; got ({_listed(values)}) m. "
+            "Fix: e.g. depths=(-10 * um, 0.0, 10 * um) with um from lfm_studio.engine.units."
+        )
+    lo, hi = min(own), max(own)
+    reach = max(abs(lo), abs(hi))
+    far = [z for z in values if abs(z) >= MAX_DEPTH and abs(z) > reach]
+    if far:
+        if max(abs(z) for z in values) >= 1.0:
+            fix = f"did you pass um? Use depths=({_listed(values, unit=' * um')})"
+        else:
+            fix = "give depths in metres, e.g. depths=(-10 * um, 0.0, 10 * um)"
+        raise ValueError(
+            f"depths must be in metres, within {max(MAX_DEPTH, reach) * 1e3:g} mm of focus; got ({_listed(values)}) m, "
+            f"{abs(far[0]):g} m from focus, not a depth a microscope images (this design's range is "
+            f"{lo / um:g} .. {hi / um:g} um). Fix: {fix} with um from lfm_studio.engine.units."
+        )
+    margin = max(hi - lo, FAR_MARGIN)
+    outside = [z for z in values if not lo - margin <= z <= hi + margin]
+    if outside:
+        warnings.warn(
+            f"depths ({_listed(outside, um)}) um lie far outside the design's depth range {lo / um:g} .. "
+            f"{hi / um:g} um (more than {margin / um:g} um beyond it): the design was not sized for them, "
+            "and with crop= the views that leave the crop are lost. Fix: check that the depths are in metres "
+            "(10 um = 10e-6), or widen the design's depth_range_um to cover them.",
+            DesignWarning,
+            stacklevel=3,
+        )
+    return values
+
+
 def simulate_psf(
     design: Design,
     *,
-    depths: tuple[float, ...] | None = None,
+    depths: float | Sequence[float] | torch.Tensor | None = None,
     device: torch.device | str = "cpu",
-    dtype: str | None = None,
+    dtype: str | torch.dtype | None = None,
     crop: int | None = None,
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
@@ -76,8 +181,10 @@ def simulate_psf(
     report: FourierPSFReport | None = None,
 ) -> PSFStack:
     """The PSF stack of ``design`` (Fourier: ``(Z, Y, X)`` sensor PSFs; conventional: patterns
-    ``(S, S, Z, H, H)`` with ``stack.patterns``) at ``depths`` metres (default: the design's),
-    with the design attached; computed by the design's system kind (:func:`kind_of`).
+    ``(S, S, Z, H, H)`` with ``stack.patterns``) at ``depths`` metres (default: the design's;
+    one number is one depth; checked by :func:`source_depths`), with the design attached;
+    computed by the design's system kind (:func:`kind_of`). ``dtype``: ``"float32"`` /
+    ``"float64"`` or that torch dtype (default: the design's accuracy).
 
     Fourier with ``accuracy.volume_oversampling`` ``k > 1``: the PSFs are sampled on a virtual
     sensor ``k`` times finer (``(Z, k Y, k X)``, pixel pitch / k), recorded as
@@ -88,15 +195,18 @@ def simulate_psf(
     lenslets that fit in it). ``cache``: a per-lenslet cache, used by kinds that have one
     (``kind.lenslet_cache``); ``report``: filled with the method and the lenslets computed / cached.
     """
+    design = _design_of(design)
     kind = kind_of(design)
-    depths = tuple(depths) if depths is not None else design_depths(design)
+    depths = source_depths(design, depths)
+    real = real_dtype_named(dtype) if dtype is not None else None
+    device = require_device(device)
     if crop is not None and not (isinstance(crop, int) and crop >= 1):
         raise ValueError(f"crop must be a positive number of camera pixels; got {crop!r}. Fix: e.g. 256.")
     ny, nx = design.camera.pixel_count
     sensor = (min(crop, ny), min(crop, nx)) if crop is not None else None
     require_psf_memory(design, len(depths), dtype=dtype, device=device, sensor=sensor)
     return kind.psf_stack(
-        design, depths, device=device, dtype=real_dtype_named(dtype) if dtype is not None else None, crop=crop,
+        design, depths, device=device, dtype=real, crop=crop,
         cache=cache if kind.lenslet_cache else None, report=report, progress=progress, cancel=cancel,
     )  # fmt: skip
 
@@ -105,7 +215,7 @@ def require_psf_memory(
     design: Design,
     depth_count: int,
     *,
-    dtype: str | None = None,
+    dtype: str | torch.dtype | None = None,
     device: torch.device | str = "cpu",
     sensor: tuple[int, int] | None = None,
 ) -> None:
