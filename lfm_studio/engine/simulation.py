@@ -15,15 +15,16 @@ import torch
 
 from lfm_studio.engine.design import Design, DesignWarning, list_presets
 from lfm_studio.engine.dtypes import real_dtype_named
-from lfm_studio.engine.errors import require_device
+from lfm_studio.engine.errors import as_real_tensor, require_device, require_non_negative
 from lfm_studio.engine.memory import require_memory, tensor_bytes
-from lfm_studio.engine.optics.camera import Camera, simulate_sensor
+from lfm_studio.engine.optics.camera import Camera, SaturationWarning, saturation_note, simulate_sensor
 from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
 from lfm_studio.engine.systems.kinds import ImagingSetup, Projector, kind_of, stack_kind
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
+from lfm_studio.engine.types import TensorLike
 from lfm_studio.engine.units import um
 
 __all__ = [
@@ -314,13 +315,17 @@ def camera_of(design: Design) -> Camera:
 
 def light_field_image(
     setup: ImagingSetup,
-    volume: torch.Tensor,
+    volume: TensorLike,
     camera: Camera,
     *,
     photons: float | None,
     seed: int,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``(counts, expected)``: camera counts (ADU) with shot and read noise, and the noise-free image.
+
+    ``volume`` ``(Z, Y, X)`` on ``setup``'s grid (a tensor or a numpy array, taken in the
+    projector's dtype and device) is emitted light per voxel, so it must be finite and
+    ``>= 0`` (``ValueError`` naming ``volume`` otherwise).
 
     ``counts`` are in ADU, the camera's baseline included: whole numbers in a float tensor, clipped
     to ``[0, 2^bits - 1]`` (:func:`~lfm_studio.engine.optics.camera.digitize`). ``expected`` is ``A volume``
@@ -330,21 +335,40 @@ def light_field_image(
 
     ``photons`` is the expected number of photons reaching the camera in the image;
     ``None`` gives the noise-free expected image (also returned as ``counts``, then in the
-    volume's units, not ADU).
+    volume's units, not ADU). With ``photons``, a volume that puts no light on the camera is
+    refused (there is nothing to scale), and pixels driven past the full well or the ADC's
+    top give a :class:`~lfm_studio.engine.optics.camera.SaturationWarning` with their count.
     """
-    ny, nx = setup.projector.image_shape
+    projector = setup.projector
+    ny, nx = projector.image_shape
+    volume = as_real_tensor("volume", volume, dtype=projector.dtype, device=torch.device(projector.device))
     require_memory(
         4 * tensor_bytes((ny, nx), volume.dtype),
         f"a light-field image of {ny} x {nx} pixels",
         "crop the sensor (camera.pixel_count).",
         device=volume.device,
     )
-    expected = setup.projector.forward(volume).clamp_min(0.0)
+    require_non_negative(
+        "volume",
+        volume,
+        "a volume is the light emitted per voxel: clip it with volume.clamp(min=0), or check its sign and offset.",
+    )
+    expected = projector.forward(volume).clamp_min(0.0)
     if photons is None:
         return expected, expected
     if not photons > 0:
         raise ValueError(f"photons must be > 0 (expected photons in the image); got {photons!r}.")
+    if not float(expected.detach().double().sum()) > 0:
+        raise ValueError(
+            f"volume puts no light on the camera (volume sum {float(volume.detach().double().sum()):.6g}, "
+            f"its image A volume sums to 0), so photons={photons:g} cannot be placed: the image would be "
+            "the baseline alone. Fix: give a volume with emitters inside the projector's field (e.g. "
+            "make_phantom('beads', setup, seed=0)), or photons=None for the noise-free image."
+        )
     counts = simulate_sensor(expected, camera, photons=photons, generator=seed)
+    note = saturation_note(expected, camera, photons=photons)
+    if note is not None:
+        warnings.warn(note, SaturationWarning, stacklevel=2)
     return counts, expected
 
 

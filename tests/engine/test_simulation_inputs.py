@@ -4,6 +4,7 @@ at once, naming the parameter, the value and the fix; questionable input warns."
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import numpy as np
@@ -11,7 +12,16 @@ import pytest
 import torch
 
 from lfm_studio.engine.design import DepthSpec, DesignWarning, load_preset
-from lfm_studio.engine.simulation import simulate_psf, source_depths
+from lfm_studio.engine.optics.camera import SaturationWarning
+from lfm_studio.engine.simulation import (
+    camera_of,
+    imaging_setup,
+    light_field_image,
+    make_phantom,
+    photons_per_unit,
+    simulate_psf,
+    source_depths,
+)
 from lfm_studio.engine.units import um
 
 
@@ -92,3 +102,63 @@ def test_cuda_without_a_cuda_device_is_refused_naming_device(design, monkeypatch
         simulate_psf(design, depths=(0.0,), crop=32, device="cuda")
     with pytest.raises(ValueError, match=r"device must be a torch device such as 'cpu' or 'cuda'; got 'gpu'"):
         simulate_psf(design, depths=(0.0,), crop=32, device="gpu")
+
+
+@pytest.fixture(scope="module")
+def scene(design):
+    setup = imaging_setup(simulate_psf(design, depths=(-10 * um, 0.0, 10 * um), crop=128))
+    volume, _ = make_phantom("beads", setup, seed=1, count=5)
+    return setup, volume, camera_of(design)
+
+
+def test_a_negative_volume_is_refused_naming_volume_and_its_minimum(scene):
+    # It used to spread the photons over the FFT round-off of a clamped-to-zero image.
+    setup, volume, camera = scene
+    with pytest.raises(
+        ValueError,
+        match=r"volume must be >= 0 .*got 5 negative value\(s\), minimum -1\. Fix: a volume is the light "
+        r"emitted per voxel: clip it with volume\.clamp\(min=0\)",
+    ):
+        light_field_image(setup, -volume, camera, photons=1e6, seed=1)
+
+
+def test_a_volume_without_light_is_refused_when_photons_are_asked_for(scene):
+    setup, volume, camera = scene
+    with pytest.raises(
+        ValueError,
+        match=r"volume puts no light on the camera \(volume sum 0, .*photons=1e\+06 cannot be placed.*Fix: give a volume "
+        r"with emitters inside the projector's field",
+    ):
+        light_field_image(setup, torch.zeros_like(volume), camera, photons=1e6, seed=1)
+    counts, expected = light_field_image(setup, torch.zeros_like(volume), camera, photons=None, seed=1)
+    assert float(counts.abs().sum()) == 0.0 and counts is expected  # noise-free: a dark image is right
+
+
+def test_a_numpy_volume_gives_the_tensor_volume_image(scene):
+    setup, volume, camera = scene
+    from_array = light_field_image(setup, volume.numpy().astype(np.float64), camera, photons=1e6, seed=3)
+    from_tensor = light_field_image(setup, volume, camera, photons=1e6, seed=3)
+    assert all(torch.equal(a, b) for a, b in zip(from_array, from_tensor, strict=True))
+
+
+def test_saturating_photons_warn_with_the_clipped_pixels_and_the_largest_safe_budget(scene):
+    setup, volume, camera = scene
+    assert camera.full_well == 30000.0 and camera.saturation_electrons == 30000.0  # the preset's camera
+    with pytest.warns(SaturationWarning) as caught:
+        counts, expected = light_field_image(setup, volume, camera, photons=1e12, seed=1)
+    text = str(caught[0].message)
+    electrons = expected.double() * photons_per_unit(expected, 1e12) * camera.quantum_efficiency
+    over = int((electrons > camera.full_well).sum())
+    assert 0 < over < counts.numel()
+    assert text.startswith(
+        f"photons=1e+12 saturates the camera: {over} of {counts.numel()} pixels expect more than 30000 e- "
+        "(the full well, 30000 e-)"
+    )
+    safe = float(
+        re.search(r"Fix: photons <= (\S+) keeps the brightest pixel below saturation", text).group(1)
+    )
+    exact = 1e12 * camera.full_well / float(electrons.max())
+    assert 0.99 * exact < safe <= exact  # rounded down to 3 digits
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        light_field_image(setup, volume, camera, photons=safe, seed=1)
