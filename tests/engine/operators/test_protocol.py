@@ -9,6 +9,7 @@ accepts the projectors where a protocol is expected and rejects wrong types at a
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -71,6 +72,19 @@ def test_forward_and_adjoint_map_between_the_declared_shapes_and_are_transposes(
     assert ax.dtype == aty.dtype == projector.dtype
     # <A x, y> = <x, A^T y>: two different sums of positive terms, float64 rounding only.
     assert float((ax * y).sum()) == pytest.approx(float((x * aty).sum()), rel=1e-12)
+
+
+@pytest.mark.parametrize("make", PROJECTORS.values(), ids=PROJECTORS.keys())
+def test_forward_and_adjoint_take_numpy_arrays_as_the_tensors_they_hold(make):
+    projector = make()
+    x = _random(projector.volume_shape, 3)
+    y = _random(projector.image_shape, 4)
+    assert torch.equal(projector.forward(x.numpy().astype(np.float32)), projector.forward(x.float()))
+    assert torch.equal(projector.adjoint(y.numpy()), projector.adjoint(y))
+    with pytest.raises(ValueError, match=r"volume must have shape"):
+        projector.forward(x.numpy()[:-1])
+    with pytest.raises(ValueError, match=r"volume must be real \(intensities\)"):
+        projector.forward(x.numpy() * 1j)
 
 
 def test_only_the_shift_invariant_projector_is_a_fourier_projector():
