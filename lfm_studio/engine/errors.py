@@ -7,6 +7,7 @@ and a fix, so a user can correct a design without reading the source.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 
@@ -17,6 +18,13 @@ class SamplingWarning(UserWarning):
 
 class SamplingError(ValueError):
     """A computation cannot be sampled on the given grid; raised before heavy work."""
+
+
+def listed(values: Sequence[float], scale: float = 1.0, unit: str = "", most: int = 5) -> str:
+    """``values / scale`` for a message, as ``"a, b, c"``, each followed by ``unit`` (e.g.
+    ``" * um"`` for a fix), at most ``most`` of them, then ``...``."""
+    shown = ", ".join(f"{v / scale:g}{unit}" for v in values[:most])
+    return shown + (", ..." if len(values) > most else "")
 
 
 def require_positive(name: str, value: float | torch.Tensor, unit: str, fix: str = "") -> None:

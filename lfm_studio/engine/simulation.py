@@ -15,7 +15,7 @@ import torch
 
 from lfm_studio.engine.design import Design, DesignWarning, list_presets
 from lfm_studio.engine.dtypes import real_dtype_named
-from lfm_studio.engine.errors import as_real_tensor, require_device, require_non_negative
+from lfm_studio.engine.errors import as_real_tensor, listed, require_device, require_non_negative
 from lfm_studio.engine.memory import require_memory, tensor_bytes
 from lfm_studio.engine.optics.camera import Camera, SaturationWarning, saturation_note, simulate_sensor
 from lfm_studio.engine.phantoms import DEFAULT_BEADS, beads, cells_in_ellipsoid, default_bead_count
@@ -80,12 +80,6 @@ FAR_MARGIN = 20e-6
 (else the range's own width)."""
 
 
-def _listed(values: Sequence[float], scale: float = 1.0, unit: str = "", most: int = 5) -> str:
-    """``values / scale`` as ``"a, b, c"``, each followed by ``unit`` (at most ``most``, then ``...``)."""
-    shown = ", ".join(f"{v / scale:g}{unit}" for v in values[:most])
-    return shown + (", ..." if len(values) > most else "")
-
-
 def _design_of(design: object) -> Design:
     """``design`` if it is a :class:`Design`; a preset name or file path is refused with the call
     that loads it (simulate_psf returns a stack whose design the rest of the pipeline reads)."""
@@ -139,7 +133,7 @@ def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor
         ) from None
     if not all(math.isfinite(z) for z in values):
         raise ValueError(
-            f"depths must be finite numbers in metres; got ({_listed(values)}) m. "
+            f"depths must be finite numbers in metres; got ({listed(values)}) m. "
             "Fix: e.g. depths=(-10 * um, 0.0, 10 * um) with um from lfm_studio.engine.units."
         )
     lo, hi = min(own), max(own)
@@ -147,11 +141,11 @@ def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor
     far = [z for z in values if abs(z) >= MAX_DEPTH and abs(z) > reach]
     if far:
         if max(abs(z) for z in values) >= 1.0:
-            fix = f"did you pass um? Use depths=({_listed(values, unit=' * um')})"
+            fix = f"did you pass um? Use depths=({listed(values, unit=' * um')})"
         else:
             fix = "give depths in metres, e.g. depths=(-10 * um, 0.0, 10 * um)"
         raise ValueError(
-            f"depths must be in metres, within {max(MAX_DEPTH, reach) * 1e3:g} mm of focus; got ({_listed(values)}) m, "
+            f"depths must be in metres, within {max(MAX_DEPTH, reach) * 1e3:g} mm of focus; got ({listed(values)}) m, "
             f"{abs(far[0]):g} m from focus, not a depth a microscope images (this design's range is "
             f"{lo / um:g} .. {hi / um:g} um). Fix: {fix} with um from lfm_studio.engine.units."
         )
@@ -159,7 +153,7 @@ def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor
     outside = [z for z in values if not lo - margin <= z <= hi + margin]
     if outside:
         warnings.warn(
-            f"depths ({_listed(outside, um)}) um lie far outside the design's depth range {lo / um:g} .. "
+            f"depths ({listed(outside, um)}) um lie far outside the design's depth range {lo / um:g} .. "
             f"{hi / um:g} um (more than {margin / um:g} um beyond it): the design was not sized for them, "
             "and with crop= the views that leave the crop are lost. Fix: check that the depths are in metres "
             "(10 um = 10e-6), or widen the design's depth_range_um to cover them.",

@@ -66,6 +66,21 @@ def check_output(
     return target
 
 
+TIFF_SUFFIXES = (".tif", ".tiff")
+
+
+def check_tiff_name(path: str | os.PathLike) -> Path:
+    """Refuse a TIFF output whose name does not end in ``.tif`` / ``.tiff`` (other tools go by the
+    suffix: ``v.png`` holding a TIFF opens nowhere); return the path."""
+    target = Path(path).expanduser()
+    if target.suffix.lower() not in TIFF_SUFFIXES:
+        raise OutputError(
+            f"{target} would hold a TIFF, but its name does not end in .tif or .tiff, so other tools would "
+            f"misread it. Nothing was written. Fix: name it {target.with_suffix('.tif').name}."
+        )
+    return target
+
+
 def not_writable_message(target: Path) -> str:
     return (
         f"cannot write {target}: the folder {target.parent} is not writable (permission denied). "
