@@ -260,8 +260,13 @@ def make_phantom(
 
     ``count=None`` (the default) gives :func:`~lfm_studio.engine.phantoms.default_bead_count`
     beads: 50, or what fits in a small volume; ``info["note"]`` then says how many and why.
-    An explicit ``count`` that does not fit is an error.
+    An explicit ``count`` below 1 (an all-zero volume) or one that does not fit is an error.
     """
+    if count is not None and (isinstance(count, bool) or not isinstance(count, int) or count < 1):
+        raise ValueError(
+            f"count must be an int >= 1 (beads to place; 0 gives an all-zero volume); got {count!r}. "
+            f"Fix: count=1 or more, or count=None for the default ({DEFAULT_BEADS}, or what fits)."
+        )
     shape, voxel = setup.volume_shape, setup.voxel_size
     require_memory(
         3 * tensor_bytes(shape, dtype),
@@ -280,8 +285,6 @@ def make_phantom(
                 f"{2 * max(voxel) * 1e6:.3g} um apart in a volume of {shape} voxels. Fix: pass --count N "
                 "(at most what fits), or use more depths / a larger field of view."
             )
-    elif kind == "beads" and count is not None:
-        phantom = beads(shape, count=count, voxel_size=voxel, seed=seed, dtype=dtype)
     elif kind == "cells":
         semi = (0.45 * shape[0] * voxel[0], 0.45 * shape[1] * voxel[1], 0.45 * shape[2] * voxel[2])
         phantom = cells_in_ellipsoid(shape, voxel_size=voxel, seed=seed, semi_axes=semi, dtype=dtype)

@@ -162,3 +162,12 @@ def test_saturating_photons_warn_with_the_clipped_pixels_and_the_largest_safe_bu
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         light_field_image(setup, volume, camera, photons=safe, seed=1)
+
+
+@pytest.mark.parametrize("count", [0, -3, 2.5])
+def test_a_bead_phantom_needs_at_least_one_bead(scene, count):
+    setup, _, _ = scene
+    with pytest.raises(
+        ValueError, match=rf"count must be an int >= 1 .*; got {count}\. Fix: count=1 or more, or count=None"
+    ):
+        make_phantom("beads", setup, seed=1, count=count)
