@@ -67,6 +67,13 @@ def check_output(
 
 
 TIFF_SUFFIXES = (".tif", ".tiff")
+ZARR_SUFFIX = ".zarr"
+"""What names a (OME-)Zarr store: ``run.zarr``, ``run.ome.zarr`` (the CLI's video outputs too)."""
+
+
+def names_zarr_store(path: str | os.PathLike) -> bool:
+    """True when ``path`` ends in ``.zarr`` (any case, a trailing ``/`` ignored)."""
+    return os.fspath(path).rstrip("/").lower().endswith(ZARR_SUFFIX)
 
 
 def check_tiff_name(path: str | os.PathLike) -> Path:
