@@ -64,7 +64,7 @@ class BinnedProjector:
 
     def forward(self, volume: TensorLike) -> torch.Tensor:
         """``A x``: volume (tensor or array) -> camera image (sums of ``k x k`` virtual pixels)."""
-        fine = self.inner.forward(volume)
+        fine = self.inner.forward(as_real_tensor("volume", volume, dtype=self.dtype, device=self.device))
         k, (py, px) = self.factor, self.image_shape
         return fine[: k * py, : k * px].reshape(py, k, px, k).sum(dim=(1, 3))
 
