@@ -92,14 +92,15 @@ def _design_of(design: object) -> Design:
         elif text.endswith(".json") or os.path.isfile(text):
             fix = f"design = load_design({text!r})"
         else:
-            fix = f"design = load_preset(name) ({', '.join(list_presets())}) or load_design(path) for a .json file"
+            presets = ", ".join(list_presets())
+            fix = f"design = load_preset(name) ({presets}) or load_design(path) for a .json file"
         raise TypeError(
             f"design must be a Design; got the {type(design).__name__} {text!r}. Fix: {fix} "
             "(from lfm_studio.engine.design), then simulate_psf(design, ...)."
         )
     raise TypeError(
-        f"design must be a Design; got an object of type {type(design).__name__}. Fix: load one with load_preset(name) or "
-        "load_design(path) (from lfm_studio.engine.design)."
+        f"design must be a Design; got an object of type {type(design).__name__}. Fix: load one with "
+        "load_preset(name) or load_design(path) (from lfm_studio.engine.design)."
     )
 
 
@@ -117,8 +118,9 @@ def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor
         return own
     if isinstance(depths, (str, bytes)):
         raise TypeError(
-            f"depths must be numbers in metres, not text; got {depths!r}. Fix: e.g. depths=(-10 * um, 0.0, 10 * um) "
-            "with um from lfm_studio.engine.units (a START:STOP:STEP range in um: depth_grid((-10, 10, 5)))."
+            f"depths must be numbers in metres, not text; got {depths!r}. Fix: e.g. "
+            "depths=(-10 * um, 0.0, 10 * um) with um from lfm_studio.engine.units (a START:STOP:STEP range "
+            "in um: depth_grid((-10, 10, 5)))."
         )
     try:
         items = list(depths)  # type: ignore[arg-type]
@@ -145,9 +147,9 @@ def source_depths(design: Design, depths: float | Sequence[float] | torch.Tensor
         else:
             fix = "give depths in metres, e.g. depths=(-10 * um, 0.0, 10 * um)"
         raise ValueError(
-            f"depths must be in metres, within {max(MAX_DEPTH, reach) * 1e3:g} mm of focus; got ({listed(values)}) m, "
-            f"{abs(far[0]):g} m from focus, not a depth a microscope images (this design's range is "
-            f"{lo / um:g} .. {hi / um:g} um). Fix: {fix} with um from lfm_studio.engine.units."
+            f"depths must be in metres, within {max(MAX_DEPTH, reach) * 1e3:g} mm of focus; got "
+            f"({listed(values)}) m, {abs(far[0]):g} m from focus, not a depth a microscope images (this "
+            f"design's range is {lo / um:g} .. {hi / um:g} um). Fix: {fix} with um from lfm_studio.engine.units."
         )
     margin = max(hi - lo, FAR_MARGIN)
     outside = [z for z in values if not lo - margin <= z <= hi + margin]
@@ -348,7 +350,8 @@ def light_field_image(
     require_non_negative(
         "volume",
         volume,
-        "a volume is the light emitted per voxel: clip it with volume.clamp(min=0), or check its sign and offset.",
+        "a volume is the light emitted per voxel: clip it with volume.clamp(min=0), or check its sign "
+        "and offset.",
     )
     expected = projector.forward(volume).clamp_min(0.0)
     if photons is None:

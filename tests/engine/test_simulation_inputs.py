@@ -69,8 +69,11 @@ def test_one_number_is_one_depth(design):
 
 
 def test_depths_far_outside_the_design_range_warn_and_nearby_ones_do_not(design):
-    with pytest.warns(DesignWarning, match=r"depths \(200, -150\) um lie far outside the design's depth range "
-                      r"-40 \.\. 40 um \(more than 80 um beyond it\).*Fix: check that the depths are in metres"):  # fmt: skip
+    far = (
+        r"depths \(200, -150\) um lie far outside the design's depth range -40 \.\. 40 um \(more than 80 um "
+        r"beyond it\).*Fix: check that the depths are in metres"
+    )
+    with pytest.warns(DesignWarning, match=far):
         assert source_depths(design, (200 * um, 0.0, -150 * um)) == (200 * um, 0.0, -150 * um)
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -79,14 +82,18 @@ def test_depths_far_outside_the_design_range_warn_and_nearby_ones_do_not(design)
 
 def test_a_torch_dtype_is_taken_like_its_name(design):
     assert simulate_psf(design, depths=(0.0,), crop=32, dtype=torch.float64).data.dtype == torch.float64
-    with pytest.raises(ValueError, match=r"dtype must be 'float32' or 'float64' \(or torch\.float32 / torch\.float64\); "
-                       r"got torch\.float16\. Fix"):  # fmt: skip
+    refused = (
+        r"dtype must be 'float32' or 'float64' \(or torch\.float32 / torch\.float64\); got torch\.float16\."
+    )
+    with pytest.raises(ValueError, match=refused):
         simulate_psf(design, depths=(0.0,), crop=32, dtype=torch.float16)
 
 
 def test_a_preset_name_for_the_design_is_refused_with_the_call_that_loads_it():
-    with pytest.raises(TypeError, match=r"design must be a Design; got the str 'flfm_guo2019'\. "
-                       r"Fix: design = load_preset\('flfm_guo2019'\)"):  # fmt: skip
+    refused = (
+        r"design must be a Design; got the str 'flfm_guo2019'\. Fix: design = load_preset\('flfm_guo2019'\)"
+    )
+    with pytest.raises(TypeError, match=refused):
         simulate_psf("flfm_guo2019", depths=(0.0,), crop=32)
     with pytest.raises(
         TypeError, match=r"got the str 'mine\.json'\. Fix: design = load_design\('mine\.json'\)"
@@ -126,7 +133,8 @@ def test_a_volume_without_light_is_refused_when_photons_are_asked_for(scene):
     setup, volume, camera = scene
     with pytest.raises(
         ValueError,
-        match=r"volume puts no light on the camera \(volume sum 0, .*photons=1e\+06 cannot be placed.*Fix: give a volume "
+        match=r"volume puts no light on the camera \(volume sum 0, .*photons=1e\+06 cannot be placed.*"
+        r"Fix: give a volume "
         r"with emitters inside the projector's field",
     ):
         light_field_image(setup, torch.zeros_like(volume), camera, photons=1e6, seed=1)

@@ -93,8 +93,8 @@ def _check_output(output: str | os.PathLike) -> None:
     if not names_zarr_store(output):
         target = Path(output).expanduser()
         raise OutputError(
-            f"output {target} does not end in .zarr, but reconstruct_video writes an OME-Zarr store (a folder) "
-            f"there. Nothing was written. Fix: output={target.with_suffix('').name + '.ome.zarr'!r} "
+            f"output {target} does not end in .zarr, but reconstruct_video writes an OME-Zarr store (a "
+            f"folder) there. Nothing was written. Fix: output={target.with_suffix('').name + '.ome.zarr'!r} "
             "(a single volume goes to a TIFF with reconstruct_frame and write_volume)."
         )
 

@@ -195,7 +195,8 @@ def test_sizes_in_micrometres_passed_as_metres_are_refused(tmp_path):
     with pytest.raises(
         ValueError,
         match=r"voxel_size must be in metres, below 1 mm; got \(10, 0\.7, 0\.7\) m, and a 10 m sample is no "
-        r"microscope's\. Nothing was written\. Fix: did you pass um\? Use voxel_size=\(10 \* um, 0\.7 \* um, 0\.7 \* um\)",
+        r"microscope's\. Nothing was written\. Fix: did you pass um\? "
+        r"Use voxel_size=\(10 \* um, 0\.7 \* um, 0\.7 \* um\)",
     ):
         write_volume(tmp_path / "v.tif", torch.ones(2, 3, 3), voxel_size=(10.0, 0.7, 0.7))
     with pytest.raises(ValueError, match=r"pixel_size must be in metres.*Use pixel_size=\(6\.5 \* um\)"):
