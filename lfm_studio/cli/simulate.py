@@ -73,7 +73,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     from lfm_studio.engine.simulation import depth_grid, design_depths, simulate_psf
 
     depths_given = None if args.depths is None else depth_grid(args.depths, "--depths")
-    out = check_output(args.out, overwrite=args.overwrite, inputs=[_design_file(args.design)])
+    out = check_output(args.out, overwrite=args.overwrite, inputs=[_design_file(args.design)], tiff=True)
     design = resolve_design(args.design)
     depths = design_depths(design) if depths_given is None else depths_given
     with progress_bar(f"PSF stack ({design.kind}, {len(depths)} depths)") as progress:
@@ -95,7 +95,7 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path]:
     inputs = [args.psf, phantom, _design_file(args.design)]
     given = {"--out": args.out, "--truth": args.truth, "--expected": args.expected}
     outputs = {
-        flag: check_output(path, overwrite=args.overwrite, inputs=inputs, flag=flag)
+        flag: check_output(path, overwrite=args.overwrite, inputs=inputs, flag=flag, tiff=True)
         for flag, path in given.items()
         if path
     }

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from lfm_studio.cli import main
-from lfm_studio.cli.errors import BAD_INPUT
+from lfm_studio.cli.errors import BAD_INPUT, OUTPUT_REFUSED
 
 
 def _refused(capsys, argv: list[str], *parts: str) -> str:
@@ -114,3 +114,12 @@ def test_a_design_value_error_shows_its_own_fix_once(tmp_path, capsys):
         capsys, ["info", str(path)], "depth_step_um must be a finite number > 0 um; got -10 um. Fix: e.g. 2."
     )
     assert err.count("Fix:") == 1, err
+
+
+def test_a_tiff_output_under_another_name_is_refused_before_the_inputs_are_read(tmp_path, existing, capsys):
+    out = str(tmp_path / "rec.png")
+    capsys.readouterr()
+    assert main(["reconstruct", "--psf", existing, "--image", existing, "--out", out]) == OUTPUT_REFUSED
+    err = capsys.readouterr().err
+    assert f"--out {out} would hold a TIFF, but its name does not end in .tif or .tiff" in err
+    assert "Fix: name it rec.tif." in err and not (tmp_path / "rec.png").exists()
