@@ -147,7 +147,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         return run_video(args)
     require_file("--image", args.image, "a light-field image TIFF, (Y, X) or frames (T, Y, X)")
     inputs = [args.psf, args.image] + ([] if args.calibration is None else [args.calibration])
-    check_output(args.out, overwrite=args.overwrite, inputs=inputs)
+    check_output(args.out, overwrite=args.overwrite, inputs=inputs, tiff=True)  # (a .zarr is a video)
     method, options = method_options(args)
     device = resolve_device(args.device)
     if device not in method.devices:

@@ -16,10 +16,9 @@ import re
 import sys
 from pathlib import Path
 
-import torch
-
 from lfm_studio.cli.input_files import require_file
 from lfm_studio.cli.progress import progress_bar
+from lfm_studio.engine.errors import require_device
 
 #: The phantoms ``image --phantom`` makes itself; any other value is a volume TIFF's path.
 PHANTOMS = ("beads", "cells")
@@ -59,8 +58,7 @@ def parse_depths(text: str | None) -> tuple[float, float, float] | None:
 
 
 def resolve_device(name: str) -> str:
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("--device cuda: no CUDA device is available here. Fix: use --device cpu.")
+    require_device(name, name="--device", fix="use --device cpu.")
     return name
 
 
@@ -75,7 +73,7 @@ def run_simulate(args: argparse.Namespace) -> int:
     from lfm_studio.engine.simulation import depth_grid, design_depths, simulate_psf
 
     depths_given = None if args.depths is None else depth_grid(args.depths, "--depths")
-    out = check_output(args.out, overwrite=args.overwrite, inputs=[_design_file(args.design)])
+    out = check_output(args.out, overwrite=args.overwrite, inputs=[_design_file(args.design)], tiff=True)
     design = resolve_design(args.design)
     depths = design_depths(design) if depths_given is None else depths_given
     with progress_bar(f"PSF stack ({design.kind}, {len(depths)} depths)") as progress:
@@ -97,7 +95,7 @@ def _outputs(args: argparse.Namespace) -> dict[str, Path]:
     inputs = [args.psf, phantom, _design_file(args.design)]
     given = {"--out": args.out, "--truth": args.truth, "--expected": args.expected}
     outputs = {
-        flag: check_output(path, overwrite=args.overwrite, inputs=inputs, flag=flag)
+        flag: check_output(path, overwrite=args.overwrite, inputs=inputs, flag=flag, tiff=True)
         for flag, path in given.items()
         if path
     }

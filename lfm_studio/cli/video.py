@@ -18,7 +18,6 @@ from typing import Any
 
 from lfm_studio.cli.progress import progress_bar
 
-VIDEO_SUFFIX = ".zarr"
 _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
     "measured": "--measured (prepare the bead PSF once with the TIFF path, then pass it as --psf)",
     "calibration": "--calibration (raw frames: rectify them first)",
@@ -30,8 +29,10 @@ _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and wh
 
 
 def is_video_output(out: Any) -> bool:
-    """True when ``--out`` names an OME-Zarr store (``*.zarr``)."""
-    return str(out).rstrip("/").lower().endswith(VIDEO_SUFFIX)
+    """True when ``--out`` names an OME-Zarr store (``*.zarr``: the rule reconstruct_video enforces)."""
+    from lfm_studio.engine.io.file_checks import names_zarr_store
+
+    return names_zarr_store(str(out))
 
 
 def add_video_arguments(parser: argparse.ArgumentParser) -> None:

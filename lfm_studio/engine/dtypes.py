@@ -35,8 +35,14 @@ def real_dtype(dtype: torch.dtype) -> torch.dtype:
 _BY_NAME = {"float32": torch.float32, "float64": torch.float64}
 
 
-def real_dtype_named(name: str) -> torch.dtype:
-    """``torch.float32`` or ``torch.float64`` from the name used in design files and the CLI."""
-    if name not in _BY_NAME:
-        raise ValueError(f"dtype must be 'float32' or 'float64'; got {name!r}.")
+def real_dtype_named(name: str | torch.dtype) -> torch.dtype:
+    """``torch.float32`` or ``torch.float64`` from the name used in design files and the CLI
+    (``"float32"``, ``"float64"``), or that torch dtype itself."""
+    if isinstance(name, torch.dtype) and name in _BY_NAME.values():
+        return name
+    if not isinstance(name, str) or name not in _BY_NAME:
+        raise ValueError(
+            f"dtype must be 'float32' or 'float64' (or torch.float32 / torch.float64); got {name!r}. "
+            "Fix: 'float32' for speed, 'float64' for reference accuracy."
+        )
     return _BY_NAME[name]

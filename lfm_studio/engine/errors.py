@@ -10,6 +10,7 @@ import math
 import os
 import sys
 import warnings
+from collections.abc import Sequence
 from types import FrameType
 
 import torch
@@ -24,6 +25,13 @@ class SamplingWarning(UserWarning):
 
 class SamplingError(ValueError):
     """A computation cannot be sampled on the given grid; raised before heavy work."""
+
+
+def listed(values: Sequence[float], scale: float = 1.0, unit: str = "", most: int = 5) -> str:
+    """``values / scale`` for a message, as ``"a, b, c"``, each followed by ``unit`` (e.g.
+    ``" * um"`` for a fix), at most ``most`` of them, then ``...``."""
+    shown = ", ".join(f"{v / scale:g}{unit}" for v in values[:most])
+    return shown + (", ..." if len(values) > most else "")
 
 
 def require_positive(name: str, value: float | torch.Tensor, unit: str, fix: str = "") -> None:
@@ -102,3 +110,52 @@ def error_text(error: BaseException) -> str:
         value = value if len(value) <= 60 else value[:57] + "..."
         parts.append(f"{loc}: {message} (got {value})")
     return "; ".join(parts) or str(error)
+
+
+def as_real_tensor(name: str, value: object, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
+    """``value`` (tensor or array-like: numpy, lists) as a real floating tensor on ``device`` with
+    ``dtype``: the one conversion at a public boundary that takes arrays (no copy when ``value``
+    already is such a tensor; autograd passes through)."""
+    tensor = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
+    if tensor.is_complex():
+        raise ValueError(f"{name} must be real (intensities); got a complex {tensor.dtype} tensor.")
+    if tensor.dtype == torch.bool:
+        raise ValueError(f"{name} must hold numbers; got a boolean tensor.")
+    return tensor.to(device=device, dtype=dtype)
+
+
+def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
+    """Raise ``ValueError`` naming the count and the minimum if ``tensor`` has negative values."""
+    require_finite_tensor(name, tensor.detach())
+    if tensor.numel() and bool((tensor.detach() < 0).any()):
+        bad = int((tensor.detach() < 0).sum())
+        low = float(tensor.detach().min())
+        raise ValueError(
+            f"{name} must be >= 0 (photon counts or intensities); got {bad} negative value(s), "
+            f"minimum {low:.6g}. Fix: {fix}"
+        )
+
+
+def require_device(
+    device: torch.device | str, *, name: str = "device", fix: str = "pass device='cpu'."
+) -> torch.device:
+    """``device`` as a ``torch.device`` that this torch build can use, else a ``ValueError`` naming
+    ``name``, the device and ``fix`` (CUDA asked for where torch has no CUDA or sees no GPU; an
+    unknown device string)."""
+    try:
+        checked = torch.device(device)
+    except (RuntimeError, TypeError) as error:
+        raise ValueError(
+            f"{name} must be a torch device such as 'cpu' or 'cuda'; got {device!r} ({error}). Fix: {fix}"
+        ) from None
+    if checked.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(
+            f"{name} {str(checked)!r}: no CUDA device is available here (torch.cuda.is_available() is False: "
+            f"a CPU-only torch build, or no GPU visible). Fix: {fix}"
+        )
+    if checked.type == "cuda" and checked.index is not None and checked.index >= torch.cuda.device_count():
+        raise ValueError(
+            f"{name} {str(checked)!r}: this machine has {torch.cuda.device_count()} CUDA device(s), numbered "
+            f"from 0. Fix: {fix}"
+        )
+    return checked

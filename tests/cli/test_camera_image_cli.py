@@ -3,6 +3,8 @@ truth in photons per voxel, and the noise-free expected image only when asked fo
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import tifffile
@@ -79,7 +81,15 @@ def test_expected_image_only_on_request_and_noise_free_default(simulated):
     ]
 
 
-def test_saturated_pixels_clip_at_the_bit_depth(simulated):
+@pytest.mark.filterwarnings(
+    "always::lfm_studio.engine.optics.camera.SaturationWarning"
+)  # shown as a CLI note
+def test_saturated_pixels_clip_at_the_bit_depth(simulated, capsys):
     paths = _image(simulated, "bright", "--photons", "1e9")
+    assert re.search(
+        r"lfm-studio image: warning: photons=1e\+09 saturates the camera: \d+ of \d+ pixels .*"
+        r"\(the 12-bit ADC's top, 4095 ADU\).*Fix: photons <= ",
+        capsys.readouterr().err,
+    )
     data = read_image(paths["lf"]).data
     assert float(data.max()) == 4095.0  # 2^12 - 1: a 12-bit ADC saturates (the full well clips first)

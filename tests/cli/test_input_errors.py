@@ -8,7 +8,7 @@ import json
 import pytest
 
 from lfm_studio.cli import main
-from lfm_studio.cli.errors import BAD_INPUT
+from lfm_studio.cli.errors import BAD_INPUT, OUTPUT_REFUSED
 
 
 def _refused(capsys, argv: list[str], *parts: str) -> str:
@@ -143,3 +143,12 @@ def test_gui_help_lists_the_presets(capsys):
     assert exit_.value.code == 0
     help_text = " ".join(capsys.readouterr().out.split())  # argparse wraps the lines
     assert list_presets() and all(name in help_text for name in list_presets())
+
+
+def test_a_tiff_output_under_another_name_is_refused_before_the_inputs_are_read(tmp_path, existing, capsys):
+    out = str(tmp_path / "rec.png")
+    capsys.readouterr()
+    assert main(["reconstruct", "--psf", existing, "--image", existing, "--out", out]) == OUTPUT_REFUSED
+    err = capsys.readouterr().err
+    assert f"--out {out} would hold a TIFF, but its name does not end in .tif or .tiff" in err
+    assert "Fix: name it rec.tif." in err and not (tmp_path / "rec.png").exists()

@@ -19,6 +19,7 @@ import torch
 
 from lfm_studio.engine.design import Design, design_from_json, design_to_json, resolve_design
 from lfm_studio.engine.simulation import ImagingSetup, imaging_setup, simulate_psf
+from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.engine.types import JSONValue
 
 KINDS = ("design", "psf")
@@ -97,6 +98,15 @@ def projector_spec(
         "design", design_json=design_to_json(resolve_design(design_or_psf)), crop=crop,
         field_of_view=field_of_view, dtype=dtype,
     )  # fmt: skip
+
+
+def planned_image_shape(spec: ProjectorSpec) -> tuple[int, int] | None:
+    """The ``(Py, Px)`` pixels the projector of a design spec will image, known before its PSF is
+    simulated (:meth:`SystemKind.image_shape`); ``None`` for a PSF file (known once it is read)."""
+    if spec.kind != "design":
+        return None
+    design = design_from_json(spec.design_json or "", origin="the video's design")
+    return kind_of(design).image_shape(design, crop=spec.crop)
 
 
 def _build(spec: ProjectorSpec) -> BuiltProjector:

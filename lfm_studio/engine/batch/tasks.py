@@ -62,10 +62,16 @@ def _reconstruct(task: ChunkTask, projector: Projector, frame: NumpyArray, t: in
         data, floor = counts_to_photons(data, task.camera, name=f"frame {t}")
     elif not bool(torch.isfinite(data).all()):
         bad = int((~torch.isfinite(data)).sum())
-        raise ValueError(f"frame {t} has {bad} NaN/Inf pixel(s) of {data.numel()}.")
+        raise ValueError(
+            f"frame {t} has {bad} NaN/Inf pixel(s) of {data.numel()}. Fix: replace them (e.g. with the "
+            "camera baseline) or mask the bad pixels, then reconstruct this frame again (reconstruct_frame)."
+        )
     volume = task.options.run(projector, data, extra_background=floor).detach().cpu()
     if not bool(torch.isfinite(volume).all()):
-        raise FloatingPointError(f"the reconstruction of frame {t} has NaN/Inf voxels.")
+        raise FloatingPointError(
+            f"the reconstruction of frame {t} has NaN/Inf voxels. Fix: check the frame (extreme or negative "
+            "values) and the background, then reconstruct it again with fewer iterations or another method."
+        )
     return volume.to(torch.float32).numpy()
 
 

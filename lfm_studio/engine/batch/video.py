@@ -22,12 +22,13 @@ from lfm_studio import __version__
 from lfm_studio.engine.batch.client import Client, check_placement, client_for, dashboard_link
 from lfm_studio.engine.batch.frames import FrameSource, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
-from lfm_studio.engine.batch.projectors import cached_projector, projector_spec
+from lfm_studio.engine.batch.projectors import cached_projector, planned_image_shape, projector_spec
 from lfm_studio.engine.batch.pyramid import level_count
 from lfm_studio.engine.batch.store import ChunkRecord, VideoStore, create_store, open_store
 from lfm_studio.engine.batch.tasks import ChunkTask, process_chunk
 from lfm_studio.engine.design import Design
-from lfm_studio.engine.io import CameraCalibration
+from lfm_studio.engine.io import CameraCalibration, OutputError
+from lfm_studio.engine.io.file_checks import names_zarr_store
 from lfm_studio.engine.progress import CancelledError, CancelToken, ProgressCallback, is_cancelled
 from lfm_studio.engine.types import JSONValue, OptionValue
 
@@ -84,6 +85,18 @@ def _frame_interval(frame_interval_s: float | None) -> float:
     if not frame_interval_s > 0:
         raise ValueError(f"frame_interval_s must be > 0 (seconds); got {frame_interval_s!r}. Fix: e.g. 1/30.")
     return float(frame_interval_s)
+
+
+def _check_output(output: str | os.PathLike) -> None:
+    """Refuse an output that does not name a Zarr store (``*.zarr``), as the CLI tells a video run
+    by that suffix: a folder of chunks named ``out.tif`` would pass for a TIFF."""
+    if not names_zarr_store(output):
+        target = Path(output).expanduser()
+        raise OutputError(
+            f"output {target} does not end in .zarr, but reconstruct_video writes an OME-Zarr store (a "
+            f"folder) there. Nothing was written. Fix: output={target.with_suffix('').name + '.ome.zarr'!r} "
+            "(a single volume goes to a TIFF with reconstruct_frame and write_volume)."
+        )
 
 
 def _run_chunks(
@@ -169,7 +182,8 @@ def reconstruct_video(
     method, options, **method_options : a method of the reconstruction registry and its options
         (``options`` and keywords such as ``iterations=30``, ``background=2.0`` are merged; checked
         by the method's schema), as in :func:`~lfm_studio.engine.reconstruct.dispatch.reconstruct_frame`.
-    output : the store (axes t, z, y, x; scales in s and um; a 2x lateral pyramid).
+    output : the store, a name ending in ``.zarr`` (axes t, z, y, x; scales in s and um; a 2x
+        lateral pyramid).
     resume : continue an existing store of the same run, computing only unrecorded chunks.
     overwrite : replace an existing store instead.
     client, workers, scheduler : a Dask client to use; else ``workers`` N > 1 starts a
@@ -180,14 +194,22 @@ def reconstruct_video(
     progress, cancel : ``progress(frames_done, frame_count, message)`` per finished chunk; a set
         ``cancel`` stops between chunks with :class:`CancelledError` (the store stays resumable).
     shape_fix : the fix named when the frames are not the pixels the projector images
-        (:func:`check_frame_shape`; a front end says it in its own words).
+        (:func:`check_frame_shape`, before a design's PSF is simulated; a front end says it in its
+        own words).
+
+    The result's ``computed`` and ``skipped`` list the frames reconstructed (now, before);
+    a frame that failed is only in ``failed``.
     """
+    _check_output(output)
     reconstruction = ReconstructionOptions.of(method, {**(options or {}), **method_options})
     check_placement(client, workers, scheduler)
     _check_chunk_frames(chunk_frames)
     interval = _frame_interval(frame_interval_s)
     source = frames if isinstance(frames, FrameSource) else open_frames(frames)
     spec = projector_spec(design_or_psf, crop=crop, field_of_view=field_of_view, dtype=dtype)
+    planned = planned_image_shape(spec)
+    if planned is not None:  # a design: refuse other frames before simulating its PSF
+        check_frame_shape(source, planned, shape_fix)
     built = cached_projector(spec)
     check_frame_shape(source, tuple(built.setup.projector.image_shape), shape_fix)
     nz, ny, nx = (int(n) for n in built.setup.volume_shape)
@@ -238,14 +260,20 @@ def reconstruct_video(
             progress(state["frames"], source.count, f"dashboard {link}" if link else "starting")
         lost = _run_chunks(tasks, active, on_record, cancel)
     records = store.records()
-    computed = [t for i, r in records.items() if i not in done_before for t in range(r["start"], r["stop"])]
-    skipped = [t for r in done_before.values() for t in range(r["start"], r["stop"])]
     failed = {
         int(t): info["error"]
         for r in records.values()
         for t, info in r["frames"].items()
         if info["status"] == "failed"
     }
+    computed = [
+        t
+        for i, r in records.items()
+        if i not in done_before
+        for t in range(r["start"], r["stop"])
+        if t not in failed
+    ]
+    skipped = [t for r in done_before.values() for t in range(r["start"], r["stop"]) if t not in failed]
     return VideoResult(
         store.path, source.count, tuple(sorted(computed)), tuple(sorted(skipped)),
         dict(sorted(failed.items())), tuple(lost), link,

@@ -150,8 +150,15 @@ def save_design(design: Design, path: str | os.PathLike[str], *, overwrite: bool
 
 
 def load_design(path: str | os.PathLike[str]) -> Design:
-    """Read a design file (see :func:`design_from_json` for the errors)."""
+    """Read a design file (see :func:`design_from_json` for the errors); a missing file or a folder
+    raises ``FileNotFoundError`` naming the path and the fix."""
     target = Path(path).expanduser()
+    if not target.is_file():
+        problem = "is a folder, not a design file" if target.is_dir() else "does not exist"
+        raise FileNotFoundError(
+            f"design file {target} {problem}. Fix: check the path (relative paths start in {Path.cwd()}), "
+            "or load a bundled preset with load_preset(name) (names: list_presets())."
+        )
     try:
         text = target.read_text(encoding="utf-8")
     except UnicodeDecodeError as exc:

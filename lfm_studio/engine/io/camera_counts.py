@@ -35,6 +35,9 @@ from typing import Any, Protocol
 
 import torch
 
+from lfm_studio.engine.errors import as_real_tensor
+from lfm_studio.engine.types import TensorLike
+
 #: Percentile of the frame taken as the baseline when nothing gives it (the darkest 1 %).
 BASELINE_PERCENTILE = 1.0
 #: The noise floor is at least this many read-noise sigmas (clipping bias < 1e-3 sigma per pixel).
@@ -247,18 +250,22 @@ def resolve_calibration(
 
 
 def counts_to_photons(
-    frames: torch.Tensor, calibration: CameraCalibration, *, name: str
+    frames: TensorLike, calibration: CameraCalibration, *, name: str
 ) -> tuple[torch.Tensor, float]:
     """Photons at the camera per pixel from counts, and the background they carry.
 
     Returns ``(max((ADU - baseline) / gain + c, 0) / QE, c / QE)`` with ``c`` the noise floor
     (:attr:`CameraCalibration.noise_floor_e`): pass the second value as (part of) the
-    reconstruction's background. ``name`` (the file or layer) is named when ``frames``
-    holds NaN/Inf values, which no camera writes: that is refused rather than propagated
-    into the reconstruction.
+    reconstruction's background. ``frames`` is a tensor or an array (numpy, e.g. ``uint16``
+    counts), taken in its floating dtype (float32 for integer counts) on its device.
+    ``name`` (the file or layer) is named when ``frames`` holds NaN/Inf values, which no
+    camera writes: that is refused rather than propagated into the reconstruction.
     """
+    frames = torch.as_tensor(frames)
     if frames.is_complex():
         raise ValueError(f"{name} is complex ({frames.dtype}); a camera image is real. Fix: save |x|^2.")
+    real = frames.dtype if frames.is_floating_point() else torch.float32
+    frames = as_real_tensor(name, frames, dtype=real, device=frames.device)
     finite = torch.isfinite(frames)
     if not bool(finite.all()):
         bad = int((~finite).sum())

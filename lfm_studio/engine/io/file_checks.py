@@ -37,6 +37,7 @@ def check_output(
     overwrite: bool,
     inputs: Iterable[str | os.PathLike | None] = (),
     flag: str = "--out",
+    tiff: bool = False,
 ) -> Path:
     """Refuse an output path before any work, with the reason and a fix; return it as a Path.
 
@@ -46,8 +47,11 @@ def check_output(
     overwrite : whether an existing file (not an input) may be replaced.
     inputs : files the run reads; the output may never be one of them.
     flag : how the user named the output (for the message), e.g. ``"--truth"``.
+    tiff : the output is a TIFF, so its name must end in ``.tif`` / ``.tiff`` (:func:`check_tiff_name`).
     """
     target = Path(path).expanduser()
+    if tiff:
+        check_tiff_name(target, flag=flag)
     for source in inputs:
         if source is not None and _same_file(target, Path(source).expanduser()):
             raise OutputError(
@@ -63,6 +67,30 @@ def check_output(
         raise OutputError(f"{flag} {target}: the folder {folder} does not exist. Fix: create it first.")
     if not os.access(folder, os.W_OK | os.X_OK):
         raise OutputError(not_writable_message(target))
+    return target
+
+
+TIFF_SUFFIXES = (".tif", ".tiff")
+ZARR_SUFFIX = ".zarr"
+"""What names a (OME-)Zarr store: ``run.zarr``, ``run.ome.zarr`` (the CLI's video outputs too)."""
+
+
+def names_zarr_store(path: str | os.PathLike) -> bool:
+    """True when ``path`` ends in ``.zarr`` (any case, a trailing ``/`` ignored)."""
+    return os.fspath(path).rstrip("/").lower().endswith(ZARR_SUFFIX)
+
+
+def check_tiff_name(path: str | os.PathLike, *, flag: str | None = None) -> Path:
+    """Refuse a TIFF output whose name does not end in ``.tif`` / ``.tiff`` (other tools go by the
+    suffix: ``v.png`` holding a TIFF opens nowhere); return the path. ``flag``: how the user
+    named the output (e.g. ``"--out"``), put before the path in the message."""
+    target = Path(path).expanduser()
+    if target.suffix.lower() not in TIFF_SUFFIXES:
+        named = f"{flag} {target}" if flag else str(target)
+        raise OutputError(
+            f"{named} would hold a TIFF, but its name does not end in .tif or .tiff, so other tools would "
+            f"misread it. Nothing was written. Fix: name it {target.with_suffix('.tif').name}."
+        )
     return target
 
 

@@ -24,7 +24,7 @@ import torch
 
 from lfm_studio.engine.atomic_write import atomic_write
 from lfm_studio.engine.io.calibration import Calibration, read_calibration
-from lfm_studio.engine.io.file_checks import InputFileError, output_os_error
+from lfm_studio.engine.io.file_checks import InputFileError, check_tiff_name, output_os_error
 from lfm_studio.engine.io.metadata import HeaderError
 from lfm_studio.engine.units import um
 
@@ -35,7 +35,7 @@ SQUARE_TOLERANCE = 1e-6  # relative; ImageJ stores resolutions as rationals
 def tiff_array(name: str, data: Any) -> tuple[np.ndarray, str]:
     """``data`` (tensor or array) as a C-contiguous array ImageJ can store, and its source dtype.
 
-    Complex data is refused; uint8/uint16 are kept; bool becomes uint8; every other
+    Complex and empty data are refused; uint8/uint16 are kept; bool becomes uint8; every other
     real type (float64, float16, int32, ...) becomes float32, which must stay finite.
     """
     if isinstance(data, torch.Tensor):
@@ -64,6 +64,11 @@ def tiff_array(name: str, data: Any) -> tuple[np.ndarray, str]:
                 "used in the TIFF. Fix: clean or rescale the data before saving."
             )
         array = converted
+    if array.size == 0:
+        raise ValueError(
+            f"{name} is empty (shape {array.shape}): a TIFF holds at least one pixel. Nothing was written. "
+            "Fix: check the data (a crop or slice that selected nothing?)."
+        )
     return np.ascontiguousarray(array), source
 
 
@@ -81,7 +86,9 @@ def write_hyperstack(
     """Write ``array`` (axes e.g. ``"TZYX"``) as an ImageJ hyperstack, atomically.
 
     ``pixel_size`` is ``(dy, dx)`` and ``z_spacing`` the ImageJ slice spacing, in metres.
+    ``path`` must end in ``.tif`` or ``.tiff`` (:func:`check_tiff_name`).
     """
+    check_tiff_name(path)
     metadata: dict[str, Any] = {"axes": axes, "unit": "um", "Info": info}
     if z_spacing is not None:
         metadata["spacing"] = z_spacing / um

@@ -25,6 +25,7 @@ from typing import Any
 
 import torch
 
+from lfm_studio.engine.errors import listed
 from lfm_studio.engine.io import hyperstack as hs
 from lfm_studio.engine.io.containers import LightFieldImage, Volume, voxel_triple
 from lfm_studio.engine.io.metadata import MissingMetadataError, decode_header, encode_header, require_kind
@@ -32,6 +33,26 @@ from lfm_studio.engine.io.psf_tiff import read_psf_stack, write_psf_stack
 
 _VOLUME_UNITS = {"depths_um": "um", "voxel_size_um": "um"}
 _IMAGE_UNITS = {"pixel_size_um": "um"}
+
+MAX_SAMPLE_SIZE = 1e-3
+"""Largest voxel or pixel size (m) the writers take: a microscope samples in um, so 1 mm or more
+is almost surely micrometres passed as metres (a "0.7" voxel is 0.7 m)."""
+
+
+def _require_microscope_sizes(name: str, sizes: Sequence[float]) -> None:
+    """Refuse sizes (metres) of :data:`MAX_SAMPLE_SIZE` or more, naming ``name`` and the um reading."""
+    if max(sizes) < MAX_SAMPLE_SIZE:
+        return
+    fix = (
+        f"did you pass um? Use {name}=({listed(sizes, unit=' * um')})"
+        if max(sizes) >= 0.1
+        else f"give {name} in metres, e.g. 2 * um"
+    )
+    raise ValueError(
+        f"{name} must be in metres, below {MAX_SAMPLE_SIZE * 1e3:g} mm; got ({listed(sizes)}) m, and a "
+        f"{max(sizes):g} m sample is no microscope's. Nothing was written. Fix: {fix} with um from "
+        "lfm_studio.engine.units."
+    )
 
 
 def write_volume(
@@ -47,6 +68,8 @@ def write_volume(
 
     ``volume`` is a :class:`Volume` or a tensor; ``voxel_size`` ``(dz, dy, dx)`` in metres is
     required for a tensor, and ``voxel_size``/``depths``/``metadata`` replace a Volume's own.
+    Refused before writing: a voxel of 1 mm or more (micrometres passed as metres), an empty
+    volume, a name not ending in ``.tif``/``.tiff``.
     """
     if isinstance(volume, Volume):
         volume = Volume(
@@ -66,6 +89,7 @@ def write_volume(
             None if depths is None else tuple(depths),
             metadata or {},
         )
+    _require_microscope_sizes("voxel_size", volume.voxel_size)
     array, source = hs.tiff_array("volume", volume.data)
     dz, dy, dx = volume.voxel_size
     axes = "TZYX" if array.ndim == 4 else "ZYX"
@@ -145,7 +169,7 @@ def write_image(
 ) -> Path:
     """Save a camera image ``(Y, X)`` or frames ``(T, Y, X)`` as an ImageJ TIFF; return the path.
 
-    ``pixel_size`` (metres) is required for a tensor and replaces a LightFieldImage's own.
+    ``pixel_size`` (metres, below 1 mm) is required for a tensor and replaces a LightFieldImage's own.
     """
     if isinstance(image, LightFieldImage):
         image = LightFieldImage(
@@ -157,6 +181,7 @@ def write_image(
         if pixel_size is None:
             raise TypeError("write_image needs pixel_size in metres for a tensor, e.g. pixel_size=6.5 * um.")
         image = LightFieldImage(torch.as_tensor(image), pixel_size, metadata or {})
+    _require_microscope_sizes("pixel_size", (image.pixel_size,))
     array, source = hs.tiff_array("image", image.data)
     axes = "TYX" if array.ndim == 3 else "YX"
     fields = {

@@ -16,8 +16,9 @@ from __future__ import annotations
 
 import torch
 
+from lfm_studio.engine.errors import as_real_tensor
 from lfm_studio.engine.operators.protocol import Projector
-from lfm_studio.engine.types import Shape2, Shape3
+from lfm_studio.engine.types import Shape2, Shape3, TensorLike
 
 
 class BinnedProjector:
@@ -61,14 +62,16 @@ class BinnedProjector:
         py, px = self.inner.image_shape
         return (py // self.factor, px // self.factor)
 
-    def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        """``A x``: volume -> camera image (sums of ``k x k`` virtual pixels)."""
-        fine = self.inner.forward(volume)
+    def forward(self, volume: TensorLike) -> torch.Tensor:
+        """``A x``: volume (tensor or array) -> camera image (sums of ``k x k`` virtual pixels)."""
+        fine = self.inner.forward(as_real_tensor("volume", volume, dtype=self.dtype, device=self.device))
         k, (py, px) = self.factor, self.image_shape
         return fine[: k * py, : k * px].reshape(py, k, px, k).sum(dim=(1, 3))
 
-    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
-        """``A^T y``: each camera pixel copied onto its ``k x k`` block, then the inner adjoint."""
+    def adjoint(self, image: TensorLike) -> torch.Tensor:
+        """``A^T y``: each camera pixel of ``image`` (tensor or array) copied onto its ``k x k`` block,
+        then the inner adjoint."""
+        image = as_real_tensor("image", image, dtype=self.dtype, device=self.device)
         if tuple(image.shape) != self.image_shape:
             raise ValueError(f"image must have shape {self.image_shape} (Py, Px); got {tuple(image.shape)}.")
         k, (fy, fx) = self.factor, self.inner.image_shape

@@ -22,6 +22,9 @@ from __future__ import annotations
 import torch
 from torch.nn import functional as nnf
 
+from lfm_studio.engine.errors import as_real_tensor
+from lfm_studio.engine.types import TensorLike
+
 
 class LensletLatticeProjector:
     """``A`` / ``A^T`` of a conventional LFM on ``(Ly, Lx)`` lenslets.
@@ -74,13 +77,14 @@ class LensletLatticeProjector:
         """``(Ly Q, Lx Q)`` rectified pixels."""
         return (self.lenslets[0] * self.q, self.lenslets[1] * self.q)
 
-    def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        """``A x``: volume ``(Z, Ly S, Lx S)`` -> rectified image ``(Ly Q, Lx Q)``."""
+    def forward(self, volume: TensorLike) -> torch.Tensor:
+        """``A x``: volume ``(Z, Ly S, Lx S)`` (tensor or array) -> rectified image ``(Ly Q, Lx Q)``."""
+        volume = as_real_tensor("volume", volume, dtype=self.dtype, device=self.device)
         if tuple(volume.shape) != self.volume_shape:
             raise ValueError(
                 f"volume must have shape {self.volume_shape} (Z, Ly*S, Lx*S); got {tuple(volume.shape)}."
             )
-        x = nnf.pixel_unshuffle(volume.to(self.device, self.dtype).flip(-2, -1)[None], self.s)[0]
+        x = nnf.pixel_unshuffle(volume.flip(-2, -1)[None], self.s)[0]
         x = x.reshape(self.depths, self.s * self.s, *self.lenslets)
         out = None
         for indices, weight in self.groups:
@@ -90,11 +94,12 @@ class LensletLatticeProjector:
         assert out is not None  # the groups cover every depth (checked in __init__)
         return nnf.pixel_shuffle(out, self.q)[0, 0]
 
-    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
-        """``A^T y``: rectified image ``(Ly Q, Lx Q)`` -> volume ``(Z, Ly S, Lx S)``."""
+    def adjoint(self, image: TensorLike) -> torch.Tensor:
+        """``A^T y``: rectified image ``(Ly Q, Lx Q)`` (tensor or array) -> volume ``(Z, Ly S, Lx S)``."""
+        image = as_real_tensor("image", image, dtype=self.dtype, device=self.device)
         if tuple(image.shape) != self.image_shape:
             raise ValueError(f"image must have shape {self.image_shape}; got {tuple(image.shape)}.")
-        y = nnf.pixel_unshuffle(image.to(self.device, self.dtype)[None, None], self.q)
+        y = nnf.pixel_unshuffle(image[None, None], self.q)
         volume = torch.zeros(
             (self.depths, self.s * self.s, *self.lenslets), dtype=self.dtype, device=self.device
         )

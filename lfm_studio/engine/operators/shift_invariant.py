@@ -26,9 +26,9 @@ from collections.abc import Iterator
 import torch
 
 from lfm_studio.engine import fft
-from lfm_studio.engine.errors import require_finite_tensor
+from lfm_studio.engine.errors import as_real_tensor, require_finite_tensor
 from lfm_studio.engine.operators.fft_sizes import next_fast_length
-from lfm_studio.engine.types import DepthSlice
+from lfm_studio.engine.types import DepthSlice, TensorLike
 
 _CPU_CHUNK_BYTES = 24 * 2**20  # about the 32 MB L3 of this CPU, leaving room for the output
 
@@ -148,18 +148,19 @@ class ShiftInvariantProjector:
         for start in range(0, self.depths, self.depth_chunk):
             yield slice(start, min(self.depths, start + self.depth_chunk))
 
-    def forward(self, volume: torch.Tensor) -> torch.Tensor:
-        """``A x``: volume ``(Z, Vy, Vx)`` -> image ``(Py, Px)``.
+    def forward(self, volume: TensorLike) -> torch.Tensor:
+        """``A x``: volume ``(Z, Vy, Vx)`` (a tensor or an array, taken in the projector's dtype and
+        device) -> image ``(Py, Px)``.
 
         Pruned transforms: a slice fills only ``Vy`` of the ``Fy`` window rows, so the row
         ``rfft`` runs on those rows; the inverse column transform is cropped to the sensor
         rows before the last ``irfft``.
         """
+        volume = as_real_tensor("volume", volume, dtype=self.dtype, device=self.device)
         if tuple(volume.shape) != self.volume_shape:
             raise ValueError(
                 f"volume must have shape {self.volume_shape} (Z, Vy, Vx); got {tuple(volume.shape)}."
             )
-        volume = volume.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
         tracked = _tracked(volume, self.otf_t)
         total, window = None, None
@@ -183,17 +184,19 @@ class ShiftInvariantProjector:
         image = fft.irfft_along_unscaled(columns.transpose(0, 1).contiguous(), fx, dim=-1)
         return image[:, ox : ox + self.psf_shape[1]] * (1.0 / (fy * fx))
 
-    def adjoint(self, image: torch.Tensor) -> torch.Tensor:
-        """``A^T y``: image ``(Py, Px)`` -> volume ``(Z, Vy, Vx)`` (exact transpose of :meth:`forward`)."""
+    def adjoint(self, image: TensorLike) -> torch.Tensor:
+        """``A^T y``: image ``(Py, Px)`` (tensor or array) -> volume ``(Z, Vy, Vx)`` (exact transpose of
+        :meth:`forward`)."""
         return self.filtered_adjoint(image, self.otf_t.conj())
 
-    def filtered_adjoint(self, image: torch.Tensor, filters_t: torch.Tensor) -> torch.Tensor:
+    def filtered_adjoint(self, image: TensorLike, filters_t: torch.Tensor) -> torch.Tensor:
         """``crop(irfft2(filters_z * rfft2(embed(y))))`` per depth: image ``(Py, Px)`` -> ``(Z, Vy, Vx)``.
 
         ``filters_t`` are per-depth spectra in the transposed layout of :attr:`otf_t`,
         ``(Z, Fx//2+1, Fy)``; ``conj(otf_t)`` gives :meth:`adjoint`, other filters give
         unmatched back projectors (Wiener-Butterworth) at the same cost (pruned transforms).
         """
+        image = as_real_tensor("image", image, dtype=self.dtype, device=self.device)
         if tuple(image.shape) != self.psf_shape:
             raise ValueError(f"image must have shape {self.psf_shape} (Py, Px); got {tuple(image.shape)}.")
         if tuple(filters_t.shape) != tuple(self.otf_t.shape):
@@ -201,7 +204,6 @@ class ShiftInvariantProjector:
                 f"filters_t must have the shape of otf_t {tuple(self.otf_t.shape)} (Z, Fx//2+1, Fy); "
                 f"got {tuple(filters_t.shape)}."
             )
-        image = image.to(device=self.device, dtype=self.dtype)
         fy, fx = self.fft_shape
         (py, px), (vy, vx) = self.psf_shape, self.lateral_shape
         oy = _centre_offset(self.full_shape[0], py)

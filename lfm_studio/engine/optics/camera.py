@@ -28,6 +28,10 @@ from lfm_studio.engine.optics.field import Field
 from lfm_studio.engine.optics.grid import Grid
 
 
+class SaturationWarning(UserWarning):
+    """Simulated pixels exceed the camera's full well or ADC range: their counts are clipped."""
+
+
 @dataclass(frozen=True)
 class Camera:
     """A pixelated sensor (engine-side, SI units).
@@ -98,6 +102,13 @@ class Camera:
     def max_count(self) -> int:
         """Saturation value ``2^bit_depth - 1`` in ADU."""
         return 2**self.bit_depth - 1
+
+    @property
+    def saturation_electrons(self) -> float:
+        """Electrons at which a pixel's counts stop growing: the full well or the ADC's top
+        (``(max_count - baseline) / gain``), whichever comes first."""
+        top = (self.max_count - self.baseline) / self.gain
+        return top if self.full_well is None else min(top, float(self.full_well))
 
 
 def intensity(field: Field) -> torch.Tensor:
@@ -214,6 +225,36 @@ def expected_electrons(
             raise ValueError(f"photons_per_unit must be >= 0; got {photons_per_unit!r}.")
         rate = rate * photons_per_unit
     return rate * camera.quantum_efficiency
+
+
+def saturation_note(power_image: torch.Tensor, camera: Camera, *, photons: float) -> str | None:
+    """``None`` when no pixel of ``power_image`` scaled to ``photons`` (as in
+    :func:`expected_electrons`) expects more electrons than :attr:`Camera.saturation_electrons`;
+    else a message saying how many pixels clip, at what, and the largest ``photons`` that keeps
+    the brightest pixel below it."""
+    rate = power_image.detach().clamp(min=0.0).double()
+    total = float(rate.sum())
+    if not total > 0:
+        return None
+    per_unit = photons * camera.quantum_efficiency / total  # electrons per unit of power_image
+    limit = camera.saturation_electrons
+    clipped = int((rate * per_unit > limit).sum())
+    if clipped == 0:
+        return None
+    top = (camera.max_count - camera.baseline) / camera.gain
+    what = (
+        f"the full well, {camera.full_well:g} e-"
+        if camera.full_well is not None and camera.full_well <= top
+        else f"the {camera.bit_depth}-bit ADC's top, {camera.max_count} ADU"
+    )
+    safe = photons * limit / (float(rate.max()) * per_unit)
+    step = 10.0 ** (math.floor(math.log10(safe)) - 2)
+    return (
+        f"photons={photons:g} saturates the camera: {clipped} of {rate.numel()} pixels expect more than "
+        f"{limit:.6g} e- ({what}), so their counts are clipped and the image holds fewer photons than asked. "
+        f"Fix: photons <= {math.floor(safe / step) * step:.3g} keeps the brightest pixel below saturation "
+        "(or use a camera with a larger full well or more ADC bits)."
+    )
 
 
 def _generator(generator: torch.Generator | int | None, device: torch.device) -> torch.Generator:

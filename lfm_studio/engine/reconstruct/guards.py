@@ -21,7 +21,12 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from lfm_studio.engine.errors import require_finite_tensor, warn_at_caller
+from lfm_studio.engine.errors import (
+    as_real_tensor,
+    require_finite_tensor,
+    require_non_negative,
+    warn_at_caller,
+)
 from lfm_studio.engine.operators.protocol import Projector
 from lfm_studio.engine.types import Scalar, Shape2, Shape3, TensorLike
 
@@ -37,34 +42,12 @@ def relative_floor(dtype: torch.dtype) -> float:
     return RELATIVE_FLOOR_ULPS * torch.finfo(dtype).eps
 
 
-def as_real_tensor(name: str, value: object, *, dtype: torch.dtype, device: torch.device) -> torch.Tensor:
-    """``value`` (tensor or array-like) as a real floating tensor on ``device`` with ``dtype``."""
-    tensor = value if isinstance(value, torch.Tensor) else torch.as_tensor(value)
-    if tensor.is_complex():
-        raise ValueError(f"{name} must be real (intensities); got a complex {tensor.dtype} tensor.")
-    if tensor.dtype == torch.bool:
-        raise ValueError(f"{name} must hold numbers; got a boolean tensor.")
-    return tensor.to(device=device, dtype=dtype)
-
-
 def require_shape(name: str, tensor: torch.Tensor, shape: tuple[int, ...], meaning: str) -> None:
     """Raise ``ValueError`` unless ``tensor.shape == shape``."""
     if tuple(tensor.shape) != tuple(shape):
         raise ValueError(
             f"{name} must have shape {tuple(shape)} {meaning}; got {tuple(tensor.shape)}. "
             "Fix: use the projector built for this image and volume grid."
-        )
-
-
-def require_non_negative(name: str, tensor: torch.Tensor, fix: str) -> None:
-    """Raise ``ValueError`` naming the count and the minimum if ``tensor`` has negative values."""
-    require_finite_tensor(name, tensor.detach())
-    if tensor.numel() and bool((tensor.detach() < 0).any()):
-        bad = int((tensor.detach() < 0).sum())
-        low = float(tensor.detach().min())
-        raise ValueError(
-            f"{name} must be >= 0 (photon counts or intensities); got {bad} negative value(s), "
-            f"minimum {low:.6g}. Fix: {fix}"
         )
 
 

@@ -21,6 +21,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import torch
+
+from lfm_studio.engine.memory import require_memory, tensor_bytes
 from lfm_studio.engine.operators.fft_sizes import next_fast_length
 from lfm_studio.engine.optics.mla_layout import Lenslet
 from lfm_studio.engine.optics.objective import _value
@@ -93,10 +96,24 @@ def plan_window(
 ) -> LensletWindow:
     """Choose ``N``, the input spacing and the sensor placement for one lenslet."""
     radius = footprint_radius(system, lens, depths, margin_airy)
+    where = f"the lenslet at ({lens.center[0] * 1e6:.4g}, {lens.center[1] * 1e6:.4g}) um"
+    deepest = max((abs(z) for z in depths), default=0.0)
+    if not math.isfinite(radius):
+        raise ValueError(
+            f"the light footprint of {where} is not finite for depths {tuple(depths)} m. "
+            "Fix: give finite depths in metres, e.g. (-10e-6, 0.0, 10e-6)."
+        )
     p, s = system.pixel_pitch, oversampling
     # The window must hold the footprint wherever the sub-pixel shift (<= p/2) puts it.
     pixels = math.ceil((2.0 * radius + system.pixel_pitch) / p) + 1
-    samples = fast_samples(pixels, s)  # even: see fourier_lenslet
+    samples = fast_samples(  # even: see fourier_lenslet
+        pixels,
+        s,
+        what=f"the window of {where}, for a light footprint of radius {radius:.3g} m on the sensor at "
+        f"depths up to {deepest:.3g} m",
+        fix="give depths in metres (10 um is 10e-6) near the design's depth range: a footprint this "
+        "wide means a source far out of focus.",
+    )
     spacing = system.wavelength * system.mla_to_camera * s / (samples * p)
     patch = samples * spacing
     if patch < 2.0 * rim_radius(lens):
@@ -111,13 +128,33 @@ def plan_window(
     return LensletWindow(samples, spacing, (ry, rx), (cy, cx), radius)
 
 
-def fast_samples(pixels: int, oversampling: int) -> int:
+def fast_samples(
+    pixels: int,
+    oversampling: int,
+    *,
+    what: str = "a lenslet window",
+    fix: str = "lower accuracy.oversampling or accuracy.margin_airy.",
+) -> int:
     """Samples per side for ``pixels`` whole pixels or more: a multiple of ``oversampling``, even
-    (see :mod:`fourier_lenslet`) and a fast FFT length."""
-    samples = pixels * oversampling
-    while samples % 2 or next_fast_length(samples) != samples:
-        samples += oversampling
-    return samples
+    (see :mod:`fourier_lenslet`) and a fast FFT length.
+
+    A window whose ``pixels * oversampling`` squared complex samples cannot fit in memory is
+    refused first (:class:`~lfm_studio.engine.memory.MemoryBudgetError` naming ``what`` and
+    ``fix``), as is an ``oversampling`` with a prime factor above 5 (no multiple of it is a
+    fast length).
+    """
+    step = math.lcm(2, oversampling)  # samples are the multiples of step that are fast lengths
+    if next_fast_length(step) != step:
+        raise ValueError(
+            f"oversampling must have no prime factor above 5; got {oversampling} (no multiple of it is "
+            "a 2-3-5-smooth FFT length). Fix: use 2 or 3."
+        )
+    wanted = pixels * oversampling
+    require_memory(
+        tensor_bytes((wanted, wanted), torch.complex64), f"{what} ({wanted} x {wanted} samples)", fix
+    )
+    # step is 2-3-5-smooth, so step * k is a fast length exactly when k is.
+    return step * next_fast_length(-(-wanted // step))
 
 
 def shared_window(

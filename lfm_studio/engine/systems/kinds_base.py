@@ -112,6 +112,11 @@ class SystemKind(ABC):
         on a ``sensor`` of camera pixels, in real dtype ``real`` (complex fields of the matching width)."""
 
     @abstractmethod
+    def image_shape(self, design: Design, *, crop: int | None = None) -> tuple[int, int]:
+        """``(Py, Px)``: the camera image (pixels) the projector of ``psf_stack(design, ..., crop=crop)``
+        images, from the design alone (no PSF computed): what frames must match before the set-up."""
+
+    @abstractmethod
     def imaging_setup(self, stack: PSFStack, *, field_of_view: float | None = None) -> ImagingSetup:
         """The projector of ``stack`` (on its device and dtype) and the volume grid it expects."""
 

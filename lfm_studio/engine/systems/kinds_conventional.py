@@ -20,6 +20,7 @@ from lfm_studio.engine.memory import tensor_bytes
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.psf_stack import PSFStack
 from lfm_studio.engine.systems.conventional_psf import conventional_psf_stack, lattice_projector
+from lfm_studio.engine.systems.conventional_system import ConventionalLFMSystem
 from lfm_studio.engine.systems.fourier_psf import FourierPSFReport
 from lfm_studio.engine.systems.from_design import conventional_accuracy_of, conventional_system_of
 from lfm_studio.engine.systems.kinds_base import ImagingSetup, SystemKind, depth_step
@@ -58,11 +59,7 @@ class ConventionalKind(SystemKind):
         cancel: CancelToken = None,
     ) -> PSFStack:
         """``crop``: only the lenslets that fit in ``crop`` camera pixels; ``cache`` is not used."""
-        lenslets, mla = None, design.mla
-        if crop is not None and isinstance(mla, RegularMLASpec):  # (else conventional_system_of explains)
-            count = max(1, int(crop * design.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
-            lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
-        system = conventional_system_of(design, lenslets=lenslets)
+        system = _system(design, crop)
         accuracy = conventional_accuracy_of(design, system)
         if dtype is not None:
             accuracy = replace(accuracy, dtype=dtype)
@@ -71,6 +68,12 @@ class ConventionalKind(SystemKind):
         return conventional_psf_stack(
             system, depths, accuracy=accuracy, device=device, progress=progress, cancel=cancel, design=design
         )
+
+    def image_shape(self, design: Design, *, crop: int | None = None) -> tuple[int, int]:
+        """``(Ly Q, Lx Q)`` rectified pixels of the lenslets imaged (those that fit in ``crop``)."""
+        system = _system(design, crop)
+        q = system.pixels_per_lenslet
+        return (system.lenslets[0] * q, system.lenslets[1] * q)
 
     def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """At least a few complex sensor-sized fields (its projector images the whole sensor)."""
@@ -86,6 +89,16 @@ class ConventionalKind(SystemKind):
             stack.pixel_size * layout.pixels_per_lenslet / (stack.magnification * layout.voxels_per_lenslet)
         )
         return ImagingSetup(projector, projector.volume_shape, (depth_step(stack), voxel, voxel))
+
+
+def _system(design: Design, crop: int | None) -> ConventionalLFMSystem:
+    """The conventional system of ``design`` imaging the lenslets that fit in ``crop`` camera pixels
+    (all the sensor covers when ``crop`` is None)."""
+    lenslets, mla = None, design.mla
+    if crop is not None and isinstance(mla, RegularMLASpec):  # (else conventional_system_of explains)
+        count = max(1, int(crop * design.camera.pixel_pitch / (mla.pitch_um * 1e-6)))
+        lenslets = (min(count, mla.shape[0]), min(count, mla.shape[1]))
+    return conventional_system_of(design, lenslets=lenslets)
 
 
 CONVENTIONAL = ConventionalKind()

@@ -70,6 +70,11 @@ class FourierKind(SystemKind):
         )  # fmt: skip
         return replace(stack, volume_oversampling=refine)
 
+    def image_shape(self, design: Design, *, crop: int | None = None) -> tuple[int, int]:
+        """The camera's pixels, cut to ``crop`` (a finer virtual sensor is binned back onto them)."""
+        ny, nx = design.camera.pixel_count
+        return (ny, nx) if crop is None else (min(crop, ny), min(crop, nx))
+
     def psf_bytes(self, design: Design, depth_count: int, sensor: tuple[int, int], real: torch.dtype) -> int:
         """A few complex fields on the (virtual) sensor plus the ``(Z, ny, nx)`` real stack."""
         refine = design.accuracy.volume_oversampling

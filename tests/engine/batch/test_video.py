@@ -12,6 +12,7 @@ import zarr
 from lfm_studio.engine.batch import reconstruct_video
 from lfm_studio.engine.batch.projectors import BUILDS, cached_projector, projector_spec
 from lfm_studio.engine.batch.store import STATUS_GROUP
+from lfm_studio.engine.io import OutputError
 from lfm_studio.engine.progress import CancelledError
 from tests.engine.batch.conftest import CROP, FRAMES, ITERATIONS, METHOD
 
@@ -57,8 +58,10 @@ def test_a_nan_frame_is_reported_and_the_run_goes_on(video, tmp_path):
         output=tmp_path / "run.ome.zarr", chunk_frames=3,
     )  # fmt: skip
     assert list(result.failed) == [5] and "frame 5" in result.failed[5] and "NaN" in result.failed[5]
-    out = _level(result.path)
+    assert "Fix: replace them" in result.failed[5]
     good = [t for t in range(FRAMES) if t != 5]
+    assert result.computed == tuple(good)  # the failed frame is not also "computed"
+    out = _level(result.path)
     assert np.array_equal(out[good], video.reference[good])  # the others, in the same chunk too
     assert not out[5].any()  # left at the fill value, not half-written
     record = json.loads((tmp_path / "run.ome.zarr" / STATUS_GROUP / "chunk_000001.json").read_text())
@@ -117,3 +120,25 @@ def test_bad_arguments_name_the_parameter(video, tmp_path):
         tifffile.imwrite(tmp_path / "small.tif", video.frames[:, :64, :64])
         reconstruct_video(tmp_path / "small.tif", video.design, crop=CROP, output=tmp_path / "a.ome.zarr")
     assert not (tmp_path / "a.ome.zarr").exists()  # refused before anything was written
+
+
+def test_frames_of_another_shape_are_refused_before_the_design_psf_is_simulated(video, tmp_path, monkeypatch):
+    tifffile.imwrite(tmp_path / "small.tif", video.frames[:, :64, :64])
+
+    def no_build(spec):
+        raise AssertionError("the projector was built before the frames were checked")
+
+    monkeypatch.setattr("lfm_studio.engine.batch.video.cached_projector", no_build)
+    other = video.design.updated(name="another design, so no cached projector")
+    with pytest.raises(
+        ValueError, match=r"are \(64, 64\) pixels but the projector images \(128, 128\) pixels\. Fix"
+    ):
+        reconstruct_video(tmp_path / "small.tif", other, crop=CROP, output=tmp_path / "a.ome.zarr")
+
+
+def test_an_output_that_is_not_a_zarr_name_is_refused(video, tmp_path):
+    with pytest.raises(
+        OutputError, match=r"output .*out\.tif does not end in \.zarr.*Fix: output='out\.ome\.zarr'"
+    ):
+        _run(video, tmp_path / "out.tif")
+    assert not list(tmp_path.iterdir())

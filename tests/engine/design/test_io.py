@@ -230,6 +230,16 @@ def test_save_keeps_the_file_mode_and_refuses_folders(tmp_path, fourier):
         save_design({"name": "x"}, tmp_path / "x.json")  # type: ignore[arg-type]
 
 
+def test_a_missing_design_file_is_named_with_the_fix(tmp_path):
+    with pytest.raises(
+        FileNotFoundError,
+        match=r"design file .*nope\.json does not exist\. Fix: check the path .*load_preset\(name\)",
+    ):
+        load_design(tmp_path / "nope.json")
+    with pytest.raises(FileNotFoundError, match=r"is a folder, not a design file\. Fix"):
+        load_design(tmp_path)
+
+
 def test_regular_mla_file_stays_compact(conventional):
     data = _data(conventional)
     assert data["mla"]["layout"] == "regular" and "lenslets" not in data["mla"]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -84,6 +85,17 @@ def test_noise_free_images_are_already_photons():
     assert calibration.noise_floor_e == 0.0  # no camera, no floor: the data pass unchanged
     out, background = counts_to_photons(torch.tensor([0.0, 2.5]), calibration, name="x")
     assert out.tolist() == [0.0, 2.5] and background == 0.0
+
+
+def test_counts_to_photons_takes_numpy_counts_like_the_tensor_they_hold():
+    adu = np.array([[100, 104, 180], [4095, 100, 96]], dtype=np.uint16)  # raw 12-bit counts
+    calibration = CameraCalibration(baseline_adu=100.0, gain_adu_per_e=2.0, quantum_efficiency=0.8)
+    photons, background = counts_to_photons(adu, calibration, name="frame")
+    expected, same = counts_to_photons(torch.tensor(adu.astype(np.float32)), calibration, name="frame")
+    assert photons.dtype == torch.float32 and background == same
+    assert torch.equal(photons, expected)
+    double, _ = counts_to_photons(adu.astype(np.float64), calibration, name="frame")
+    assert double.dtype == torch.float64 and torch.allclose(double, expected.double())
 
 
 def test_nan_pixels_are_refused_by_name():

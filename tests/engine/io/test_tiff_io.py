@@ -191,6 +191,37 @@ def test_complex_and_nonfinite_data_are_refused(tmp_path):
     assert not list(tmp_path.iterdir())  # nothing written, no temp files
 
 
+def test_sizes_in_micrometres_passed_as_metres_are_refused(tmp_path):
+    with pytest.raises(
+        ValueError,
+        match=r"voxel_size must be in metres, below 1 mm; got \(10, 0\.7, 0\.7\) m, and a 10 m sample is no "
+        r"microscope's\. Nothing was written\. Fix: did you pass um\? "
+        r"Use voxel_size=\(10 \* um, 0\.7 \* um, 0\.7 \* um\)",
+    ):
+        write_volume(tmp_path / "v.tif", torch.ones(2, 3, 3), voxel_size=(10.0, 0.7, 0.7))
+    with pytest.raises(ValueError, match=r"pixel_size must be in metres.*Use pixel_size=\(6\.5 \* um\)"):
+        write_image(tmp_path / "i.tif", torch.ones(3, 3), pixel_size=6.5)
+    assert not list(tmp_path.iterdir())
+    write_volume(
+        tmp_path / "v.tif", torch.ones(2, 3, 3), voxel_size=(500 * um, 0.7 * um, 0.7 * um)
+    )  # coarse, real
+
+
+def test_a_tiff_under_another_name_and_an_empty_volume_are_refused(tmp_path):
+    with pytest.raises(
+        OutputError, match=r"v\.png would hold a TIFF, .*Nothing was written\. Fix: name it v\.tif\."
+    ):
+        write_volume(tmp_path / "v.png", torch.ones(2, 3, 3), voxel_size=(1e-6,) * 3)
+    with pytest.raises(OutputError, match=r"Fix: name it psf\.tif\."):
+        write_psf_stack(tmp_path / "psf", _stack())
+    with pytest.raises(
+        ValueError, match=r"volume is empty \(shape \(0, 5, 5\)\): a TIFF holds at least one pixel"
+    ):
+        write_volume(tmp_path / "v.tif", torch.zeros(0, 5, 5), voxel_size=(1e-6,) * 3)
+    assert not list(tmp_path.iterdir())
+    assert write_image(tmp_path / "i.TIFF", torch.ones(3, 3), pixel_size=6.5 * um).is_file()
+
+
 # -- overwrite protection and atomicity ----------------------------------------------------
 
 

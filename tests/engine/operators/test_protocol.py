@@ -9,9 +9,11 @@ accepts the projectors where a protocol is expected and rejects wrong types at a
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
+from lfm_studio.engine.errors import require_device
 from lfm_studio.engine.operators import (
     FourierProjector,
     Projector,
@@ -71,6 +73,47 @@ def test_forward_and_adjoint_map_between_the_declared_shapes_and_are_transposes(
     assert ax.dtype == aty.dtype == projector.dtype
     # <A x, y> = <x, A^T y>: two different sums of positive terms, float64 rounding only.
     assert float((ax * y).sum()) == pytest.approx(float((x * aty).sum()), rel=1e-12)
+
+
+@pytest.mark.parametrize("make", PROJECTORS.values(), ids=PROJECTORS.keys())
+def test_forward_and_adjoint_take_numpy_arrays_as_the_tensors_they_hold(make):
+    projector = make()
+    x = _random(projector.volume_shape, 3)
+    y = _random(projector.image_shape, 4)
+    assert torch.equal(projector.forward(x.numpy().astype(np.float32)), projector.forward(x.float()))
+    assert torch.equal(projector.adjoint(y.numpy()), projector.adjoint(y))
+    with pytest.raises(ValueError, match=r"volume must have shape"):
+        projector.forward(x.numpy()[:-1])
+    with pytest.raises(ValueError, match=r"volume must be real \(intensities\)"):
+        projector.forward(x.numpy() * 1j)
+
+
+ON_DEVICE = {
+    "shift-invariant": lambda device: ShiftInvariantProjector(_random((3, 12, 10), 1).to(device), (7, 6)),
+    "lenslet-lattice": lambda device: LensletLatticeProjector(
+        [([0, 1], _random((2, 3, 3, 9, 9), 2).to(device))], 2, (4, 4), 3
+    ),
+    "binned": lambda device: BinnedProjector(
+        ShiftInvariantProjector(_random((3, 12, 10), 1).to(device), (7, 6)), 2
+    ),
+}
+
+
+@pytest.mark.cuda
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+@pytest.mark.parametrize("make", ON_DEVICE.values(), ids=ON_DEVICE.keys())
+def test_numpy_input_to_a_cuda_projector_is_moved_to_its_device(make):
+    projector = make("cuda")
+    x = _random(projector.volume_shape, 3)
+    y = _random(projector.image_shape, 4)
+    image, volume = projector.forward(x.numpy()), projector.adjoint(y.numpy())
+    assert image.device.type == volume.device.type == "cuda"
+    assert torch.equal(image, projector.forward(x.cuda())) and torch.equal(
+        volume, projector.adjoint(y.cuda())
+    )
+    assert require_device("cuda:0") == torch.device("cuda:0")
+    with pytest.raises(ValueError, match=r"this machine has \d+ CUDA device\(s\), numbered from 0\. Fix"):
+        require_device(f"cuda:{torch.cuda.device_count()}")
 
 
 def test_only_the_shift_invariant_projector_is_a_fourier_projector():

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import bisect
+
 import numpy as np
 import pytest
 import torch
@@ -81,6 +83,21 @@ def test_named_errors():
 
 def test_next_fast_length():
     assert [next_fast_length(n) for n in (1, 7, 11, 13, 97, 2048, 2049)] == [1, 8, 12, 15, 100, 2048, 2160]
+
+
+def test_next_fast_length_is_the_next_smooth_number_even_where_they_are_far_apart():
+    # Every 2-3-5-smooth number below 2^64, sorted: the answer is the first one >= n. Near 1e13
+    # they lie ~1e9 apart, where counting up from n (the old loop) never finished.
+    limit = 2**64
+    smooth = sorted(
+        2**a * 3**b * 5**c
+        for c in range(28)
+        for b in range(41)
+        for a in range(65)
+        if 2**a * 3**b * 5**c < limit
+    )
+    for n in (*range(1, 3000), 10**13 + 1, 2**62 + 1, 3**30 + 7, 5**20 - 1):
+        assert next_fast_length(n) == smooth[bisect.bisect_left(smooth, n)], n
 
 
 @pytest.mark.parametrize("chunk", [1, 2, 3, 5])

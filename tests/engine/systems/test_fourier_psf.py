@@ -13,6 +13,8 @@ import threading
 import pytest
 import torch
 
+from lfm_studio.engine.memory import MemoryBudgetError
+from lfm_studio.engine.operators.fft_sizes import next_fast_length
 from lfm_studio.engine.optics.grid import Grid
 from lfm_studio.engine.optics.mla_layout import Lenslet, MicrolensArray
 from lfm_studio.engine.optics.objective import ObjectiveLens
@@ -21,7 +23,7 @@ from lfm_studio.engine.optics.pupils import disk_coverage
 from lfm_studio.engine.progress import CancelledError
 from lfm_studio.engine.systems.fourier_psf import FourierAccuracy, FourierPSFReport, fourier_psf_stack
 from lfm_studio.engine.systems.fourier_system import FourierLFMSystem
-from lfm_studio.engine.systems.fourier_windows import plan_window
+from lfm_studio.engine.systems.fourier_windows import fast_samples, plan_window
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.engine.units import mm, nm, um
 
@@ -193,6 +195,33 @@ def test_named_errors():
         FourierAccuracy(oversampling=0)
     with pytest.raises(ValueError, match="depths is empty"):
         fourier_psf_stack(_system(), ())
+
+
+def test_a_window_too_large_for_memory_is_refused_before_it_is_planned():
+    # Depths in um passed as metres: 10 m out of focus spreads a lenslet's light over ~1e8 samples
+    # per side; planning it looped for ever in next_fast_length, computing it cannot fit anywhere.
+    system, lens = _system(), _system().mla.lenslets[0]
+    with pytest.raises(
+        MemoryBudgetError, match=r"at depths up to 10 m \(\d+ x \d+ samples\).*Fix: give depths in metres"
+    ):
+        plan_window(system, lens, (-10.0, 0.0, 10.0), oversampling=2, margin_airy=32)
+    with pytest.raises(
+        ValueError, match=r"footprint of the lenslet at \(0, 0\) um is not finite.*Fix: give finite"
+    ):
+        plan_window(system, lens, (math.nan,), oversampling=2, margin_airy=32)
+
+
+def test_fast_samples_is_the_smallest_even_fast_multiple_of_the_oversampling():
+    for s in (1, 2, 3, 4, 6):
+        for pixels in range(1, 400):
+            samples = fast_samples(pixels, s)
+            assert samples % s == 0 and samples % 2 == 0 and next_fast_length(samples) == samples
+            smaller = range(pixels * s, samples, s)
+            assert not any(m % 2 == 0 and next_fast_length(m) == m for m in smaller)
+    with pytest.raises(
+        ValueError, match=r"oversampling must have no prime factor above 5; got 7 .*Fix: use 2 or 3"
+    ):
+        fast_samples(10, 7)  # no multiple of 7 is a fast length: the old search never ended
 
 
 def test_lone_lenslets_on_two_workers_give_the_one_thread_stack(monkeypatch):

@@ -282,6 +282,25 @@ def test_the_file_layout_of_a_pattern_stack_is_the_documented_metadata_entries()
     assert split_layout_metadata({"volume_oversampling": 3}) == ({"volume_oversampling": 3}, {})
 
 
+def test_each_kind_knows_its_image_shape_before_computing_the_psf(conventional_stack, fourier_stack):
+    # What a video checks its frames against before the (long) PSF simulation.
+    conventional, fourier = _preview(CONVENTIONAL_PRESET), _preview(FOURIER_PRESET)
+    assert (
+        CONVENTIONAL.image_shape(conventional, crop=60)
+        == imaging_setup(conventional_stack).projector.image_shape
+    )
+    assert (
+        FOURIER.image_shape(fourier, crop=96)
+        == imaging_setup(fourier_stack).projector.image_shape
+        == (96, 96)
+    )
+    assert FOURIER.image_shape(fourier) == fourier.camera.pixel_count
+    layout = conventional_stack.patterns
+    assert CONVENTIONAL.image_shape(conventional, crop=60) == tuple(
+        n * layout.pixels_per_lenslet for n in layout.lenslets
+    )
+
+
 def test_an_oversampled_fourier_stack_keeps_its_binning_through_the_tiff(tmp_path):
     # A stack sampled 3 x finer than the camera: the projector bins 3 x 3 before and after a round trip.
     base = _preview(FOURIER_PRESET)
@@ -291,7 +310,7 @@ def test_an_oversampled_fourier_stack_keeps_its_binning_through_the_tiff(tmp_pat
     back = read_psf_stack(write_psf_stack(tmp_path / "fine.tif", stack))
     assert back.volume_oversampling == 3 and back.metadata == stack.metadata
     for each in (stack, back):
-        assert imaging_setup(each).projector.image_shape == (32, 32)
+        assert imaging_setup(each).projector.image_shape == (32, 32) == FOURIER.image_shape(design, crop=32)
     with pytest.raises(ValueError, match="volume_oversampling must be an odd integer"):
         replace(stack, volume_oversampling=2)
 
