@@ -24,6 +24,9 @@ if ! "$python" -c "import pydantic" 2> /dev/null && compgen -G ".whl/*.whl" > /d
         --target /tmp/lfm_site .whl/*.whl || exit 1
     export PYTHONPATH="/tmp/lfm_site:$PWD"
 fi
+# Without an install (the device machine has none), lfm_studio.resources is the top-level resources/
+# folder, which pyproject maps into the package: link it where the import looks for it.
+[ -e lfm_studio/resources ] || ln -s ../resources lfm_studio/resources
 (nvidia-smi 2>&1 || echo "nvidia-smi: not here") > "$out/nvidia_smi.txt"
 "$python" -c "import torch; print('torch', torch.__version__, '| CUDA:', torch.cuda.get_device_name() if torch.cuda.is_available() else 'not available')" \
     2>&1 | tee "$out/torch.txt"

@@ -253,6 +253,7 @@ def test_cuda_matches_cpu():
     assert gpu.data.is_cuda and torch.equal(gpu.positions, cpu.positions)
     # Same float32 arithmetic on both devices up to operation order: 1e-5 absolute on values <= 1.
     assert torch.allclose(gpu.data.cpu(), cpu.data, rtol=0, atol=1e-5)
-    b_cpu = beads((8, 16, 16), count=5, voxel_size=VOXEL, seed=1, radius=2 * um)
-    b_gpu = beads((8, 16, 16), count=5, voxel_size=VOXEL, seed=1, radius=2 * um, device="cuda")
+    # 5 beads of 2 um need room: (8, 16, 16) holds only 3 (PlacementError on both devices)
+    b_cpu = beads((8, 32, 32), count=5, voxel_size=VOXEL, seed=1, radius=2 * um)
+    b_gpu = beads((8, 32, 32), count=5, voxel_size=VOXEL, seed=1, radius=2 * um, device="cuda")
     assert torch.allclose(b_gpu.data.cpu(), b_cpu.data, rtol=0, atol=1e-5)

@@ -108,8 +108,13 @@ def test_numpy_input_to_a_cuda_projector_is_moved_to_its_device(make):
     y = _random(projector.image_shape, 4)
     image, volume = projector.forward(x.numpy()), projector.adjoint(y.numpy())
     assert image.device.type == volume.device.type == "cuda"
-    assert torch.equal(image, projector.forward(x.cuda())) and torch.equal(
-        volume, projector.adjoint(y.cuda())
+    # The same inputs on the same device, but CUDA kernels may sum in another order between calls
+    # (the lenslet lattice's transposed convolution differed in the last bits on an H200): a tolerance.
+    torch.testing.assert_close(
+        image, projector.forward(x.cuda()), rtol=1e-5, atol=1e-6 * float(image.abs().max())
+    )
+    torch.testing.assert_close(
+        volume, projector.adjoint(y.cuda()), rtol=1e-5, atol=1e-6 * float(volume.abs().max())
     )
     assert require_device("cuda:0") == torch.device("cuda:0")
     with pytest.raises(ValueError, match=r"this machine has \d+ CUDA device\(s\), numbered from 0\. Fix"):

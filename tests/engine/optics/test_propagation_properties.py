@@ -236,6 +236,8 @@ def test_batch_dimensions_propagate_in_one_call_like_single_fields(method):
 
 
 # -- devices ----------------------------------------------------------------------------------
+# The devices are compared on a case that warns about its sampling (the warning is the same on both).
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.errors.SamplingWarning")
 @pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
 @pytest.mark.parametrize("method", PROPAGATORS)
 @pytest.mark.parametrize("dtype", [C64, C128])
