@@ -527,4 +527,4 @@ def test_table_headers_are_never_clipped_in_a_narrow_editor(qtbot):
             header.sectionSize(i),
         )
     tips = [model.headerData(i, Qt.Orientation.Horizontal, Qt.ItemDataRole.ToolTipRole) for i in range(4)]
-    assert "diameter" in tips[2] and "focal length" in tips[3] and all("um" in t or "mm" in t for t in tips)
+    assert "diameter" in tips[2] and "focal length" in tips[3] and all("µm" in t or "mm" in t for t in tips)
