@@ -32,7 +32,8 @@ def require_fourier_projector(projector: object, method: str) -> FourierProjecto
             f"{method} needs a laterally shift-invariant projector with cached OTFs (Fourier LFM, "
             f"ShiftInvariantProjector); {type(projector).__name__} has no "
             f"{', '.join(missing_members(projector, FourierProjector))}. "
-            "Fix: use Richardson-Lucy (plain or Biggs-Andrews accelerated), which works with any projector."
+            "Fix: use Richardson-Lucy (plain or Biggs-Andrews accelerated), which works with any projector, or "
+            "tikhonov, which also solves a lenslet-lattice (conventional LFM) projector in closed form."
         )
     return projector
 

@@ -157,5 +157,7 @@ def test_named_errors(tiny, call, message):
 def test_wiener_refuses_the_conventional_projector(conventional):
     # Tikhonov takes it (per lenslet-lattice frequency: test_lattice_tikhonov.py); Wiener does not.
     image = torch.ones(conventional.setup.projector.image_shape)
-    with pytest.raises(NotImplementedError, match="shift-invariant projector with cached OTFs"):
+    with pytest.raises(NotImplementedError, match="shift-invariant projector with cached OTFs") as refused:
         wiener(conventional.setup.projector, image)
+    assert "Richardson-Lucy" in str(refused.value) and "tikhonov" in str(refused.value)  # both run on it
+    assert tikhonov(conventional.setup.projector, image).shape == conventional.setup.projector.volume_shape
