@@ -55,7 +55,7 @@ class ParameterPanel(QScrollArea):
         layout.addWidget(self.warning_label)
         layout.addStretch(1)
         self.setWidget(body)
-        self.setMinimumWidth(340)
+        self._fit_width()
 
         state.design_changed.connect(self._on_design)
         state.errors_changed.connect(self._on_errors)
@@ -114,6 +114,12 @@ class ParameterPanel(QScrollArea):
 
     # ----- state -> view -----
 
+    def _fit_width(self) -> None:
+        """At least as wide as the fields need beside the vertical scroll bar, so the panel never
+        scrolls sideways (a fixed 340 px left the conventional preset's fields 1 px too wide)."""
+        needed = self.widget().minimumSizeHint().width() + self.verticalScrollBar().sizeHint().width()
+        self.setMinimumWidth(max(340, needed + 2 * self.frameWidth()))
+
     def _on_design(self, design: Design) -> None:
         kind = kind_of(design)
         self.kind_label.setText(f"<b>{design.name}</b><br>{kind.label}")
@@ -127,6 +133,7 @@ class ParameterPanel(QScrollArea):
         if self.accuracy.findText(preset) < 0:
             self.accuracy.addItem(preset)
         self.accuracy.setCurrentText(preset)
+        self._fit_width()
 
     def _on_errors(self, errors: dict[str, str]) -> None:
         design = self.state.design

@@ -162,3 +162,18 @@ def test_a_field_shows_only_its_own_reason_while_another_field_is_refused(panel,
     )
     assert "depth_step_um must be a finite number > 0" in step.text() and "quantum" not in step.text()
     assert state.design == design
+
+
+@pytest.mark.parametrize("preset", ["lfm_10x_na03", "xlfm_cong2017"])
+def test_the_panel_never_scrolls_sideways_at_its_minimum_width(qtbot, preset):
+    """A fixed 340 px minimum left the conventional preset's fields 1 px too wide: a horizontal scroll
+    bar under the panel. Its minimum now holds the widest field beside the vertical scroll bar."""
+    state = StudioState(load_preset(preset))
+    panel = ParameterPanel(state)
+    qtbot.addWidget(panel)
+    panel.resize(panel.minimumWidth(), 500)  # short: the vertical scroll bar shows
+    panel.show()
+    qtbot.waitExposed(panel)
+    assert panel.verticalScrollBar().isVisible()
+    assert panel.horizontalScrollBar().maximum() == 0
+    panel.disconnect_state()
