@@ -158,10 +158,14 @@ def method_text(settings: WorkflowSettings, design: Any) -> str:
     takes_iterations = get_method(settings.method).option("iterations") is not None
     iterations = f", {settings.iterations} iterations" if takes_iterations else ""
     options = "".join(f", {k} {v}" for k, v in settings.method_options)
+    from lfm_studio.engine.systems.kinds import kind_of
+
     ny, nx = design.camera.pixel_count
+    py, px = kind_of(design).image_shape(design)  # what the video's projector images (no crop)
+    camera = "" if (py, px) == (ny, nx) else f" of its {ny} x {nx} px camera"
     return (
         f"Method: {settings.method}{iterations}{options} (the “Simulate and reconstruct” panel's). "
-        f"Design: “{design.name}” ({ny} x {nx} px camera); frames must match it."
+        f"Design: “{design.name}”: frames must be {py} x {px} px (what it images{camera})."
     )
 
 

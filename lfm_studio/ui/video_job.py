@@ -155,7 +155,10 @@ def frame_shape_fix(design: Design) -> str:
     of the engine's refusal, :func:`lfm_studio.engine.batch.video.check_frame_shape`)."""
     return (
         f"open the design of the camera that recorded these frames (File > Open…; “{design.name}” has "
-        f"camera.pixel_count {tuple(design.camera.pixel_count)}), or crop the frames to the pixels it images."
+        f"camera.pixel_count {tuple(design.camera.pixel_count)}), or crop the frames to the pixels it images. "
+        "Raw frames of a real microscope (lenslet grid off the pixel lattice) need their calibration, which "
+        "a video run does not take yet: reconstruct them with File > Open raw light field… one frame at a "
+        "time, or rectify the series first (rectify_frame, docs/calibration.md)."
     )
 
 

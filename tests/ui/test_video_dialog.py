@@ -174,3 +174,20 @@ def test_without_the_scale_extra_the_menu_says_how_to_install_it(qtbot, monkeypa
     assert "lfm_studio_no_such_module" in text and 'pip install "lfm-studio[scale]"' in text
     actions.video.last_message.close()
     actions.disconnect_state()
+
+
+def test_the_dialog_names_the_frame_size_the_projector_images_and_raw_frames_need_a_calibration():
+    """A conventional design images whole lenslets: its 128 px camera gives 114 px frames. The label
+    said "128 x 128 px camera; frames must match it" while the refusal asked for 114 x 114."""
+    from lfm_studio.ui.results import WorkflowSettings
+    from lfm_studio.ui.video_dialog import method_text
+    from lfm_studio.ui.video_job import frame_shape_fix
+    from tests.ui.standins import small_conventional_design
+
+    conventional, fourier = small_conventional_design(), small_fourier_design()
+    assert "frames must be 114 x 114 px (what it images of its 128 x 128 px camera)" in method_text(
+        WorkflowSettings(), conventional
+    )
+    assert "frames must be 256 x 256 px (what it images)." in method_text(WorkflowSettings(), fourier)
+    fix = frame_shape_fix(conventional)
+    assert "calibration" in fix and "Open raw light field" in fix and "rectify_frame" in fix
