@@ -65,6 +65,7 @@ from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.optimise_model import (
     CLI_CROP,
     METHODS,
+    NOT_EVALUATED,
     PHANTOMS,
     PREVIEW_CROP,
     SAMPLERS,
@@ -79,12 +80,15 @@ from lfm_studio.ui.optimise_model import (
     best_row,
     best_so_far,
     cell_text,
+    column_labels,
     comparison_rows,
     default_min_lenslet_um,
     freeable_fields,
     objective_info,
     parse_sizes,
     psf_preview,
+    reason_tip,
+    reasons_tip,
     run_algorithm2_layout,
     run_gradient,
     run_optimisation,
@@ -233,7 +237,8 @@ class OptimiseDock(QWidget):
         self.chosen: int | None = None
         self.summary = ""
         # a run started whose first row has not arrived: the rows shown stay until it does
-        self._pending: tuple[AnyRequest, dict[str, tuple[str, str]]] | None = None
+        self._pending: tuple[AnyRequest, dict[str, tuple[str, str]], dict[str, str]] | None = None
+        self._labels: dict[str, str] = {}  # the run table's column label of each freed path
         self._min_lenslet_edited = False
         self._directions: dict[str, str] = {}
         self._objective_order: list[str] = []
@@ -514,6 +519,8 @@ class OptimiseDock(QWidget):
         item = self.plot.getPlotItem()
         item.showGrid(x=True, y=True, alpha=0.25)
         item.setLabel("bottom", "evaluation")
+        for side in ("left", "bottom"):  # values as they are: no "(x0.001)" beside "µm" or "score"
+            item.getAxis(side).enableAutoSIPrefix(False)
         item.addLegend(offset=(-10, 10))
         self.best_curve = item.plot([], [], pen=pg.mkPen(BEST, width=2), name="best so far")
         self.feasible_dots = item.plot(
@@ -761,7 +768,8 @@ class OptimiseDock(QWidget):
         except ValueError as error:
             self.message.setText(f"<span style='color:{INFEASIBLE.name()}'>{error}</span>")
             return
-        self._pending = (request, info)  # the rows shown stay until this run delivers its first one
+        labels = column_labels(self.state.design)  # the labels of the design the run starts from
+        self._pending = (request, info, labels)  # the rows shown stay until this run delivers its first one
         self.message.setText(f"Running {METHODS[request.method]}…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
@@ -781,7 +789,7 @@ class OptimiseDock(QWidget):
         """The running job delivered: its request replaces the one whose rows were shown."""
         if self._pending is None:
             return
-        request, info = self._pending
+        request, info, self._labels = self._pending
         self._pending = None
         self.request, self.rows, self.chosen, self.summary = request, [], None, ""
         self._directions = {n: d for n, (d, _) in info.items()}
@@ -877,19 +885,30 @@ class OptimiseDock(QWidget):
         paths = list(request.columns()) if request is not None else []
         names = list(request.objectives) if request is not None else []
         units = {n: shown_unit(self._units.get(n, "")) for n in names}
-        headers = ["#", *paths, *(f"{n} ({units[n]})" if units[n] else n for n in names), "Feasible / reason"]
+        headers = [
+            "#", *(self._labels.get(p, p) for p in paths), *(f"{n} ({units[n]})" if units[n] else n for n in names),
+            "Feasible / reason",
+        ]  # fmt: skip
         self.table.setColumnCount(len(headers))
         self.table.setHorizontalHeaderLabels(headers)
+        for c, path in enumerate(paths, start=1):  # the path (as in a design space) on hover
+            self.table.horizontalHeaderItem(c).setToolTip(path)
+        self.table.horizontalHeaderItem(len(headers) - 1).setToolTip(reasons_tip())
         self.table.setRowCount(len(self.rows))
         best = self.best()
         for r, row in enumerate(self.rows):
             cells = [str(row.number)]
             cells += [cell_text(row.params.get(p, float("nan"))) for p in paths]
-            cells += ["—" if row.values is None else f"{row.values[n]:.6g}" for n in names]
+            cells += [
+                "—" if row.values is None else f"{row.values[n]:.6g}" if n in row.values else NOT_EVALUATED
+                for n in names
+            ]
             note = f" ({row.note})" if row.note else ""
             cells.append(f"yes{note}" if row.feasible else f"no: {row.reason}")
+            why = reason_tip(row.reason) if not row.feasible else ""
             for c, text in enumerate(cells):
-                item = _item(text, tip=row.message or text)
+                tip = row.message or text
+                item = _item(text, tip=f"{why}\n{tip}" if why else tip)
                 if not row.feasible:
                     item.setForeground(QBrush(INFEASIBLE))
                 if best is not None and row.number == best.number:
@@ -916,15 +935,19 @@ class OptimiseDock(QWidget):
         # A gradient run's steps are one path: join them (the loss curve); candidates stay dots.
         gradient = method.startswith("gradient")
         self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if gradient else None)
-        dots = {"grid": "candidate", "algorithm2": "layout"}.get(method, "step (final design last)")
+        # end to end: the training loss is not measured at the final design (no point drawn there)
+        step = "step" if method == "gradient-end-to-end" else "step (final design last)"
+        dots = {"grid": "candidate", "algorithm2": "layout"}.get(method, step)
         for sample, label in item.legend.items:
             if sample.item is self.feasible_dots:
                 label.setText(dots)
         best = best_so_far(self.rows, name, self._directions[name])
         xs = [r.number for r in self.rows]
-        line = [(x, b) for x, b in zip(xs, best, strict=True) if b is not None]
+        # a row whose score was not measured (end to end: the final design) does not extend the line
+        scored = [r.values is None or name in r.values for r in self.rows]
+        line = [(x, b) for x, b, s in zip(xs, best, scored, strict=True) if b is not None and s]
         self.best_curve.setData([x for x, _ in line], [b for _, b in line])
-        dots = [(r.number, r.values[name]) for r in self.rows if r.values is not None]
+        dots = [(r.number, r.values[name]) for r in self.rows if r.values is not None and name in r.values]
         self.feasible_dots.setData([x for x, _ in dots], [y for _, y in dots])
 
     def selected_rows(self) -> list[CandidateRow]:

@@ -47,6 +47,7 @@ from lfm_studio.engine.optimize import (
 )
 from lfm_studio.engine.optimize.algorithm2 import LayoutTrial
 from lfm_studio.engine.optimize.algorithm2_study import layout_key
+from lfm_studio.engine.optimize.constraints import REASONS
 from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS, optimize_end_to_end
 from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES, psf_objective, quietly
 from lfm_studio.engine.optimize.gradient_params import bind_space
@@ -59,6 +60,7 @@ from lfm_studio.engine.simulation import simulate_psf
 from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.ui.edits import read_path
 from lfm_studio.ui.parameter_fields import FIELDS
+from lfm_studio.ui.unit_text import shown_unit
 
 SAMPLERS: tuple[str, ...] = ("grid", "tpe", "random")
 """Samplers the dock offers (``grid`` tries every grid point in order, up to the budget)."""
@@ -198,6 +200,8 @@ class CandidateRow:
     """One stored candidate: trial number, parameters, objective values, feasibility, design JSON.
 
     ``note`` says what the row is when it is more than a candidate ("final design", "accepted").
+    ``values`` is None for an infeasible candidate; an objective missing from a feasible row's
+    ``values`` was not evaluated at that row's design (shown :data:`NOT_EVALUATED`, not plotted).
     """
 
     number: int
@@ -242,11 +246,32 @@ def row_of(trial: Any, names: Sequence[str]) -> CandidateRow:
     )
 
 
+NOT_EVALUATED = "not evaluated"
+
+
+def reason_tip(code: str | None) -> str:
+    """What an infeasibility code means (one sentence), or "" for a feasible row."""
+    if not code:
+        return ""
+    return f"{code}: {REASONS.get(code, 'see the message of this row')}"
+
+
+def reasons_tip() -> str:
+    """Every infeasibility code with its meaning (the tooltip of the table's reason column)."""
+    return "Why a candidate is infeasible:\n" + "\n".join(f"{code}: {text}" for code, text in REASONS.items())
+
+
+def column_labels(design: Design) -> dict[str, str]:
+    """``{path: "Label (unit)"}`` of the values ``design`` offers to free (the parameter table's labels)."""
+    return {f.path: f"{f.label} ({f.unit})" if f.unit else f.label for f in freeable_fields(design)}
+
+
 def best_so_far(rows: Sequence[CandidateRow], name: str, direction: str) -> list[float | None]:
-    """The best feasible value of objective ``name`` after each row (None before the first feasible one)."""
+    """The best feasible value of objective ``name`` after each row (None before the first feasible one;
+    a row where ``name`` was not evaluated does not count)."""
     s, best, out = sign(direction), None, []
     for row in rows:
-        if row.values is not None:
+        if row.values is not None and name in row.values:
             v = row.values[name]
             if best is None or s * v < s * best:
                 best = v
@@ -256,7 +281,7 @@ def best_so_far(rows: Sequence[CandidateRow], name: str, direction: str) -> list
 
 def best_row(rows: Sequence[CandidateRow], name: str, direction: str) -> CandidateRow | None:
     """The feasible row with the best value of ``name`` (first one on ties)."""
-    feasible = [r for r in rows if r.values is not None]
+    feasible = [r for r in rows if r.values is not None and name in r.values]
     if not feasible:
         return None
     s = sign(direction)
@@ -510,11 +535,18 @@ def run_algorithm2_layout(
         return RunResult(rows, None, f"no layout was feasible ({counts}).", details)
     key = layout_key(result.blocks)
     chosen = next(r.number for r in rows if r.feasible and layouts[r.number] == key)
-    unit = f" {objective.unit}" if objective.unit else ""
+    unit = f" {shown_unit(objective.unit)}" if objective.unit else ""
+    count = len(result.blocks)
     summary = (
-        f"best layout (row {chosen}): {len(result.blocks)} lenslets, {objective.name} = {result.score:.6g}{unit} "
-        f"({counts})"
+        f"best layout (row {chosen}): {count} lenslet{'s' * (count != 1)}, {objective.name} = "
+        f"{result.score:.6g}{unit} ({counts})"
     )
+    if count < 2:
+        summary += (
+            f". Note: {count} lenslet is no light field: a single view records no depth information "
+            f"({objective.name} alone rewards the widest lenslet). Fix: a depth-aware objective (e.g. "
+            "axial_crb), or load a layout with several lenslets from the table"
+        )
     return RunResult(rows, chosen, summary, details)
 
 
@@ -768,18 +800,25 @@ def _run_gradient(
     final_point = result.final_point or {p: float(v) for p, v in space.values_of(result.design).items()}
     chosen = len(result.history)
     notes = list(result.warnings)
-    if request.mode == "end-to-end":  # final_value is the last step's training loss (a new batch each step)
+    if request.mode == "end-to-end":
+        # final_value is the last step's training loss, measured at the point *before* its update:
+        # nothing was measured on the training batches at the final point, only the held-out loss.
+        final_values: dict[str, float] = {}
         notes.insert(
-            0, f"task_loss of the last step; held-out task loss {result.extra['held_out_final']:.4g}"
+            0,
+            f"{name} {NOT_EVALUATED} at the final design (each step's training loss is measured before "
+            f"its update); held-out task loss at the final design {result.extra['held_out_final']:.4g}",
         )
+    else:  # PSF engineering: final_value is the objective evaluated at the final point
+        final_values = {name: result.final_value}
     rows.append(
         CandidateRow(
-            number=chosen, params=dict(final_point), values={name: result.final_value}, reason=None,
+            number=chosen, params=dict(final_point), values=final_values, reason=None,
             message="; ".join(notes), design_json=design_to_json(result.design),
             note=f"final design ({result.final} point)",
         )
     )  # fmt: skip
-    unit_text = f" {unit}" if unit else ""
+    unit_text = f" {shown_unit(unit)}" if unit else ""
     details: dict[str, Any] = {
         "start_value": result.start_value,
         "final_value": result.final_value,
@@ -792,9 +831,12 @@ def _run_gradient(
         )
     else:
         extra = result.extra
+        last = len(result.history) - 1
         summary = (
-            f"task loss (training batches) {result.start_value:.4g} → {result.final_value:.4g}; held-out "
-            f"{extra['held_out_start']:.4g} → {extra['held_out_final']:.4g} (all-zero volume {extra['zero_floor']:g})"
+            f"held-out task loss {extra['held_out_start']:.4g} at the start → {extra['held_out_final']:.4g} at the "
+            f"final design (all-zero volume {extra['zero_floor']:g}); training-batch loss {result.start_value:.4g} "
+            f"at step 0, {result.final_value:.4g} at step {last} (before its update; {NOT_EVALUATED} at the "
+            "final design)"
         )
         if extra.get("final_volume_trivial"):
             summary += f"; the final reconstruction is {extra['final_volume_trivial']}"

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 import threading
 import warnings
 
@@ -23,6 +24,7 @@ from lfm_studio.engine.optimize import (
 )
 from lfm_studio.engine.optimize import objectives as objectives_module
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
+from lfm_studio.engine.optimize.constraints import REASONS
 from lfm_studio.engine.optimize.crop import auto_crop
 from lfm_studio.engine.optimize.objectives import ClosedForm
 from lfm_studio.ui.optimise_dock import JOB_NAME
@@ -66,6 +68,11 @@ def _algorithm2(qtbot, window, objective="lateral_resolution"):
 
 def _poor_start(window):
     window.state.set_design(_quiet(lambda: SPACE.apply(window.state.design, POOR)))
+
+
+def _label(dock, path):
+    """The free-parameter table's label of ``path``."""
+    return dock.parameters.item(dock.parameter_row(path), 1).text()
 
 
 def _free_focus(dock):
@@ -128,6 +135,7 @@ def test_algorithm2_finds_the_engines_layout_without_overlaps_and_it_loads(qtbot
     assert f"{len(reference.blocks)} lenslets" in dock.message.text() and dock.message.text().startswith(
         "Done"
     )
+    assert len(reference.blocks) >= 2 and "no depth information" not in dock.message.text()
     # the table: the block merged, the base, the lenslet count, the score, "yes (accepted)" for the best
     table = {dock.table.horizontalHeaderItem(c).text(): c for c in range(dock.table.columnCount())}
     row = dock.rows.index(best)
@@ -156,6 +164,31 @@ def test_algorithm2_finds_the_engines_layout_without_overlaps_and_it_loads(qtbot
     before = state.design
     dock.table.cellDoubleClicked.emit(dock.rows.index(infeasible[0]), 0)
     assert state.design is before and "infeasible" in dock.message.text()
+
+
+def test_algorithm2_notes_a_single_lenslet_best_layout_and_explains_the_refusal_codes(qtbot, window):
+    """On the small FLFM, lateral resolution alone picks one big lenslet: the dock says that is no light field."""
+    dock = window.optimise
+    dock.set_method("algorithm2")
+    dock.a2_objective.setCurrentText("lateral_resolution")  # the minimum lenslet size follows the design
+    dock.run_button.click()
+    _done(qtbot, window)
+    best, text = dock.best(), dock.message.text()
+    assert best is not None and best.params["lenslets"] == 1
+    assert "1 lenslet," in text and "1 lenslets" not in text
+    assert "no depth information" in text and "µm" in text and " um " not in text
+    # every refused row says on hover what its code means; the column's header lists every code
+    table = {dock.table.horizontalHeaderItem(c).text(): c for c in range(dock.table.columnCount())}
+    column = table["Feasible / reason"]
+    refused = [i for i, r in enumerate(dock.rows) if r.reason == "layout_refused"]
+    assert refused
+    for i in refused:
+        assert dock.table.item(i, column).text() == "no: layout_refused"
+        assert REASONS["layout_refused"] in dock.table.item(i, column).toolTip()
+        assert REASONS["layout_refused"] in dock.table.item(i, 0).toolTip()
+    header = dock.table.horizontalHeaderItem(column).toolTip()
+    assert all(f"{code}: {meaning}" in header for code, meaning in REASONS.items())
+    assert "invalid_design" in header and "evaluation_refused" in header
 
 
 def test_gradient_psf_engineering_lowers_the_objective_and_loads_the_final_design(qtbot, window):
@@ -192,6 +225,15 @@ def test_gradient_psf_engineering_lowers_the_objective_and_loads_the_final_desig
     xs, ys = dock.feasible_dots.getData()
     assert list(xs) == [0, 1, 2, 3] and list(ys) == pytest.approx([*values, final.values["axial_crb"]])
     assert dock.plot.getPlotItem().getAxis("bottom").labelText == "step"
+    # the axis reads the values as they are (CRBs of a few nm in µm: no "(x0.001)" scale on the axis)
+    left = dock.plot.getPlotItem().getAxis("left")
+    assert max(ys) < 1 and left.autoSIPrefixScale == 1.0 and "(x0." not in left.labelString()
+    assert "µm" in left.labelString() and " um" not in dock.message.text() and "µm" in dock.message.text()
+    # the run table's columns are labelled as the free-parameter table labels them (the path on hover)
+    headers = [dock.table.horizontalHeaderItem(c) for c in range(dock.table.columnCount())]
+    shown = {h.toolTip(): h.text() for h in headers[1:3]}
+    assert shown == {FOCAL: "All lenslets: focal length (mm)", DISTANCE: _label(dock, DISTANCE)}
+    assert "_mm" not in shown[DISTANCE]
     dock.table.cellDoubleClicked.emit(len(dock.rows) - 1, 0)
     for path, value in SPACE.values_of(state.design).items():
         assert value == pytest.approx(final.params[path]) and BOUNDS[path][0] <= value <= BOUNDS[path][1]
@@ -211,10 +253,28 @@ def test_gradient_end_to_end_reports_the_held_out_loss(qtbot, window):
     dock.run_button.click()
     _done(qtbot, window)
     assert [r.number for r in dock.rows] == [0, 1, 2] and dock.best() is dock.rows[-1]
-    assert all(0 < r.values["task_loss"] < 1.5 for r in dock.rows)  # energy-normalised MSE (all-zero: 1)
+    steps, final = dock.rows[:-1], dock.rows[-1]
+    assert all(0 < r.values["task_loss"] < 1.5 for r in steps)  # energy-normalised MSE (all-zero: 1)
     text = dock.message.text()
     assert "held-out" in text and "all-zero volume 1" in text and "float64" not in text
-    assert dock.rows[-1].note == "final design (last point)"
+    assert final.note == "final design (last point)"
+    # Each step's training loss is measured before its update: none was measured at the final design, so
+    # its cell says so, the plot has no point there, and the message gives the last step's loss as that step's.
+    assert final.feasible and "task_loss" not in final.values
+    table = {dock.table.horizontalHeaderItem(c).text(): c for c in range(dock.table.columnCount())}
+    assert dock.table.item(2, table["task_loss"]).text() == "not evaluated"
+    assert dock.table.item(1, table["task_loss"]).text() == f"{steps[1].values['task_loss']:.6g}"
+    xs, ys = dock.feasible_dots.getData()
+    assert list(xs) == [0, 1] and list(ys) == pytest.approx([r.values["task_loss"] for r in steps])
+    assert list(dock.best_curve.getData()[0]) == [
+        0,
+        1,
+    ]  # the best-so-far line stops at the last measured step
+    last = f"{steps[1].values['task_loss']:.4g}"
+    assert f"{last} at step 1 (before its update; not evaluated at the final design)" in text
+    assert f"→ {last}" not in text  # not presented as the final design's loss
+    held_out = re.search(r"→ ([0-9.]+) at the final design", text)
+    assert held_out and 0 < float(held_out.group(1)) < 1.5 and held_out.group(1) in final.message
     assert dock.rows[1].params != pytest.approx(POOR)  # the optics moved
     dock.table.cellDoubleClicked.emit(2, 0)
     assert SPACE.values_of(window.state.design) == pytest.approx(dock.rows[-1].params)

@@ -51,6 +51,24 @@ class Constraint(Protocol):
     def check(self, design: Design) -> Infeasible | None: ...
 
 
+# What each infeasibility code means, one short sentence each (docs/optimize.md lists where each comes from).
+REASONS: dict[str, str] = {
+    "lenslet_overlap": "Two lenslet apertures overlap.",
+    "outside_pupil": "A lenslet (its centre, or part of its aperture) lies outside the pupil image at the MLA.",
+    "outside_array_aperture": "A lenslet lies beyond the MLA's array aperture.",
+    "sub_image_off_sensor": "A sub-image (its centre, or part of it) falls off the camera sensor.",
+    "sub_image_overlap": "Two sub-images overlap on the sensor by more than half a pixel.",
+    "unbounded_field": "No field number or field stop: the sub-images cannot be checked.",
+    "lenslet_too_small": "A lenslet aperture is below the minimum lenslet size.",
+    "requirement_failed": "A closed-form requirement (e.g. the zebrafish requirements) fails.",
+    "evaluation_refused": "An objective refused the candidate (e.g. a reconstruction rejected as all zero).",
+    "invalid_design": "The design's own validation refused the candidate (see its message).",
+    "layout_refused": "Algorithm 2 refused the merge: the block lies outside the pupil, cuts through a lenslet "
+    "it does not contain, or overlaps its own symmetric image.",
+    "not_finite": "The objective came out infinite or NaN at this point.",
+}
+
+
 # Phrases of the design's own refusals (engine/design) and the reason code each means.
 _ERROR_REASONS = (
     ("must not overlap", "lenslet_overlap"),
