@@ -256,6 +256,28 @@ def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, flo
     return counts_to_photons(image.counts, design_camera(design.camera), name="the simulated image")
 
 
+def reconstruction_refusal(settings: WorkflowSettings) -> str | None:
+    """Why the studio cannot start ``settings``' reconstruction, in the studio's words, or None.
+
+    The Learned model method needs a checkpoint file in its Model field (the engine's own message
+    names the CLI's ``--model`` and ``lfm-studio train``); checked before the job starts.
+    """
+    if settings.method != "learned":
+        return None
+    from pathlib import Path
+
+    path = dict(settings.method_options).get("model")
+    fix = (
+        "Fix: train a model in the Train dock and press Save checkpoint…, then choose that file "
+        "in the Model field (…), or choose a checkpoint written by `lfm-studio train`."
+    )
+    if not path:
+        return f"the Learned model method needs a checkpoint file in its Model field, which is empty. {fix}"
+    if not Path(path).expanduser().is_file():
+        return f"Model field: no checkpoint file {path}. {fix}"
+    return None
+
+
 def peak_mode(settings: WorkflowSettings) -> bool | None:
     """Whether to score bead F1: on for beads, off for cells, judged from the volume for a TIFF."""
     return {"beads": True, "cells": False}.get(settings.phantom)

@@ -34,6 +34,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
+from lfm_studio.ui.stale_marks import stage_mark
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.method_options import MethodOptions
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
@@ -129,6 +130,8 @@ class WorkflowPanel(QWidget):
             self.reconstruct_button.setToolTip(
                 "Reconstruction needs lfm_studio.engine.reconstruct, which this installation lacks."
             )
+        self.message = ErrorLabel(self)  # why the last image or reconstruction failed
+        layout.addWidget(self.message)
         self.quality = QLabel(NO_QUALITY, self)
         self.quality.setWordWrap(True)
         layout.addWidget(self.quality)
@@ -149,10 +152,14 @@ class WorkflowPanel(QWidget):
         self.reconstruct_button.clicked.connect(self._on_reconstruct)
         state.workflow_changed.connect(self._show_settings)
         state.reconstruction_changed.connect(self._on_reconstruction)
+        state.stale_changed.connect(self._on_reconstruction_state)
+        state.job_changed.connect(self._on_job)
 
     def disconnect_state(self) -> None:
         self.state.workflow_changed.disconnect(self._show_settings)
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
+        self.state.stale_changed.disconnect(self._on_reconstruction_state)
+        self.state.job_changed.disconnect(self._on_job)
 
     def numeric_fields(self) -> tuple[NumericField, ...]:
         """The typed numbers: beads, photons, seed, iterations, the method's other options."""
@@ -190,8 +197,35 @@ class WorkflowPanel(QWidget):
             w.blockSignals(False)
         self._show_input_errors()
 
+    def _on_job(self, status: object) -> None:
+        if getattr(status, "name", None) in ("image", "reconstruction"):  # not every progress tick of others
+            self._on_reconstruction_state()
+
+    def _on_reconstruction_state(self, *_: object) -> None:
+        """The message line names a failed image or reconstruction job; scores on screen whose
+        reconstruction no longer matches (or whose rerun failed) are marked stale."""
+        failed = [
+            f"{what} failed: {job.message.removeprefix('failed: ')}"
+            for name, what in (("image", "Image"), ("reconstruction", "Reconstruction"))
+            if (job := self.state.job(name)).state == "failed"
+        ]
+        self.message.show_error("\n".join(failed) or None)
+        self._on_reconstruction(self.state.reconstruction)
+
+    def _stale_line(self, result: ReconstructionResult | None) -> str:
+        mark = None if result is None else stage_mark(self.state, "reconstruction")
+        if mark is None:
+            return ""
+        text = mark.text
+        if mark.activity == "failed":  # the message line above says why
+            text = (
+                text.split("; ")[0]
+                + "; the reconstruction failed (see above), these scores are the previous one's"
+            )
+        return f'<span style="color:#b35900;">{html.escape(text)}</span><br>'
+
     def _on_reconstruction(self, result: ReconstructionResult | None) -> None:
-        self.quality.setText(quality_text(result))
+        self.quality.setText(self._stale_line(result) + quality_text(result))
         self.quality.setToolTip(
             ""
             if result is None or result.scores is None
