@@ -199,6 +199,7 @@ def simulate_image(
     ctx: Context, design: Design, stack: PSFStack, settings: WorkflowSettings, device: str = "cpu"
 ) -> ImageResult:
     """Phantom (beads, cells or a TIFF volume) -> noisy light-field image through ``stack``."""
+    from lfm_studio.engine.phantoms import DEFAULT_BEADS
     from lfm_studio.engine.simulation import camera_of, imaging_setup, light_field_image, make_phantom
 
     ctx.progress(0, 3, "image: building the projector")
@@ -221,7 +222,15 @@ def simulate_image(
                 f"shape {tuple(setup.volume_shape)} (Z, Y, X) with voxels {voxel_um} um. Fix: resample the volume."
             )
     else:
-        volume, info = make_phantom(settings.phantom, setup, seed=settings.seed, count=settings.bead_count)
+        count = (
+            settings.bead_count or None
+        )  # 0: as many as fit (the engine's default, as in `lfm-studio image`)
+        volume, info = make_phantom(settings.phantom, setup, seed=settings.seed, count=count)
+        if "note" in info:  # fewer than the default fit; the engine's note names the CLI's --count
+            info["note"] = (
+                f"{info['objects']} beads: as many as fit in this volume (at most {DEFAULT_BEADS}). "
+                "Type a number in Beads for another count (at most what fits)."
+            )
         volume = volume.to(device)
     ctx.check()
     ctx.progress(2, 3, "image: light field")

@@ -44,7 +44,11 @@ PHANTOMS = (("beads", "Beads"), ("cells", "Cells (brain-like ellipsoid)"), ("tif
 
 
 PHOTONS = NumberRule("Photon budget", 1.0, 1e15, "photons", example=1e6)
-BEADS = NumberRule("Beads", 1, 100_000, integer=True, example=20)
+BEADS = NumberRule("Beads", 0, 100_000, integer=True, special_text="as many as fit", example=20)
+BEADS_TIP = (
+    "Beads in the phantom. 'as many as fit' (0, the default): up to 50, fewer when the volume is small, "
+    "as `lfm-studio image` does; a typed count that does not fit is refused."
+)
 SEED = NumberRule("Seed", 0, 2**31 - 1, integer=True, example=0)
 ITERATIONS = NumberRule("Iterations", 1, 10_000, integer=True, example=10)
 SHOWN_ELSEWHERE = ("background", "iterations")  # the noise floor; the typed iterations field
@@ -93,7 +97,7 @@ class WorkflowPanel(QWidget):
         for key, text in PHANTOMS:
             self.phantom.addItem(text, key)
         form.addRow("Phantom", self.phantom)
-        self.bead_count = NumericField(BEADS, 20, step=1, parent=self)
+        self.bead_count = NumericField(BEADS, 0, step=1, tip=BEADS_TIP, parent=self)
         form.addRow("Beads", self.bead_count)
         row = QHBoxLayout()
         self.tiff_path = QLineEdit(self)
@@ -132,6 +136,11 @@ class WorkflowPanel(QWidget):
             )
         self.message = ErrorLabel(self)  # why the last image or reconstruction failed
         layout.addWidget(self.message)
+        self.note = QLabel(self)  # what the image's phantom says about itself (e.g. fewer beads fit)
+        self.note.setWordWrap(True)
+        self.note.setStyleSheet("color: #555;")
+        self.note.setVisible(False)
+        layout.addWidget(self.note)
         self.quality = QLabel(NO_QUALITY, self)
         self.quality.setWordWrap(True)
         layout.addWidget(self.quality)
@@ -154,12 +163,15 @@ class WorkflowPanel(QWidget):
         state.reconstruction_changed.connect(self._on_reconstruction)
         state.stale_changed.connect(self._on_reconstruction_state)
         state.job_changed.connect(self._on_job)
+        state.image_changed.connect(self._on_image)
+        self._on_image(state.image)
 
     def disconnect_state(self) -> None:
         self.state.workflow_changed.disconnect(self._show_settings)
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
         self.state.stale_changed.disconnect(self._on_reconstruction_state)
         self.state.job_changed.disconnect(self._on_job)
+        self.state.image_changed.disconnect(self._on_image)
 
     def numeric_fields(self) -> tuple[NumericField, ...]:
         """The typed numbers: beads, photons, seed, iterations, the method's other options."""
@@ -196,6 +208,11 @@ class WorkflowPanel(QWidget):
         for w in widgets:
             w.blockSignals(False)
         self._show_input_errors()
+
+    def _on_image(self, image: object) -> None:
+        note = getattr(image, "info", {}).get("note") if image is not None else None
+        self.note.setText(f"Image: {note}" if note else "")
+        self.note.setVisible(bool(note))
 
     def _on_job(self, status: object) -> None:
         if getattr(status, "name", None) in ("image", "reconstruction"):  # not every progress tick of others
