@@ -13,6 +13,7 @@ a job succeeded and is still current (:mod:`lfm_studio.widgets.jobs`).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from functools import partial
 from typing import Any
 
@@ -63,6 +64,7 @@ class StudioController(QObject):
         self.last_error: JobOutcome | None = None
         self._asked: set[str] = set()  # stages asked for by a button: run once even without auto-update
         self._inputs: dict[str, Any] = {}  # what the latest job of each stage was started with
+        self._refusals = 0  # reconstructions refused before their job started
         self._timer = QTimer(self)
         self._timer.setSingleShot(True)
         self._timer.setInterval(debounce_ms)
@@ -186,6 +188,19 @@ class StudioController(QObject):
         if image is None or not self._submit_once("reconstruction", (id(image), settings)):
             return
         self._asked.discard("reconstruction")
+        refusal = pipeline.reconstruction_refusal(workflow)
+        if (
+            refusal is not None
+        ):  # not started: failed at once, in the studio's words (the result on screen goes stale)
+            self.runner.cancel("reconstruction")
+            self._inputs.pop("reconstruction", None)
+            self._refusals += (
+                1  # a generation of its own (negative: never a runner job's), one failure notice each
+            )
+            job = replace(self.state.job("reconstruction"), state="failed", done=0, total=0,
+                          message=f"failed: {refusal}", generation=-self._refusals)  # fmt: skip
+            self.state.set_job(job)
+            return
         self.state.set_convergence((), ())
         self.runner.submit(
             "reconstruction", pipeline.reconstruct, self.state.design, image, self.state.workflow,

@@ -32,7 +32,7 @@ from lfm_studio.engine.design import list_presets, load_design, load_preset, sav
 from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.failure_notices import show_failure, write_error_text
 from lfm_studio.ui.raw_frame_dialog import RawFrameActions
-from lfm_studio.ui.refused_input import confirm_save_refused, refused_text
+from lfm_studio.ui.refused_input import confirm_save_refused, refused_text, unsaved_model_text
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.video_dialog import VideoActions
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
@@ -138,24 +138,29 @@ class FileActions(QObject):
     # ----- documents -----
 
     def confirm_discard(self) -> bool:
-        """Ask what to do with unsaved input (changes, refused values on screen); True when it is fine
-        to go on (saved or discarded)."""
+        """Ask what to do with unsaved input (changes, refused values on screen, a trained model not
+        saved to a checkpoint); True when it is fine to go on (saved or discarded)."""
         state = self.state
         if not state.unsaved_input:
             return True
         refused = refused_text(state.errors, "will not be saved") if state.errors else ""
-        if not state.dirty:  # the design is saved; only refused values are on screen
-            them = "it" if len(state.errors) == 1 else "them"
+        model = unsaved_model_text(state.unsaved_model) if state.unsaved_model else ""
+        if not state.dirty:  # the design is saved; refused values and/or a trained model are unsaved
+            if state.errors:
+                them = "it" if len(state.errors) == 1 and not model else "them"
+                title, text = "Refused values on screen", refused_text(state.errors, "will be lost")
+            else:
+                them, title, text = "it", "Unsaved trained model", ""
             answer = QMessageBox.question(
-                self.window, "Refused values on screen",
-                f"{refused_text(state.errors, 'will be lost')} Discard {them}?",
+                self.window, title,
+                " ".join(part for part in (text, model) if part) + f" Discard {them}?",
                 _Buttons.Discard | _Buttons.Cancel, _Buttons.Cancel,
             )  # fmt: skip
             return answer == _Buttons.Discard
         answer = QMessageBox.question(
             self.window, "Unsaved changes",
             f"The design “{state.design.name}” has unsaved changes. Save them first?"
-            + (f"\n\n{refused}" if refused else ""),
+            + "".join(f"\n\n{part}" for part in (refused, model) if part),
             _Buttons.Save | _Buttons.Discard | _Buttons.Cancel, _Buttons.Save,
         )  # fmt: skip
         if answer == _Buttons.Save:

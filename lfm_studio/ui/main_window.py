@@ -131,6 +131,7 @@ class MainWindow(QMainWindow):
 
         state.errors_changed.connect(self._on_errors)
         state.dirty_changed.connect(self._update_title)
+        state.unsaved_model_changed.connect(self._update_title)  # a trained model not saved is unsaved input
         state.file_path_changed.connect(self._update_title)
         state.design_changed.connect(self._update_title)
         self._update_title()
@@ -166,6 +167,7 @@ class MainWindow(QMainWindow):
         for signal, slot in (
             (state.errors_changed, self._on_errors),
             (state.dirty_changed, self._update_title),
+            (state.unsaved_model_changed, self._update_title),
             (state.file_path_changed, self._update_title),
             (state.design_changed, self._update_title),
         ):

@@ -199,6 +199,7 @@ def simulate_image(
     ctx: Context, design: Design, stack: PSFStack, settings: WorkflowSettings, device: str = "cpu"
 ) -> ImageResult:
     """Phantom (beads, cells or a TIFF volume) -> noisy light-field image through ``stack``."""
+    from lfm_studio.engine.phantoms import DEFAULT_BEADS
     from lfm_studio.engine.simulation import camera_of, imaging_setup, light_field_image, make_phantom
 
     ctx.progress(0, 3, "image: building the projector")
@@ -221,7 +222,15 @@ def simulate_image(
                 f"shape {tuple(setup.volume_shape)} (Z, Y, X) with voxels {voxel_um} um. Fix: resample the volume."
             )
     else:
-        volume, info = make_phantom(settings.phantom, setup, seed=settings.seed, count=settings.bead_count)
+        count = (
+            settings.bead_count or None
+        )  # 0: as many as fit (the engine's default, as in `lfm-studio image`)
+        volume, info = make_phantom(settings.phantom, setup, seed=settings.seed, count=count)
+        if "note" in info:  # fewer than the default fit; the engine's note names the CLI's --count
+            info["note"] = (
+                f"{info['objects']} beads: as many as fit in this volume (at most {DEFAULT_BEADS}). "
+                "Type a number in Beads for another count (at most what fits)."
+            )
         volume = volume.to(device)
     ctx.check()
     ctx.progress(2, 3, "image: light field")
@@ -254,6 +263,28 @@ def photon_counts(image: ImageResult, design: Design) -> tuple[torch.Tensor, flo
     if image.info.get("photons") is None:  # noise-free, or a calibrated raw frame: already photons
         return image.counts.clamp_min(0.0), float(image.info.get("noise_floor_photons", 0.0))
     return counts_to_photons(image.counts, design_camera(design.camera), name="the simulated image")
+
+
+def reconstruction_refusal(settings: WorkflowSettings) -> str | None:
+    """Why the studio cannot start ``settings``' reconstruction, in the studio's words, or None.
+
+    The Learned model method needs a checkpoint file in its Model field (the engine's own message
+    names the CLI's ``--model`` and ``lfm-studio train``); checked before the job starts.
+    """
+    if settings.method != "learned":
+        return None
+    from pathlib import Path
+
+    path = dict(settings.method_options).get("model")
+    fix = (
+        "Fix: train a model in the Train dock and press Save checkpoint…, then choose that file "
+        "in the Model field (…), or choose a checkpoint written by `lfm-studio train`."
+    )
+    if not path:
+        return f"the Learned model method needs a checkpoint file in its Model field, which is empty. {fix}"
+    if not Path(path).expanduser().is_file():
+        return f"Model field: no checkpoint file {path}. {fix}"
+    return None
 
 
 def peak_mode(settings: WorkflowSettings) -> bool | None:

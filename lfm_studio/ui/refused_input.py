@@ -6,6 +6,10 @@ any is on screen the document has unsaved input
 (:attr:`~lfm_studio.ui.state.StudioState.unsaved_input`), even right after a save. Save and
 Save as… ask first (:func:`confirm_save_refused`); closing or replacing the document asks too
 (:meth:`~lfm_studio.ui.file_menu.FileActions.confirm_discard`, worded with :func:`refused_text`).
+
+A model trained in the Train dock and not yet saved to a checkpoint is unsaved input the same way
+(:attr:`~lfm_studio.ui.state.StudioState.unsaved_model`): closing or replacing the document asks
+first, worded with :func:`unsaved_model_text`.
 """
 
 from __future__ import annotations
@@ -37,6 +41,15 @@ def refused_text(paths: Iterable[str], fate: str) -> str:
     if len(labels) == 1:
         return f"1 field shows a refused value that {fate}: {labels[0]}."
     return f"{len(labels)} fields show refused values that {fate}: {', '.join(labels)}."
+
+
+def unsaved_model_text(what: str) -> str:
+    """One sentence: the trained model ``what`` (e.g. ``"the trained unrolled-rl model (60 steps)"``)
+    is only in memory and will be lost, and how to keep it."""
+    return (
+        f"{what[:1].upper()}{what[1:]} is not saved and will be lost. "
+        "Fix: to keep it, cancel and press Save checkpoint… in the Train dock."
+    )
 
 
 def confirm_save_refused(parent: QWidget | None, paths: Iterable[str]) -> bool:

@@ -147,7 +147,8 @@ class WorkflowSettings:
     Attributes
     ----------
     phantom : "beads", "cells" or "tiff".
-    bead_count : number of beads (phantom "beads").
+    bead_count : number of beads (phantom "beads"); 0 (the default): as many as fit, up to 50, the
+        engine's default count that ``lfm-studio image`` uses too.
     tiff_path : volume TIFF (phantom "tiff").
     photons : expected photons in the image; None = noise-free.
     seed : random seed of phantom and noise.
@@ -159,7 +160,7 @@ class WorkflowSettings:
     """
 
     phantom: str = "beads"
-    bead_count: int = 20
+    bead_count: int = 0
     tiff_path: str | None = None
     photons: float | None = 1e6
     seed: int = 0

@@ -75,6 +75,7 @@ class StudioState:
     stale_changed = Signal(object)  # frozenset[str] of STAGES
     job_changed = Signal(object)  # JobStatus
     dirty_changed = Signal(bool)
+    unsaved_model_changed = Signal(object)  # str | None: what a trained, not yet saved model is
     file_path_changed = Signal(object)  # Path | None
     recent_files_changed = Signal(object)  # tuple[Path, ...]
 
@@ -95,6 +96,7 @@ class StudioState:
         self._stale: frozenset[str] = frozenset(STAGES)
         self._jobs: dict[str, JobStatus] = {}
         self._dirty = False
+        self._unsaved_model: str | None = None
         self._file_path = None if file_path is None else Path(file_path)
         self._recent: tuple[Path, ...] = ()
 
@@ -127,7 +129,8 @@ class StudioState:
     def replace_design(
         self, design: Design, *, file_path: str | Path | None = None, warnings: Iterable[str] = ()
     ) -> None:
-        """Start a new document (new from preset, open): clears errors and results, not dirty."""
+        """Start a new document (new from preset, open): clears errors, results and the unsaved model
+        (it was trained for the previous design), not dirty."""
         if not isinstance(design, Design):
             raise TypeError(f"design must be a Design; got {type(design).__name__}.")
         self._design = design
@@ -140,6 +143,7 @@ class StudioState:
         self.mark_stale(*STAGES)
         self.set_file_path(file_path)
         self.set_dirty(False)
+        self.set_unsaved_model(None)
         self.design_replaced.emit(design)
         self.design_changed.emit(design)
 
@@ -335,9 +339,22 @@ class StudioState:
 
     @property
     def unsaved_input(self) -> bool:
-        """Something on screen is not in the saved file: changes (:attr:`dirty`), or refused values
-        (:attr:`errors`), which Save does not write since they are not in the design in force."""
-        return self._dirty or bool(self._errors)
+        """Something on screen is not in the saved file: changes (:attr:`dirty`), refused values
+        (:attr:`errors`), which Save does not write since they are not in the design in force, or a
+        trained model not yet saved to a checkpoint (:attr:`unsaved_model`)."""
+        return self._dirty or bool(self._errors) or self._unsaved_model is not None
+
+    @property
+    def unsaved_model(self) -> str | None:
+        """What the trained model that lives only in memory is (e.g. ``"the trained unrolled-rl model
+        (60 steps)"``), or None when there is none (none trained, or it was saved)."""
+        return self._unsaved_model
+
+    def set_unsaved_model(self, what: str | None) -> None:
+        """Record (or with None, clear) a trained model that is not saved to a checkpoint file."""
+        if what != self._unsaved_model:
+            self._unsaved_model = what
+            self.unsaved_model_changed.emit(what)
 
     def set_dirty(self, dirty: bool) -> None:
         if dirty != self._dirty:

@@ -7,6 +7,11 @@ current full PSF stack (the status bar shows its progress and a Cancel button; t
 own Cancel). A live pyqtgraph curve shows the training loss per step (thin line), its running mean
 (thick line) and the validation loss (points), log scale. A cancelled or failed run leaves the previous model and its curve.
 
+A finished model lives only in memory until "Save checkpoint…" (the done message says so); while
+it is unsaved it is the studio's unsaved input (:attr:`~lfm_studio.ui.state.StudioState.unsaved_model`):
+closing the studio or opening another design asks first, and so does training again here.
+Opening another design drops the model (it was trained for the previous design).
+
 After a run: "Save checkpoint…" writes the model (safetensors, atomic; an existing file only
 after a yes to the overwrite question) and "Compare with RL" reconstructs the studio's current
 simulated image with the registry's default method and with the model (job "compare"); the
@@ -60,6 +65,10 @@ from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
+UNSAVED_NOTE = (
+    "Not saved yet: the model is only in memory. Save checkpoint… keeps it "
+    "(the Learned model method reads it from that file)."
+)
 TABLE_HEADER = ("score", "RL", "learned", "all-zero")
 MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
 JITTER_TIP = (
@@ -90,6 +99,8 @@ class TrainDock(QWidget):
         self.live: list[tuple[int, float, float]] = []
         self._scratch = tempfile.TemporaryDirectory(prefix="lfm_train_")
         self._compared_path: Path | None = None
+        self._replaced = state.design_replaced  # kept: disconnected on closing
+        self._replaced.connect(self._on_design_replaced)
 
         self.model = QComboBox()
         self.model.addItems(sorted(MODELS))
@@ -198,6 +209,11 @@ class TrainDock(QWidget):
         if refusal is not None:
             self._say(refusal, error=True)
             return False
+        if self.state.unsaved_model is not None and not self._confirm_replace_unsaved(
+            self.state.unsaved_model
+        ):
+            self._say("not started: the unsaved model is kept. Save checkpoint… keeps it in a file.")
+            return False
         self.live = []
         self._draw(self.live)
         jitter = (
@@ -237,6 +253,7 @@ class TrainDock(QWidget):
         except OSError as error:
             self._say(f"could not save {target}: {error}. Fix: choose a folder you can write to.", error=True)
             return None
+        self.state.set_unsaved_model(None)
         self._say(f"saved {written}")
         return written
 
@@ -270,6 +287,14 @@ class TrainDock(QWidget):
         )  # fmt: skip
         return path
 
+    def _confirm_replace_unsaved(self, what: str) -> bool:
+        answer = QMessageBox.question(
+            self, "Unsaved trained model",
+            f"{what[:1].upper()}{what[1:]} is not saved; training again replaces it. Train anyway?",
+            QMessageBox.StandardButton.Yes | QMessageBox.StandardButton.Cancel, QMessageBox.StandardButton.Cancel,
+        )  # fmt: skip
+        return answer == QMessageBox.StandardButton.Yes
+
     def _confirm_overwrite(self, target: Path) -> bool:
         answer = QMessageBox.question(self, "Overwrite checkpoint?", f"{target} exists. Replace it?")
         return answer == QMessageBox.StandardButton.Yes
@@ -284,9 +309,19 @@ class TrainDock(QWidget):
         self.trained = trained
         self.live = list(trained.result.history)
         self._draw(self.live)
-        self._say(trained.summary)
+        self._say(f"{trained.summary}. {UNSAVED_NOTE}")
         self.table.setRowCount(0)
         self.comparison = None
+        steps = trained.result.header.training["steps"]
+        self.state.set_unsaved_model(f"the trained {trained.settings.model} model ({steps} steps)")
+
+    def _on_design_replaced(self, *_: Any) -> None:
+        """Another document: the model (trained for the previous design) and its comparison go."""
+        self.trained, self.comparison, self.live = None, None, []
+        self._draw(self.live)
+        self.table.setRowCount(0)
+        self._say("Train a model on the current design's PSF stack.")
+        self._update_buttons()
 
     def _on_ended(self, outcome: JobOutcome) -> None:
         """A failed or cancelled job of this dock (a superseded one never gets here)."""
@@ -351,4 +386,5 @@ class TrainDock(QWidget):
         """Stop listening to the runner and drop the scratch checkpoint (window closing)."""
         self.runner.status_changed.disconnect(self._update_buttons)
         self.runner.ended.disconnect(self._on_ended)
+        self._replaced.disconnect(self._on_design_replaced)
         self._scratch.cleanup()

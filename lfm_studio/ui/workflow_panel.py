@@ -34,6 +34,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
+from lfm_studio.ui.stale_marks import stage_mark
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.method_options import MethodOptions
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
@@ -43,7 +44,11 @@ PHANTOMS = (("beads", "Beads"), ("cells", "Cells (brain-like ellipsoid)"), ("tif
 
 
 PHOTONS = NumberRule("Photon budget", 1.0, 1e15, "photons", example=1e6)
-BEADS = NumberRule("Beads", 1, 100_000, integer=True, example=20)
+BEADS = NumberRule("Beads", 0, 100_000, integer=True, special_text="as many as fit", example=20)
+BEADS_TIP = (
+    "Beads in the phantom. 'as many as fit' (0, the default): up to 50, fewer when the volume is small, "
+    "as `lfm-studio image` does; a typed count that does not fit is refused."
+)
 SEED = NumberRule("Seed", 0, 2**31 - 1, integer=True, example=0)
 ITERATIONS = NumberRule("Iterations", 1, 10_000, integer=True, example=10)
 SHOWN_ELSEWHERE = ("background", "iterations")  # the noise floor; the typed iterations field
@@ -92,7 +97,7 @@ class WorkflowPanel(QWidget):
         for key, text in PHANTOMS:
             self.phantom.addItem(text, key)
         form.addRow("Phantom", self.phantom)
-        self.bead_count = NumericField(BEADS, 20, step=1, parent=self)
+        self.bead_count = NumericField(BEADS, 0, step=1, tip=BEADS_TIP, parent=self)
         form.addRow("Beads", self.bead_count)
         row = QHBoxLayout()
         self.tiff_path = QLineEdit(self)
@@ -129,6 +134,13 @@ class WorkflowPanel(QWidget):
             self.reconstruct_button.setToolTip(
                 "Reconstruction needs lfm_studio.engine.reconstruct, which this installation lacks."
             )
+        self.message = ErrorLabel(self)  # why the last image or reconstruction failed
+        layout.addWidget(self.message)
+        self.note = QLabel(self)  # what the image's phantom says about itself (e.g. fewer beads fit)
+        self.note.setWordWrap(True)
+        self.note.setStyleSheet("color: #555;")
+        self.note.setVisible(False)
+        layout.addWidget(self.note)
         self.quality = QLabel(NO_QUALITY, self)
         self.quality.setWordWrap(True)
         layout.addWidget(self.quality)
@@ -149,10 +161,17 @@ class WorkflowPanel(QWidget):
         self.reconstruct_button.clicked.connect(self._on_reconstruct)
         state.workflow_changed.connect(self._show_settings)
         state.reconstruction_changed.connect(self._on_reconstruction)
+        state.stale_changed.connect(self._on_reconstruction_state)
+        state.job_changed.connect(self._on_job)
+        state.image_changed.connect(self._on_image)
+        self._on_image(state.image)
 
     def disconnect_state(self) -> None:
         self.state.workflow_changed.disconnect(self._show_settings)
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
+        self.state.stale_changed.disconnect(self._on_reconstruction_state)
+        self.state.job_changed.disconnect(self._on_job)
+        self.state.image_changed.disconnect(self._on_image)
 
     def numeric_fields(self) -> tuple[NumericField, ...]:
         """The typed numbers: beads, photons, seed, iterations, the method's other options."""
@@ -190,8 +209,40 @@ class WorkflowPanel(QWidget):
             w.blockSignals(False)
         self._show_input_errors()
 
+    def _on_image(self, image: object) -> None:
+        note = getattr(image, "info", {}).get("note") if image is not None else None
+        self.note.setText(f"Image: {note}" if note else "")
+        self.note.setVisible(bool(note))
+
+    def _on_job(self, status: object) -> None:
+        if getattr(status, "name", None) in ("image", "reconstruction"):  # not every progress tick of others
+            self._on_reconstruction_state()
+
+    def _on_reconstruction_state(self, *_: object) -> None:
+        """The message line names a failed image or reconstruction job; scores on screen whose
+        reconstruction no longer matches (or whose rerun failed) are marked stale."""
+        failed = [
+            f"{what} failed: {job.message.removeprefix('failed: ')}"
+            for name, what in (("image", "Image"), ("reconstruction", "Reconstruction"))
+            if (job := self.state.job(name)).state == "failed"
+        ]
+        self.message.show_error("\n".join(failed) or None)
+        self._on_reconstruction(self.state.reconstruction)
+
+    def _stale_line(self, result: ReconstructionResult | None) -> str:
+        mark = None if result is None else stage_mark(self.state, "reconstruction")
+        if mark is None:
+            return ""
+        text = mark.text
+        if mark.activity == "failed":  # the message line above says why
+            text = (
+                text.split("; ")[0]
+                + "; the reconstruction failed (see above), these scores are the previous one's"
+            )
+        return f'<span style="color:#b35900;">{html.escape(text)}</span><br>'
+
     def _on_reconstruction(self, result: ReconstructionResult | None) -> None:
-        self.quality.setText(quality_text(result))
+        self.quality.setText(self._stale_line(result) + quality_text(result))
         self.quality.setToolTip(
             ""
             if result is None or result.scores is None

@@ -353,3 +353,78 @@ def test_a_cancelled_first_reconstruction_leaves_no_curve(qtbot, kept_run, monke
     seen.set()
     qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
     assert state.convergence == ((), ())
+
+
+def test_a_learned_model_path_that_is_not_a_file_fails_in_the_studios_words_and_marks_the_scores_stale(
+    qtbot, studio, tmp_path
+):
+    from dataclasses import replace
+
+    from lfm_studio.ui.results import WorkflowSettings
+    from lfm_studio.ui.stale_marks import StaleMarks
+    from lfm_studio.ui.workflow_panel import WorkflowPanel
+
+    if not pipeline.reconstruction_available():
+        pytest.skip("lfm_studio.engine.reconstruct is not installed")
+    state, controller, _, _ = studio
+    panel = WorkflowPanel(state)
+    qtbot.addWidget(panel)
+    marks = StaleMarks(state)
+    state.set_workflow(WorkflowSettings(bead_count=3, photons=1e6, seed=1, iterations=2))
+    controller.start()
+    _wait_psf(qtbot, state)
+    controller.request_reconstruction()  # simulates the image first
+    qtbot.waitUntil(lambda: state.reconstruction is not None and "reconstruction" not in state.stale,
+                    timeout=TIMEOUT_MS)  # fmt: skip
+    kept = state.reconstruction
+    assert "NCC" in panel.quality.text() and "stale" not in panel.quality.text()
+    assert panel.message.isHidden()
+
+    missing = tmp_path / "nonexistent.safetensors"
+    state.set_workflow(replace(state.workflow, method="learned", method_options=(("model", str(missing)),)))
+    panel.reconstruct_button.click()
+    qtbot.waitUntil(lambda: state.job("reconstruction").state == "failed", timeout=TIMEOUT_MS)
+    assert state.reconstruction is kept  # the previous result stays, marked stale
+    message = panel.message.text()
+    assert not panel.message.isHidden() and message.startswith(
+        "Reconstruction failed: Model field: no checkpoint"
+    )
+    assert str(missing) in message and "Train dock" in message and "Save checkpoint…" in message
+    assert "--model" not in message  # not the CLI's wording
+    quality = panel.quality.text()
+    assert "stale: made with the previous design or settings; the reconstruction failed" in quality
+    assert "NCC" in quality  # the kept scores, under the mark
+    assert "reconstruction" in marks.marks() and marks.marks()["reconstruction"].activity == "failed"
+    marks.disconnect_state()
+    panel.disconnect_state()
+
+
+def test_the_default_bead_count_places_as_many_as_fit_with_a_note_like_the_cli(qtbot, studio):
+    from lfm_studio.ui.results import WorkflowSettings
+    from lfm_studio.ui.workflow_panel import WorkflowPanel
+
+    state, controller, _, _ = studio
+    panel = WorkflowPanel(state)
+    qtbot.addWidget(panel)
+    panel.simulate_requested.connect(controller.request_image)  # what the window wires
+    assert WorkflowSettings().bead_count == 0 and panel.bead_count.text() == "as many as fit"
+    controller.start()
+    _wait_psf(qtbot, state)
+    panel.simulate_button.click()  # the panel's defaults on the small design (20 beads did not fit)
+    qtbot.waitUntil(
+        lambda: state.image is not None or state.job("image").state == "failed", timeout=TIMEOUT_MS
+    )
+    assert state.job("image").state != "failed", state.job("image").message
+    placed = int((state.ground_truth > 0).sum())
+    assert 1 <= placed < 20 and state.image.info["objects"] == placed
+    note = panel.note.text()
+    assert not panel.note.isHidden() and note.startswith(
+        f"Image: {placed} beads: as many as fit in this volume"
+    )
+    assert "--count" not in note and "Beads" in note
+    # A typed count that does not fit is still refused with the engine's reason (as `image --count`).
+    state.set_workflow(WorkflowSettings(bead_count=20, auto_update=False))
+    panel.simulate_button.click()
+    qtbot.waitUntil(lambda: state.job("image").state == "failed", timeout=TIMEOUT_MS)
+    assert "could place only" in panel.message.text()
+    panel.disconnect_state()

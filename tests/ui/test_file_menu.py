@@ -129,6 +129,28 @@ def test_unsaved_changes_prompt(menu, design, tmp_path):
     assert actions.confirm_discard() and len(dialogs.questions) == 2  # clean: no question
 
 
+def test_an_unsaved_trained_model_asks_before_the_document_is_replaced(menu, design, tmp_path):
+    state, actions, dialogs = menu.state, menu.actions, menu.dialogs
+    state.set_unsaved_model("the trained unrolled-rl model (60 steps)")
+    assert state.unsaved_input and not state.dirty
+    dialogs.answers = [Button.Cancel]
+    assert not actions.new_from_preset("xlfm_cong2017")
+    assert dialogs.questions[-1] == (
+        "The trained unrolled-rl model (60 steps) is not saved and will be lost. Fix: to keep it, cancel "
+        "and press Save checkpoint… in the Train dock. Discard it?"
+    )
+    assert state.design == design and state.unsaved_model is not None
+    # With unsaved design changes too, the one question names both.
+    state.set_design(apply_changes(design, {"wavelength_nm": 700.0}))
+    dialogs.answers = [Button.Discard]
+    assert actions.new_from_preset("xlfm_cong2017")
+    assert (
+        "unsaved changes" in dialogs.questions[-1] and "unrolled-rl model (60 steps)" in dialogs.questions[-1]
+    )
+    assert state.unsaved_model is None and not state.unsaved_input  # a new document: the model went with it
+    assert actions.confirm_discard() and len(dialogs.questions) == 2
+
+
 def test_save_with_a_refused_value_on_screen_asks_and_cancel_writes_nothing(menu, qtbot, design, tmp_path):
     state, actions, dialogs = menu.state, menu.actions, menu.dialogs
     panel = ParameterPanel(state)

@@ -90,6 +90,8 @@ def test_quality_label_shows_ncc_and_f1_first_and_names_the_normalisation(qtbot,
     qtbot.addWidget(panel)
     assert panel.quality.text() == NO_QUALITY
     state.set_reconstruction(result)
+    assert panel.quality.text().startswith('<span style="color:#b35900;">stale: made with the previous')
+    state.mark_fresh("reconstruction")  # what the controller does with a current result
     text = panel.quality.text()
     assert text == quality_text(result)
     assert text.startswith(f"<b>NCC {result.ncc:.3f}</b>&nbsp;&nbsp;&nbsp;<b>F1 {result.f1:.2f} (")

@@ -11,7 +11,7 @@ from types import SimpleNamespace
 import pytest
 import torch
 from qtpy.QtCore import QSettings
-from qtpy.QtWidgets import QDockWidget
+from qtpy.QtWidgets import QDockWidget, QMessageBox
 
 from lfm_studio.engine.learned.checkpoint import read_checkpoint
 from lfm_studio.ui.app import build_studio
@@ -87,6 +87,9 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
 
     # Cancel: a long run is stopped after its first steps; the previous model and its curve stay.
     dock.max_steps.setValue(100_000)
+    monkeypatch.setattr(
+        dock, "_confirm_replace_unsaved", lambda what: True
+    )  # train again over the unsaved one
     assert dock.start_training()
     qtbot.waitUntil(lambda: len(dock.live) >= 1, timeout=TIMEOUT_MS)
     dock.cancel()
@@ -130,6 +133,47 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     assert comparison.learned.scores.score("ncc").value > 0.0  # a real volume, not the trivial answer
     shown = [(name, shape) for call, name, shape in window.viewer.calls if call == "show_volume"]
     assert ("RL", tuple(truth.shape)) in shown and ("learned", tuple(truth.shape)) in shown
+
+
+def test_an_unsaved_trained_model_is_unsaved_input_until_saved(monkeypatch, qtbot, window, tmp_path):
+    # (monkeypatch first: its dialog stand-ins outlive the window's closing in teardown)
+    dock, state = window.train_dock, window.state
+    questions: list[str] = []
+    answers: list[QMessageBox.StandardButton] = []
+
+    def question(parent, title, text, *args, **kwargs):
+        questions.append(text)
+        return answers.pop(0)
+
+    monkeypatch.setattr(QMessageBox, "question", question)
+    dock.max_steps.setValue(2)
+    dock.photons.setText("1e5")
+    assert dock.start_training()
+    qtbot.waitUntil(lambda: dock.trained is not None, timeout=TIMEOUT_MS)
+    assert "Not saved yet" in dock.message.text() and "Save checkpoint…" in dock.message.text()
+    assert state.unsaved_model == "the trained unrolled-rl model (2 steps)"
+    assert state.unsaved_input and not state.dirty and window.isWindowModified()
+
+    # Closing the studio asks; Cancel keeps the window open and the model.
+    answers.append(QMessageBox.StandardButton.Cancel)
+    assert not window.close()
+    assert window.isVisible() and dock.trained is not None
+    assert questions[-1].startswith("The trained unrolled-rl model (2 steps) is not saved and will be lost.")
+    assert "Save checkpoint… in the Train dock" in questions[-1]
+
+    # Training again asks too; Cancel starts nothing.
+    first = dock.trained
+    answers.append(QMessageBox.StandardButton.Cancel)
+    assert not dock.start_training()
+    assert "training again replaces it" in questions[-1]
+    assert not dock.runner.is_running("train") and dock.trained is first
+
+    # Saved: nothing unsaved, closing (here: the check closeEvent makes) asks nothing.
+    monkeypatch.setattr(dock, "_ask_path", lambda: str(tmp_path / "kept"))
+    assert dock.save() == tmp_path / "kept.safetensors"
+    assert state.unsaved_model is None and not state.unsaved_input and not window.isWindowModified()
+    asked = len(questions)
+    assert window.file_actions.confirm_discard() and len(questions) == asked
 
 
 def test_optics_jitter_field_trains_with_the_augmentation_and_records_it(
