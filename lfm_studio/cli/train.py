@@ -88,9 +88,13 @@ def run_train(args: argparse.Namespace) -> int:
             threads=threads, progress=progress,
         )  # fmt: skip
     training = result.header.training
+    session = len(result.history)  # one history entry per step of this run; 'seconds' is this run's too
+    steps = f"{session} steps in {training['seconds']:.0f} s"
+    if session != training["steps"]:  # resumed: the checkpoint counts the earlier runs' steps as well
+        steps += f" ({training['steps']} in all)"
     print(
-        f"wrote {out}: {args.model}, {training['parameters']} parameters, {training['steps']} steps in "
-        f"{training['seconds']:.0f} s (stopped: {result.stop_reason}); validation loss "
+        f"wrote {out}: {args.model}, {training['parameters']} parameters, {steps} "
+        f"(stopped: {result.stop_reason}); validation loss "
         f"{training['best_validation']:.4f} (all-zero volume: {training['zero_floor']:.1f}), "
         f"validation NCC {result.header.metrics['validation_ncc']:.3f}"
     )

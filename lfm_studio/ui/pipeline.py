@@ -345,8 +345,9 @@ def reconstruct(
         display = volume_display(estimate, image.voxel_size, "reconstruction")
         summary = "measured frame: no ground truth to score against"
         return ReconstructionResult(
-            estimate, image.voxel_size, len(changes), tuple(changes), display=display, summary=summary
-        )
+            estimate, image.voxel_size, len(changes), tuple(changes), display=display, summary=summary,
+            method=method.name,
+        )  # fmt: skip
     ctx.progress(total, total, "reconstruction: scoring against the phantom")
     card = scorecard(
         truth, estimate, normalize="scale", peaks=peak_mode(settings), voxel_size=image.voxel_size,

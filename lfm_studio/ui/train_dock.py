@@ -65,12 +65,17 @@ from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
+MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
+PLOT_KEY = (
+    '<span style="color:#9ecae1;">━</span> training (per step)&nbsp;&nbsp;&nbsp;'
+    f'<span style="color:#1f77b4;">━━</span> training (mean of {MEAN_STEPS} steps)&nbsp;&nbsp;&nbsp;'
+    '<span style="color:#d62728;">●</span> validation'
+)
 UNSAVED_NOTE = (
     "Not saved yet: the model is only in memory. Save checkpoint… keeps it "
     "(the Learned model method reads it from that file)."
 )
 TABLE_HEADER = ("score", "RL", "learned", "all-zero")
-MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
 JITTER_TIP = (
     "Optics-mismatch augmentation: train on images of slightly wrong instruments. The MLA and "
     "Fourier-lens focal lengths, the NA and the wavelength of a pool of designs are each jittered "
@@ -146,7 +151,9 @@ class TrainDock(QWidget):
         self.plot.setLabel("bottom", "step")
         self.plot.setLabel("left", "loss (energy-normalised MSE + high-pass)")
         self.plot.setLogMode(y=True)
-        self.plot.addLegend(offset=(-10, 10))
+        # The key is the plot's title, above the data: a legend inside covered the curves, and its red
+        # validation marker read as one more validation point.
+        self.plot.setTitle(PLOT_KEY, size="9pt")
         self.loss_curve = self.plot.plot([], [], pen=pg.mkPen("#9ecae1", width=1), name="training (per step)")
         self.mean_curve = self.plot.plot(
             [], [], pen=pg.mkPen("#1f77b4", width=2.5), name=f"training (mean of {MEAN_STEPS} steps)"

@@ -55,15 +55,21 @@ SHOWN_ELSEWHERE = ("background", "iterations")  # the noise floor; the typed ite
 
 
 NO_QUALITY = "NCC: –    F1: –    PSNR: –    SSIM: –"
+NO_TRUTH = (
+    "No scores: a recorded frame has no ground truth (NCC, F1, PSNR and SSIM compare a "
+    "reconstruction with the phantom of a simulated image)."
+)
 
 
 def quality_text(result: ReconstructionResult | None) -> str:
     """Rich text of a reconstruction's scores: NCC and F1 first (bold), then PSNR/SSIM with their
     zero floors, the iteration count and, in small print, how PSNR/SSIM were normalised."""
-    if result is None or result.psnr is None:
+    if result is None:
         return NO_QUALITY
     method = f" ({html.escape(result.method)})" if result.method else ""
     after = f" after {result.iterations} iterations" if result.iterations else method
+    if result.psnr is None:  # a recorded (raw) frame: nothing to score against
+        return f"Reconstructed{after}. {NO_TRUTH}"
     if result.scores is None:  # a result without a scorecard (e.g. read back from elsewhere)
         return f"<b>PSNR {result.psnr:.2f} dB    SSIM {result.ssim:.3f}</b>{after}"
     parts = [html.escape(part) for part in result.summary.split("  ")]  # Scorecard.summary's separator

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 
 import pytest
@@ -39,6 +40,8 @@ def test_train_writes_a_checkpoint_tied_to_the_design_and_resumes(design_file, t
         assert "exists. Fix: choose another --out or pass --overwrite" in capsys.readouterr().err
         assert main(["train", str(design_file), "--steps", "2", "--out", str(out), "--resume"]) == 0
     assert read_checkpoint(out)[0].training["steps"] == 5
+    # this run's steps beside this run's seconds, the checkpoint's total after them
+    assert re.search(r", 2 steps in \d+ s \(5 in all\) \(stopped: steps\)", capsys.readouterr().out)
     torch.set_num_threads(threads)
 
 

@@ -133,6 +133,8 @@ def test_open_a_raw_frame_calibrate_it_and_reconstruct(qtbot, studio, scene_file
     score = float(ncc(truth, volume))
     assert score > 0.8, score  # measured 0.878; the all-zero and constant volumes score 0
     assert state.reconstruction.scores is None and "no ground truth" in state.reconstruction.summary
+    quality = window.workflow_panel.quality.text()  # said on screen, not a row of dashes
+    assert quality.startswith("Reconstructed after ") and "a recorded frame has no ground truth" in quality
     assert window.viewer.layer("reconstruction") is not None
     assert not callback_errors, callback_errors[0]
 

@@ -104,6 +104,18 @@ def test_quality_label_shows_ncc_and_f1_first_and_names_the_normalisation(qtbot,
     panel.disconnect_state()
 
 
+def test_quality_label_of_a_recorded_frame_says_it_has_no_ground_truth(reconstructed):
+    _, result, _ = reconstructed
+    raw = ReconstructionResult(result.volume, result.voxel_size, 6, method="rl-accelerated",
+                               summary="measured frame: no ground truth to score against")  # fmt: skip
+    text = quality_text(raw)
+    assert text != NO_QUALITY and "–" not in text
+    assert text == (
+        "Reconstructed after 6 iterations. No scores: a recorded frame has no ground truth (NCC, F1, PSNR "
+        "and SSIM compare a reconstruction with the phantom of a simulated image)."
+    )
+
+
 def test_convergence_plot_shows_ncc_against_the_zero_floor(qtbot, reconstructed):
     _, result, _ = reconstructed
     state = StudioState(small_fourier_design())

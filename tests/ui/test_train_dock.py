@@ -34,6 +34,7 @@ def window(qtbot, tmp_path):
     window.controller.start()
     qtbot.waitUntil(lambda: window.state.psf is not None and not window.state.psf.preview, timeout=TIMEOUT_MS)
     yield window
+    window.file_actions.confirm_discard = lambda: True  # never block on a dialog in teardown
     window.controller.shutdown()
     window.close()
     torch.set_num_threads(threads)
@@ -81,6 +82,8 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     assert [math.isnan(v) for *_, v in live] == [True, True, True, False]
     assert [step for step, _, _ in first.result.history] == [1, 2, 3, 4]
     assert _points(dock) == (4, 1)  # a loss point per step, the final validation point
+    item = dock.plot.getPlotItem()  # the key sits above the data: no legend box over the curves
+    assert item.legend is None and "●</span> validation" in item.titleLabel.text
     assert all(math.isfinite(loss) and loss > 0 for _, loss, _ in first.result.history)
     assert first.result.header.training["best_validation"] < first.result.header.training["zero_floor"]
     assert "4 steps" in dock.message.text() and "unrolled-rl" in dock.message.text()
