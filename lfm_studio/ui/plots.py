@@ -129,7 +129,10 @@ class ProfilePlots(_StateView):
             self.lateral_plot,
             self.axial_plot,
         ):  # which curve is which (the dashed one is not obvious)
-            plot.getPlotItem().addLegend(offset=(-5, 5), labelTextSize="8pt")
+            # an opaque box: the peak-per-depth curve runs under the top right corner
+            plot.getPlotItem().addLegend(
+                offset=(-5, 5), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 230)
+            )
         self.lateral_curve = self.lateral_plot.plot(pen=solid, name=FULL_NAME)
         self.axial_curve = self.axial_plot.plot(
             pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0", name=FULL_NAME
