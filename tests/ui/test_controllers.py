@@ -292,8 +292,8 @@ def _rerun_streaming(qtbot, state, controller, monkeypatch, end):
     return seen
 
 
-def test_a_cancelled_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot, kept_run, monkeypatch):
-    state, controller, kept = kept_run
+def _cancel_a_streaming_rerun(qtbot, state, controller, monkeypatch) -> None:
+    """Run again, streaming the partial curve until cancelled; press Cancel and wait for it."""
 
     def until_cancelled(ctx):
         assert ctx.cancel.wait(60)
@@ -303,6 +303,12 @@ def test_a_cancelled_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot
     controller.cancel()
     seen.set()
     qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
+
+
+def test_a_cancelled_reconstruction_leaves_the_kept_runs_convergence_curve(qtbot, kept_run, monkeypatch):
+    state, controller, kept = kept_run
+
+    _cancel_a_streaming_rerun(qtbot, state, controller, monkeypatch)
     assert state.reconstruction is kept and state.convergence == KEPT_CURVES
 
 
@@ -344,14 +350,7 @@ def test_a_cancelled_first_reconstruction_leaves_no_curve(qtbot, kept_run, monke
     state.set_reconstruction(None)
     state.set_convergence((), ())
 
-    def until_cancelled(ctx):
-        assert ctx.cancel.wait(60)
-        ctx.check()
-
-    seen = _rerun_streaming(qtbot, state, controller, monkeypatch, until_cancelled)
-    controller.cancel()
-    seen.set()
-    qtbot.waitUntil(lambda: state.job("reconstruction").state == "cancelled", timeout=TIMEOUT_MS)
+    _cancel_a_streaming_rerun(qtbot, state, controller, monkeypatch)
     assert state.convergence == ((), ())
 
 
