@@ -76,5 +76,9 @@ def test_sample_truth_is_in_photons_per_voxel_and_projects_to_the_photon_budget(
     emitted = gt.astype(np.float64)[np.nonzero(gt)]
     # the PSF's sum counts an on-axis bead's light; beads off the axis lose some past the 288 px crop
     # (measured 1.2 % in all), so sum(truth x PSF sum) exceeds the photons on the camera a little
-    assert 1.0 <= float((emitted * per_depth[depth_of_bead]).sum()) / PHOTONS < 1.02
-    assert 1.2e7 < float(gt.sum()) < 1.3e7
+    ratio = float((emitted * per_depth[depth_of_bead]).sum()) / PHOTONS
+    assert ratio >= 1.0 - 1e-5, ratio  # no bead delivers more than its depth's PSF sum
+    assert ratio < 1.02, ratio  # and the light lost past the crop is small
+    # every emitted photon reaches the camera at most with the best depth's efficiency (bead units
+    # summed to 8 here)
+    assert float(gt.sum()) >= PHOTONS / float(per_depth.max())
