@@ -5,9 +5,9 @@ An output ending in ``.zarr`` turns ``reconstruct`` into a video run
 TIFF, a folder of TIFFs or a Zarr array) are read lazily, chunk by chunk, by ``--workers N``
 one-thread processes (a LocalCluster; 1: in this process) or by the cluster at
 ``--scheduler tcp://host:8786``; each finished chunk is recorded in the store, so ``--resume``
-after a crash or Ctrl+C computes only the missing frames. Camera counts become photons per
-frame as in the TIFF path (metadata or ``--baseline/--gain/--read-noise``). Needs the
-``scale`` extra (``pip install "lfm-studio[scale]"``).
+(after a crash, Ctrl+C or failed frames) computes only the missing frames and those that failed.
+Camera counts become photons per frame as in the TIFF path (metadata or
+``--baseline/--gain/--read-noise``). Needs the ``scale`` extra (``pip install "lfm-studio[scale]"``).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def add_video_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
     group.add_argument(
         "--resume", action="store_true",
-        help="continue an interrupted run into the same store: only frames without a record are computed",
+        help="continue a run into the same store: only frames missing or recorded as failed are computed",
     )  # fmt: skip
     group.add_argument("--chunk-frames", type=int, default=4, metavar="N", help="frames per task (default 4)")
     group.add_argument(
@@ -112,6 +112,8 @@ def run_video(args: argparse.Namespace) -> int:
         f"wrote {result.path}: {result.frame_count} frames ({len(result.computed)} computed now, "
         f"{len(result.skipped)} done before)"
     )
+    if result.retried:
+        print(f"lfm-studio reconstruct: {result.retried_note()}", file=sys.stderr)
     if result.unfinished:
         print(f"lfm-studio reconstruct: chunks {list(result.unfinished)} were lost with their worker; "
               "run again with --resume to finish them.", file=sys.stderr)  # fmt: skip
@@ -119,6 +121,7 @@ def run_video(args: argparse.Namespace) -> int:
         listed = "; ".join(f"frame {t}: {error}" for t, error in result.failed.items())
         raise ReconstructionRejectedError(
             f"{len(result.failed)} frame(s) failed after a retry ({listed}). The other frames are in "
-            f"{result.path}; failures are recorded in its lfm_studio_status. Fix: check those frames."
+            f"{result.path}; failures are recorded in its lfm_studio_status. Fix: check those frames, "
+            "then run again with --resume (only the failed frames are computed again)."
         )
     return 0

@@ -65,7 +65,7 @@ class VideoDialog(PathFormDialog):
         self.output_edit = QLineEdit(self)
         self.output_edit.setPlaceholderText("run.ome.zarr")
         self.resume = QCheckBox(
-            "Resume: continue an interrupted run into this store (only missing frames)", self
+            "Resume: continue a run into this store (only missing or failed frames)", self
         )
         self.chunk_frames = NumericField(
             NumberRule("Frames per chunk", 1, 100_000, integer=True), DEFAULT_CHUNK_FRAMES, step=1,

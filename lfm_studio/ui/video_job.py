@@ -7,10 +7,10 @@ the command line does: the file's camera metadata, else the design's camera) and
 :func:`lfm_studio.engine.batch.reconstruct_video` with the workflow panel's method and options,
 its frame progress relayed to ``ctx.progress`` and ``cancel=ctx.cancel``. The engine refuses
 frames of another shape (naming the file and both shapes) with the studio's fix
-(:func:`frame_shape_fix`). A cancelled run stops between chunks and
-leaves a store that a resumed run completes (only the missing frames are computed). The result
-carries the last reconstructed frame's volume for the viewer and the failed frames (recorded
-by the engine) for the message.
+(:func:`frame_shape_fix`). A cancelled run stops between chunks and leaves a store that a
+resumed run completes (only the missing and failed frames are computed). The result carries the
+last reconstructed frame's volume for the viewer and the failed frames (recorded by the engine)
+for the message.
 
 Needs the optional ``scale`` extra (dask, zarr, ome-zarr): without it the job fails with the
 engine's :class:`~lfm_studio.engine.batch.extras.MissingExtraError`, whose message says how to
@@ -120,7 +120,7 @@ class VideoRun:
     def summary(self) -> str:
         """The message for the user: where, how many frames, which failed, what was assumed."""
         result = self.result
-        done = result.frame_count - len(result.failed)
+        done = len(result.computed) + len(result.skipped)
         lines = [
             f"Wrote {result.path}: {done} of {result.frame_count} frames reconstructed "
             f"({len(result.computed)} computed now, {len(result.skipped)} done before)."
@@ -128,6 +128,11 @@ class VideoRun:
         if result.failed:
             lines.append(f"{len(result.failed)} frame(s) failed (recorded in the store's lfm_studio_status):")
             lines.extend(f"  frame {t}: {error}" for t, error in result.failed.items())
+            lines.append(
+                "Fix: check those frames, then run again with “Resume”: only they are computed again."
+            )
+        if result.retried:
+            lines.append(result.retried_note())
         if result.unfinished:
             lines.append(
                 f"Chunks {list(result.unfinished)} were lost with their worker. Fix: run it again with "

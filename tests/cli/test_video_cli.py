@@ -77,6 +77,30 @@ def test_a_nan_frame_exits_5_and_keeps_the_others(files, tmp_path, capsys):
     assert "frame 3" in err and "NaN" in err
     level0 = zarr.open_group(str(out), mode="r")["0"][:]
     assert not level0[3].any() and all(level0[t].any() for t in (0, 1, 2, 4, 5))
+    assert "--resume (only the failed frames are computed again)" in err
+
+
+def test_resume_recomputes_a_frame_that_failed_once_the_file_is_fixed(files, tmp_path, capsys):
+    frames = tifffile.imread(files["image"]).astype(np.float32)
+    broken = frames.copy()
+    broken[3, 10, 10] = np.nan
+    image = tmp_path / "frames.tif"
+    tifffile.imwrite(image, broken)
+    out = tmp_path / "run.ome.zarr"
+    argv = ["reconstruct", "--psf", str(files["psf"]), "--image", str(image), *COMMON]
+    assert cli.main([*argv, "--out", str(out), "--chunk-frames", "2"]) == 5
+    capsys.readouterr()
+    tifffile.imwrite(image, frames)  # the frame repaired in place: same file, same shape
+    assert cli.main([*argv, "--out", str(out), "--chunk-frames", "2", "--resume"]) == 0
+    captured = capsys.readouterr()
+    assert "1 computed now, 5 done before" in captured.out
+    assert (
+        "Frame(s) [3] had failed in an earlier run and were computed again: 1 reconstructed" in captured.err
+    )
+    clean = tmp_path / "clean.ome.zarr"
+    assert cli.main([*argv, "--out", str(clean), "--chunk-frames", "2"]) == 0
+    resumed, expected = (zarr.open_group(str(path), mode="r")["0"][:] for path in (out, clean))
+    np.testing.assert_allclose(resumed, expected, rtol=1e-6, atol=1e-6 * float(np.abs(expected).max()))
 
 
 @pytest.mark.parametrize(

@@ -158,6 +158,17 @@ def test_failed_frames_are_listed_and_the_last_good_frame_is_shown(video, tmp_pa
     _close(run.volume.numpy(), video.reference[2])
     summary = run.summary()
     assert "3 of 4 frames" in summary and "1 frame(s) failed" in summary and "frame 3: " in summary
+    assert "run again with “Resume”" in summary
+
+    tifffile.imwrite(
+        bad, tifffile.imread(video.tiff).astype(np.float32), photometric="minisblack"
+    )  # repaired
+    resumed = reconstruct_video_job(
+        Ctx(), _request(video, tmp_path / "run.ome.zarr", frames=bad, chunk_frames=2, resume=True)
+    )
+    assert resumed.result.computed == (3,) and resumed.result.failed == {}
+    assert "4 of 4 frames" in resumed.summary() and "Frame(s) [3] had failed" in resumed.summary()
+    _close(_level0(tmp_path / "run.ome.zarr"), video.reference)
 
 
 def test_an_existing_store_is_not_replaced_without_being_asked(video, tmp_path):

@@ -7,8 +7,9 @@ Layout of ``run.ome.zarr``::
     lfm_studio_status/      a group holding one JSON record per finished frame chunk
 
 A chunk's record (every frame "done" or "failed" with its error) is written atomically after
-its frames, and a chunk with a record is never computed or written again: a killed run
-resumes from the chunks without one. The store itself appears atomically (built in a hidden
+its frames. A resumed run computes the chunks without a record and, in chunks with one, only the
+frames recorded as failed (then replaces that record atomically); a frame recorded as done is
+never computed or written again. The store itself appears atomically (built in a hidden
 folder next to it, then renamed), so a run that fails before its first chunk leaves nothing.
 """
 
@@ -48,14 +49,16 @@ AXES = (
 
 
 class FrameDone(TypedDict):
-    """A chunk record's entry for a reconstructed frame."""
+    """A chunk record's entry for a reconstructed frame (``attempts``: tries over every run,
+    failed ones of earlier runs included)."""
 
     status: Literal["done"]
     attempts: int
 
 
 class FrameFailed(TypedDict):
-    """A chunk record's entry for a frame that failed every attempt (its volume stays 0)."""
+    """A chunk record's entry for a frame that failed every attempt (its volume stays 0; a resumed
+    run tries it again)."""
 
     status: Literal["failed"]
     attempts: int
@@ -163,10 +166,11 @@ class VideoStore:
             for i in np.flatnonzero(keep):
                 array[start + int(i)] = data[i]
 
-    def write_record(self, index: int, record: ChunkRecord) -> None:
-        """Record chunk ``index`` as finished (atomic; an existing record is never replaced)."""
+    def write_record(self, index: int, record: ChunkRecord, *, replace: bool = False) -> None:
+        """Record chunk ``index`` as finished (atomic). An existing record is refused
+        (``FileExistsError``) unless ``replace`` (a resumed run that computed its failed frames again)."""
         text = json.dumps(record, indent=1, allow_nan=False).encode()
-        atomic_write(self.record_path(index), lambda fh: fh.write(text))
+        atomic_write(self.record_path(index), lambda fh: fh.write(text), overwrite=replace)
 
     def record(self, index: int) -> ChunkRecord | None:
         """The record of chunk ``index``, or None while it is not finished (ValueError for a malformed one)."""

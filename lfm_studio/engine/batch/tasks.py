@@ -4,6 +4,11 @@ A :class:`ChunkTask` holds only small descriptions (frame source, projector spec
 store); the worker reads its frames, takes the projector from its per-process cache, and
 reconstructs each frame. A frame that raises or comes back with NaN/Inf is tried once more,
 then recorded as failed with its error (its volume stays 0) and the chunk goes on.
+
+A chunk recorded by an earlier run with failed frames is not finished: a resumed run computes
+those frames again (and only those), writes them, then replaces the record atomically with the
+merged statuses. Until the new record is in place the old one (frame failed) stays, so a run killed
+in between leaves nothing that reads as done.
 """
 
 from __future__ import annotations
@@ -76,21 +81,42 @@ def _reconstruct(task: ChunkTask, projector: Projector, frame: NumpyArray, t: in
 
 
 def _attempt(
-    task: ChunkTask, projector: Projector, frame: NumpyArray, t: int
+    task: ChunkTask, projector: Projector, frame: NumpyArray, t: int, earlier: int = 0
 ) -> tuple[npt.NDArray[np.float32] | None, FrameStatus]:
+    """Reconstruct frame ``t`` (up to :data:`ATTEMPTS` tries); its status counts ``earlier``
+    attempts of previous runs too."""
     error = ""  # always replaced: ATTEMPTS >= 1
     for attempt in range(1, ATTEMPTS + 1):
         try:
-            return _reconstruct(task, projector, frame, t), {"status": "done", "attempts": attempt}
+            volume = _reconstruct(task, projector, frame, t)
+            return volume, {"status": "done", "attempts": earlier + attempt}
         except Exception as caught:  # recorded and reported; the run goes on
             error = f"{type(caught).__name__}: {caught}"
-    return None, {"status": "failed", "attempts": ATTEMPTS, "error": error}
+    return None, {"status": "failed", "attempts": earlier + ATTEMPTS, "error": error}
+
+
+def done_frames(record: ChunkRecord) -> set[int]:
+    """The frames ``record`` holds as done (reconstructed and written)."""
+    return {int(t) for t, info in record["frames"].items() if info["status"] == "done"}
+
+
+def frames_to_compute(task: ChunkTask, existing: ChunkRecord | None) -> list[int]:
+    """The frames of ``task`` still to reconstruct: all without a record, none when this run
+    (``task.run_id``) wrote the record already (a task re-run after its worker died), else the
+    frames the record does not hold as done (failed in an earlier run)."""
+    if existing is None:
+        return list(range(task.start, task.stop))
+    if existing["run_id"] == task.run_id:
+        return []
+    return [t for t in range(task.start, task.stop) if t not in done_frames(existing)]
 
 
 def process_chunk(task: ChunkTask) -> ChunkRecord:
-    """Reconstruct, write and record the chunk; returns its record (an existing record untouched)."""
+    """Reconstruct, write and record the chunk's frames not yet done (:func:`frames_to_compute`);
+    returns its record (an existing record is returned untouched when nothing is left to do)."""
     existing = task.store.record(task.index)
-    if existing is not None:  # finished earlier (e.g. a task re-run after its worker died)
+    todo = frames_to_compute(task, existing)
+    if existing is not None and not todo:  # finished earlier (e.g. a task re-run after its worker died)
         return existing
     if in_dask_worker():
         torch.set_num_threads(1)  # one thread per worker process (docs/platform.md, threads)
@@ -103,13 +129,13 @@ def process_chunk(task: ChunkTask) -> ChunkRecord:
     raw = task.frames.read(task.start, task.stop)
     volumes = np.zeros((len(raw), *built.setup.volume_shape), dtype=np.float32)
     keep = np.zeros(len(raw), dtype=bool)
-    frames: dict[str, FrameStatus] = {}
+    frames: dict[str, FrameStatus] = {} if existing is None else dict(existing["frames"])
     read = time.perf_counter()
-    for i, frame in enumerate(raw):
-        t = task.start + i
-        volume, frames[str(t)] = _attempt(task, built.setup.projector, frame, t)
+    for t in todo:
+        earlier = frames[str(t)]["attempts"] if str(t) in frames else 0
+        volume, frames[str(t)] = _attempt(task, built.setup.projector, raw[t - task.start], t, earlier)
         if volume is not None:
-            volumes[i], keep[i] = volume, True
+            volumes[t - task.start], keep[t - task.start] = volume, True
     computed = time.perf_counter()
     task.store.write_frames(task.start, volumes, keep)
     record: ChunkRecord = {
@@ -126,5 +152,5 @@ def process_chunk(task: ChunkTask) -> ChunkRecord:
             "write": time.perf_counter() - computed,
         },
     }
-    task.store.write_record(task.index, record)
+    task.store.write_record(task.index, record, replace=existing is not None)
     return record

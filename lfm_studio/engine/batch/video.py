@@ -7,6 +7,9 @@ Example::
     result = reconstruct_video("frames.tif", "flfm_guo2019", method="rl-accelerated",
                                iterations=10, output="run.ome.zarr", workers=2)
     print(result.failed)        # {frame: error} for frames that could not be reconstructed
+
+A resume (the same call again) computes the frames without a record and those recorded as failed,
+and keeps every frame recorded as done.
 """
 
 from __future__ import annotations
@@ -25,7 +28,7 @@ from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import cached_projector, planned_image_shape, projector_spec
 from lfm_studio.engine.batch.pyramid import level_count
 from lfm_studio.engine.batch.store import ChunkRecord, VideoStore, create_store, open_store
-from lfm_studio.engine.batch.tasks import ChunkTask, process_chunk
+from lfm_studio.engine.batch.tasks import ChunkTask, done_frames, process_chunk
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.io import CameraCalibration, OutputError
 from lfm_studio.engine.io.file_checks import names_zarr_store
@@ -50,8 +53,16 @@ def check_frame_shape(source: FrameSource, sensor: tuple[int, ...], fix: str = F
 
 @dataclass(frozen=True)
 class VideoResult:
-    """What a call did: frames computed now, frames already done before, failures (frame -> error,
-    from this and earlier calls), chunks left unfinished (a lost worker: resume to finish them)."""
+    """What a call did.
+
+    computed : frames reconstructed by this call.
+    skipped : frames recorded as done before this call (not computed again).
+    failed : frame -> error (``"Type: message"`` of its last attempt) for every frame the store
+        holds as failed after this call; a resume tries them again.
+    unfinished : chunks left without a record (a lost worker: resume to finish them).
+    retried : frames an earlier call recorded as failed that this call tried again (now in
+        ``computed`` or, failing again, in ``failed``).
+    """
 
     path: str
     frame_count: int
@@ -60,6 +71,17 @@ class VideoResult:
     failed: dict[int, str] = field(default_factory=dict)
     unfinished: tuple[int, ...] = ()
     dashboard: str | None = None
+    retried: tuple[int, ...] = ()
+
+    def retried_note(self) -> str | None:
+        """One sentence on the earlier failures this call tried again (None when there were none)."""
+        if not self.retried:
+            return None
+        again = [t for t in self.retried if t in self.failed]
+        return (
+            f"Frame(s) {list(self.retried)} had failed in an earlier run and were computed again: "
+            f"{len(self.retried) - len(again)} reconstructed, {len(again)} failed again."
+        )
 
 
 def _run_record(source: FrameSource, spec_key: str, options: ReconstructionOptions, chunk_frames: int,
@@ -184,7 +206,8 @@ def reconstruct_video(
         by the method's schema), as in :func:`~lfm_studio.engine.reconstruct.dispatch.reconstruct_frame`.
     output : the store, a name ending in ``.zarr`` (axes t, z, y, x; scales in s and um; a 2x
         lateral pyramid).
-    resume : continue an existing store of the same run, computing only unrecorded chunks.
+    resume : continue an existing store of the same run, computing only the frames not recorded
+        as done (unrecorded chunks, and frames that failed before).
     overwrite : replace an existing store instead.
     client, workers, scheduler : a Dask client to use; else ``workers`` N > 1 starts a
         LocalCluster of N one-thread processes, ``scheduler`` connects to a cluster, and
@@ -198,7 +221,7 @@ def reconstruct_video(
         own words).
 
     The result's ``computed`` and ``skipped`` list the frames reconstructed (now, before);
-    a frame that failed is only in ``failed``.
+    a frame that failed is only in ``failed``; ``retried`` lists the earlier failures tried again.
     """
     _check_output(output)
     reconstruction = ReconstructionOptions.of(method, {**(options or {}), **method_options})
@@ -239,18 +262,19 @@ def reconstruct_video(
         output, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
         scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
     )  # fmt: skip
-    done_before = store.records()
+    before = store.records()
+    done_before = {i: done_frames(record) for i, record in before.items()}
     chunks = store.chunks()
     run_id = uuid.uuid4().hex
     tasks = [
         ChunkTask(i, start, stop, source, spec, reconstruction, store, camera, run_id)
         for i, (start, stop) in enumerate(chunks)
-        if i not in done_before
+        if len(done_before.get(i, ())) < stop - start
     ]
-    state = {"frames": sum(r["stop"] - r["start"] for r in done_before.values())}
+    state = {"frames": sum(len(done) for done in done_before.values())}
 
     def on_record(record: ChunkRecord) -> None:
-        state["frames"] += record["stop"] - record["start"]
+        state["frames"] += record["stop"] - record["start"] - len(done_before.get(record["chunk"], ()))
         if progress is not None:
             progress(state["frames"], source.count, f"chunk {record['chunk'] + 1}/{len(chunks)} done")
 
@@ -259,22 +283,32 @@ def reconstruct_video(
         if progress is not None:
             progress(state["frames"], source.count, f"dashboard {link}" if link else "starting")
         lost = _run_chunks(tasks, active, on_record, cancel)
-    records = store.records()
-    failed = {
+    return _result(store, before, store.records(), count=source.count, lost=lost, link=link)
+
+
+def _done(records: Mapping[int, ChunkRecord]) -> set[int]:
+    """Every frame ``records`` hold as done."""
+    return {t for record in records.values() for t in done_frames(record)}
+
+
+def _failures(records: Mapping[int, ChunkRecord]) -> dict[int, str]:
+    """Frame -> error for every frame ``records`` hold as failed."""
+    return {
         int(t): info["error"]
-        for r in records.values()
-        for t, info in r["frames"].items()
+        for record in records.values()
+        for t, info in record["frames"].items()
         if info["status"] == "failed"
     }
-    computed = [
-        t
-        for i, r in records.items()
-        if i not in done_before
-        for t in range(r["start"], r["stop"])
-        if t not in failed
-    ]
-    skipped = [t for r in done_before.values() for t in range(r["start"], r["stop"]) if t not in failed]
+
+
+def _result(store: VideoStore, before: Mapping[int, ChunkRecord], after: Mapping[int, ChunkRecord], *,
+            count: int, lost: list[int], link: str | None) -> VideoResult:  # fmt: skip
+    """What the call did, from the chunk records before and after it (``lost``: chunks whose
+    worker was lost, so their earlier failures were not tried again)."""
+    skipped, done = _done(before), _done(after)
+    failed = _failures(after)
+    retried = _failures({i: record for i, record in before.items() if i not in lost})
     return VideoResult(
-        store.path, source.count, tuple(sorted(computed)), tuple(sorted(skipped)),
-        dict(sorted(failed.items())), tuple(lost), link,
+        store.path, count, tuple(sorted(done - skipped)), tuple(sorted(skipped)),
+        dict(sorted(failed.items())), tuple(lost), link, tuple(sorted(retried)),
     )  # fmt: skip

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import tifffile
 import zarr
 
 from lfm_studio.engine.batch import get_client, reconstruct_video
@@ -162,3 +163,26 @@ def test_a_video_and_a_design_study_run_on_one_client(video, client, tmp_path):
     alone = run_study(evaluator(), f"sqlite:///{tmp_path / 'alone.db'}")
     assert len(values(shared)) == 2 and values(shared) == values(alone)
     assert np.array_equal(_level0(result.path), video.reference)  # the video is untouched by the study
+
+
+def test_a_frame_that_failed_on_the_cluster_is_recomputed_on_resume(video, client, tmp_path):
+    frames = video.frames.copy()
+    frames[2, 30, 30] = np.nan
+    tiff = tmp_path / "frames.tif"
+    tifffile.imwrite(tiff, frames)
+    out = tmp_path / "run.ome.zarr"
+    options = {"method": METHOD, "iterations": ITERATIONS, "crop": CROP, "output": out, "chunk_frames": 2}
+    first = reconstruct_video(tiff, video.design, client=client, **options)
+    assert list(first.failed) == [2] and "NaN" in first.failed[2]
+    folder = out / STATUS_GROUP
+    untouched = {p.name: p.read_bytes() for p in folder.glob("chunk_*.json") if p.name != "chunk_000001.json"}
+
+    tifffile.imwrite(tiff, video.frames)  # the frame repaired in place: same file, same shape
+    result = reconstruct_video(tiff, video.design, client=client, **options)
+    assert result.failed == {} and result.retried == (2,) and result.computed == (2,)
+    assert result.skipped == tuple(t for t in range(FRAMES) if t != 2)
+    assert np.array_equal(_level0(out), video.reference)  # bit for bit, 1 thread each
+    assert {p.name: p.read_bytes() for p in folder.glob("chunk_*.json") if p.name in untouched} == untouched
+    record = json.loads((folder / "chunk_000001.json").read_text())
+    assert record["frames"]["2"] == {"status": "done", "attempts": 3}
+    assert record["frames"]["3"] == {"status": "done", "attempts": 1}

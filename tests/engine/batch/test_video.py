@@ -142,3 +142,69 @@ def test_an_output_that_is_not_a_zarr_name_is_refused(video, tmp_path):
     ):
         _run(video, tmp_path / "out.tif")
     assert not list(tmp_path.iterdir())
+
+
+def test_a_frame_that_failed_is_recomputed_on_resume_and_the_good_frames_are_not(
+    video, tmp_path, monkeypatch
+):
+    from lfm_studio.engine.batch import tasks
+
+    real = tasks._reconstruct
+    calls: list[int] = []
+
+    def fail_frame_4(task, projector, frame, t):
+        calls.append(t)
+        if t == 4:
+            raise RuntimeError("injected failure of frame 4")
+        return real(task, projector, frame, t)
+
+    out = tmp_path / "run.ome.zarr"
+    monkeypatch.setattr(tasks, "_reconstruct", fail_frame_4)
+    first = _run(video, out)  # chunks of 3: frame 4 is in chunk 1 (frames 3-5)
+    assert first.failed == {4: "RuntimeError: injected failure of frame 4"}
+    assert first.computed == (0, 1, 2, 3, 5, 6, 7) and first.retried == ()
+    assert not _level(out)[4].any()  # nothing stored for the failed frame
+    folder = out / STATUS_GROUP
+    records = {p.name: p.read_bytes() for p in folder.glob("chunk_*.json")}
+    good_data = _level(out)[[0, 1, 2, 3, 5, 6, 7]].copy()
+
+    calls.clear()
+    monkeypatch.setattr(tasks, "_reconstruct", lambda task, projector, frame, t: calls.append(t) or real(
+        task, projector, frame, t))  # fmt: skip
+    result = _run(video, out)  # resume=True by default
+    assert calls == [4]  # only the failed frame is reconstructed again
+    assert result.failed == {} and result.computed == (4,) and result.retried == (4,)
+    assert result.skipped == (0, 1, 2, 3, 5, 6, 7)
+    np.testing.assert_allclose(_level(out)[4], video.reference[4], rtol=1e-6, atol=1e-6)
+    assert np.array_equal(_level(out)[[0, 1, 2, 3, 5, 6, 7]], good_data)
+    for name in ("chunk_000000.json", "chunk_000002.json"):  # chunks without a failure: untouched
+        assert (folder / name).read_bytes() == records[name]
+    record = json.loads((folder / "chunk_000001.json").read_text())
+    assert record["frames"]["4"] == {"status": "done", "attempts": 3}  # 2 failed before, 1 now
+    assert record["frames"]["3"] == {"status": "done", "attempts": 1}
+    again = _run(video, out)
+    assert calls == [4] and again.computed == () and again.skipped == tuple(range(FRAMES))
+
+
+def test_a_frame_that_fails_again_on_resume_stays_failed_with_its_new_error(video, tmp_path, monkeypatch):
+    from lfm_studio.engine.batch import tasks
+
+    real = tasks._reconstruct
+
+    def failing(message):
+        def reconstruct(task, projector, frame, t):
+            if t == 6:
+                raise RuntimeError(message)
+            return real(task, projector, frame, t)
+
+        return reconstruct
+
+    out = tmp_path / "run.ome.zarr"
+    monkeypatch.setattr(tasks, "_reconstruct", failing("first"))
+    _run(video, out)
+    monkeypatch.setattr(tasks, "_reconstruct", failing("second"))
+    result = _run(video, out)
+    assert result.failed == {6: "RuntimeError: second"} and result.retried == (6,) and result.computed == ()
+    record = json.loads((out / STATUS_GROUP / "chunk_000002.json").read_text())
+    assert record["frames"]["6"]["attempts"] == 4 and record["frames"]["7"]["status"] == "done"
+    assert not _level(out)[6].any()
