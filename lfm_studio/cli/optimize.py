@@ -256,6 +256,36 @@ def run_algorithm2(args: argparse.Namespace) -> int:
     return 0
 
 
+def measured_before_update(result: Any) -> bool:
+    """True when ``result.final_value`` (a :class:`~lfm_studio.engine.optimize.GradientResult`) is the
+    last step's training loss at its point before the update (end to end), not a value of the final design."""
+    return result.final_value_at == "before_last_update"
+
+
+def _start_final_line(result: Any, objective: str, unit_text: str) -> str:
+    """The start and final objective, saying where the final one was measured (``unit_text``: " um" or "")."""
+    if not measured_before_update(result):
+        return f"{objective}: start {result.start_value:.6g}{unit_text}, final {result.final_value:.6g}{unit_text}"
+    last = len(result.history) - 1
+    return (
+        f"{objective} (training batches): {result.start_value:.6g}{unit_text} at step 0, "
+        f"{result.final_value:.6g}{unit_text} at step {last}, each measured before its step's update "
+        "(not evaluated at the final design; the held-out task loss below is)"
+    )
+
+
+def _change_text(result: Any, objective: str, unit_text: str) -> str:
+    """The start -> final change recorded in the written design's description: the objective at the
+    final design, or end to end the held-out task loss (the training loss was not measured there)."""
+    snapped = "" if result.snapped_value is None else " (snapped to the catalogue)"
+    if measured_before_update(result):
+        extra = result.extra
+        final = extra.get("held_out_snapped", extra["held_out_final"])
+        return f"held-out task loss {extra['held_out_start']:.6g} -> {final:.6g} at the final design{snapped}"
+    final = result.final_value if result.snapped_value is None else result.snapped_value
+    return f"{objective} {result.start_value:.6g} -> {final:.6g}{unit_text}{snapped}"
+
+
 def run_gradient(args: argparse.Namespace) -> int:
     """``optimize --gradient psf|end-to-end``: gradient descent recorded into a study; writes the final design."""
     from lfm_studio.cli.simulate import _design_file
@@ -321,8 +351,8 @@ def run_gradient(args: argparse.Namespace) -> int:
         chosen = result.design.updated(
             name=f"{design.name} (gradient {args.gradient})",
             description=f"{design.description} Optimised by lfm-studio optimize --gradient {args.gradient}: study "
-            f"{args.study_name!r} in {args.study}, {len(result.history)} {args.optimizer} steps, {objective} "
-            f"{result.start_value:.6g} -> {result.final_value:.6g}{unit_text}.".strip(),
+            f"{args.study_name!r} in {args.study}, {len(result.history)} {args.optimizer} steps, "
+            f"{_change_text(result, objective, unit_text)}.".strip(),
         )
         save_design(chosen, out, overwrite=args.overwrite)
     for note in dict.fromkeys([*result.warnings, *(str(w.message) for w in caught)]):
@@ -333,31 +363,34 @@ def run_gradient(args: argparse.Namespace) -> int:
         print(
             f"step {step.step:3d}  {objective} {step.value:.6g}{unit_text}  |grad| {step.grad_norm:.3g}  {point}{note}"
         )
-    print(
-        f"{objective}: start {result.start_value:.6g}{unit_text}, final {result.final_value:.6g}{unit_text}"
-    )
+    print(_start_final_line(result, objective, unit_text))
     if result.resumed_from:
         print(
             f"resumed: {result.resumed_from} stored steps, the optimiser restarted from the stored {result.final} point"
         )
     if result.best is not None:
-        print(f"best step {result.best.step}: {objective} {result.best.value:.6g}{unit_text}")
+        batches = " (training batch)" if measured_before_update(result) else ""
+        print(f"best step {result.best.step}: {objective}{batches} {result.best.value:.6g}{unit_text}")
     if result.last_value is not None:
         print(f"last point (after the last update): {objective} {result.last_value:.6g}{unit_text}")
     if args.gradient == "psf":
         print(
             f"the design written is the {result.final} point: {objective} {result.final_value:.6g}{unit_text}"
         )
+    if args.gradient == "end-to-end":
+        extra = result.extra
+        where = "the final design" if result.snapped_value is None else "the final point (before snapping)"
+        print(
+            f"held-out task loss: start {extra['held_out_start']:.6g}, final {extra['held_out_final']:.6g} at "
+            f"{where} (all-zero volume: {extra['zero_floor']:.6g}); final volume "
+            f"{extra['final_volume_trivial'] or 'not trivial'}"
+        )
     if result.snapped_value is not None:
         what = "held-out task loss" if args.gradient == "end-to-end" else objective
         before = result.extra.get("held_out_final", result.final_value)
-        print(f"snapped to the catalogue: {what} {before:.6g} -> {result.snapped_value:.6g}{unit_text}")
-    if args.gradient == "end-to-end":
-        extra = result.extra
         print(
-            f"held-out task loss: start {extra['held_out_start']:.6g}, final {extra['held_out_final']:.6g} "
-            f"(all-zero volume: {extra['zero_floor']:.6g}); final volume "
-            f"{extra['final_volume_trivial'] or 'not trivial'}"
+            f"snapped to the catalogue: {what} {before:.6g} -> {result.snapped_value:.6g}{unit_text} "
+            "(the design written)"
         )
     if result.check is not None:
         verdict = "within" if result.check.passed else "OUTSIDE"

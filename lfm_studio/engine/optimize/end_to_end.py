@@ -142,8 +142,10 @@ def optimize_end_to_end(
     Returns
     -------
     :class:`.gradient.GradientResult`: ``start_value`` / ``final_value`` are the training loss of
-    the first step and of the last; ``extra`` holds ``held_out_start``, ``held_out_final`` (and
-    ``held_out_snapped``), ``zero_floor``, ``final_volume_trivial``, ``reconstruction_change`` (L2 norm
+    the first step and of the last, each measured at its step's point before the update
+    (``final_value_at`` is ``"before_last_update"``: nothing is measured on training batches at the
+    final design); ``extra`` holds ``held_out_start`` and ``held_out_final`` (the held-out loss at
+    the start and at the final design: the numbers to compare), ``held_out_snapped``, ``zero_floor``, ``final_volume_trivial``, ``reconstruction_change`` (L2 norm
     of the change of the reconstruction weights) and the settings; ``model``
     is the (trained) reconstruction, None for "rl".
     """
@@ -292,7 +294,7 @@ def optimize_end_to_end(
     result = GradientResult(
         final, start.design, history, history[0].value, history[-1].value,
         check=None if check is None else check.result(), final="last", final_point=last_point,
-        last_point=last_point,
+        last_point=last_point, final_value_at="before_last_update",
     )  # fmt: skip
     result.extra = {
         "held_out_start": start_held_out,

@@ -181,6 +181,11 @@ class StepRecord:
     infeasible: str | None = None
 
 
+FINAL_VALUE_AT: tuple[str, ...] = ("final_point", "before_last_update")
+"""Where :attr:`GradientResult.final_value` was measured: at the final design's point (PSF
+engineering), or at the last step's point before its update (end to end: a training loss)."""
+
+
 @dataclass
 class GradientResult:
     """What a gradient run returns.
@@ -188,7 +193,12 @@ class GradientResult:
     design : the final design (written through the space's ``apply``; snapped when a catalogue is given).
     start_design : the (bound-projected) start.
     history : one :class:`StepRecord` per step.
-    start_value, final_value : the objective at the start and at the final (unsnapped) point.
+    start_value, final_value : the objective at the start and, where :attr:`final_value_at` is
+        ``"final_point"``, at the final (unsnapped) point; end to end (``"before_last_update"``)
+        ``final_value`` is the last step's training loss, measured at the point *before* that
+        step's update: nothing was measured on training batches at the final design (its value
+        there is ``extra["held_out_final"]``, the held-out loss).
+    final_value_at : where ``final_value`` was measured, one of :data:`FINAL_VALUE_AT`.
     snapped_value : the objective after snapping to the catalogue (None without one).
     unsnapped_design : the final design before snapping.
     check : the float32 / float64 start-gradient comparison (None when not asked).
@@ -219,6 +229,7 @@ class GradientResult:
     last_value: float | None = None
     last_point: dict[str, float] | None = None
     resumed_from: int = 0
+    final_value_at: str = "final_point"
 
     @property
     def best(self) -> StepRecord | None:
@@ -232,6 +243,7 @@ class GradientResult:
             "steps": len(self.history),
             "start_value": self.start_value,
             "final_value": self.final_value,
+            "final_value_at": self.final_value_at,
             "snapped_value": self.snapped_value,
             "check": None if self.check is None else self.check.to_dict(),
             "final": self.final,

@@ -13,7 +13,7 @@ from lfm_studio.engine.optimize import DesignSpace, Parameter
 
 from .conftest import tiny_flfm
 
-pytest.importorskip("optuna")
+optuna = pytest.importorskip("optuna")
 
 SPACE = DesignSpace(
     (
@@ -81,3 +81,31 @@ def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, c
         files, "--gradient", "end-to-end", "--reconstruction", "rl", "--freeze-optics", "--steps", "1"
     )
     assert code == 2 and "nothing to optimise" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("catalogue", [(), ("--catalogue", "10,16.8,20,26")], ids=["continuous", "snapped"])
+def test_gradient_end_to_end_reports_the_training_loss_where_it_was_measured(files, capsys, catalogue):
+    """The last step's training loss is measured before its update: the CLI, the design file and
+    the study never present it as the final design's value (that is the held-out loss)."""
+    code = _optimize(
+        files, "--gradient", "end-to-end", "--steps", "2", "--batch", "1", "--held-out", "1",
+        "--unrolled-iterations", "2", "--photons", "20000", "--no-float64-check", *catalogue,
+    )  # fmt: skip
+    out = capsys.readouterr().out
+    assert code == 0, out
+    study = optuna.load_study(study_name="lfm_study", storage=f"sqlite:///{files / 'g.db'}")
+    summary = study.user_attrs["gradient"]
+    start, last = summary["start_value"], summary["final_value"]  # kept for older readers
+    held_start, held_final = summary["held_out_start"], summary["held_out_final"]
+    assert summary["final_value_at"] == "before_last_update"
+    assert f"task_loss: start {start:.6g}, final {last:.6g}" not in out
+    assert (
+        f"task_loss (training batches): {start:.6g} at step 0, {last:.6g} at step 1, each measured before "
+        "its step's update (not evaluated at the final design;"
+    ) in out
+    where = "the final point (before snapping)" if catalogue else "the final design"
+    assert f"held-out task loss: start {held_start:.6g}, final {held_final:.6g} at {where}" in out
+    written = summary["held_out_snapped"] if catalogue else held_final
+    description = load_design(files / "best.json").description
+    assert f"held-out task loss {held_start:.6g} -> {written:.6g} at the final design" in description
+    assert f"{last:.6g}" not in description
