@@ -171,8 +171,10 @@ def test_a_frame_that_failed_is_recomputed_on_resume_and_the_good_frames_are_not
     calls.clear()
     monkeypatch.setattr(tasks, "_reconstruct", lambda task, projector, frame, t: calls.append(t) or real(
         task, projector, frame, t))  # fmt: skip
-    result = _run(video, out)  # resume=True by default
+    reports = []
+    result = _run(video, out, progress=lambda done, total, message: reports.append((done, total)))
     assert calls == [4]  # only the failed frame is reconstructed again
+    assert reports[0] == (FRAMES - 1, FRAMES) and reports[-1] == (FRAMES, FRAMES)
     assert result.failed == {} and result.computed == (4,) and result.retried == (4,)
     assert result.skipped == (0, 1, 2, 3, 5, 6, 7)
     np.testing.assert_allclose(_level(out)[4], video.reference[4], rtol=1e-6, atol=1e-6)

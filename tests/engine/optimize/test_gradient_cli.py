@@ -57,6 +57,12 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     assert "float32 vs float64 start gradient: relative difference" in out and "within" in out
     best = load_design(files / "best.json")
     assert "gradient psf" in best.name
+    summary = optuna.load_study(study_name="lfm_study", storage=f"sqlite:///{files / 'g.db'}").user_attrs[
+        "gradient"
+    ]
+    assert summary["final_value_at"] == "final_point"
+    start, written = summary["start_value"], summary["snapped_value"]  # the design written is snapped
+    assert f"axial_crb {start:.6g} -> {written:.6g} um (snapped to the catalogue)" in best.description
     assert {lens.focal_length_mm for lens in best.mla.lenslets} <= {10.0, 16.8, 20.0, 26.0}
     assert main(["study", "show", str(files / "g.db")]) == 0
     shown = capsys.readouterr().out
