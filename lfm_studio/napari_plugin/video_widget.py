@@ -40,6 +40,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.calibration_reader import calibration_source
 from lfm_studio.napari_plugin.notify import report_error, report_info, report_warning
 from lfm_studio.napari_plugin.reconstruct_widget import is_psf_stack
 from lfm_studio.napari_plugin.task_controls import TaskControls
@@ -290,9 +291,9 @@ class VideoWidget(QWidget):
     def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
         """A PSF stack opened from a file fills the PSF field; a calibration overlay the calibration."""
         layer = event.value if layer is None else layer
-        metadata = getattr(layer, "metadata", None) or {}
-        if metadata.get("kind") == "calibration" and metadata.get("source"):
-            self.set_calibration(metadata["source"])
+        source = calibration_source(layer)
+        if source is not None:
+            self.set_calibration(source)
         path = getattr(getattr(layer, "source", None), "path", None)
         if is_psf_stack(layer) and path:
             self.psf.setText(str(path))
