@@ -122,22 +122,10 @@ def calibrated_camera(args: argparse.Namespace, metadata: dict[str, Any] | None,
     )
 
 
-def _fix(calibration, psf_shape: tuple[int, int]) -> str:
-    """How to make the PSF and the rectified frames agree."""
-    fix = (
-        "Fix: simulate the PSF for these frames ('lfm-studio calibrate --radiometry ... --design-out "
-        "rectified.json', then 'lfm-studio simulate rectified.json --out psf.tif')"
-    )
-    n = calibration.pixels_per_lenslet
-    if n and psf_shape[0] % n == 0 and psf_shape[1] % n == 0:
-        fix += f", or pass --lenslets {psf_shape[0] // n} {psf_shape[1] // n} to match this PSF"
-    return fix + "."
-
-
 def rectified_image(args: argparse.Namespace, image, calibration, psf_shape: tuple[int, int], device: str):
     """``image`` (raw ADU) corrected and rectified with ``calibration``, on ``device`` in ``--dtype``;
     a shape that differs from the PSF's ``psf_shape`` is refused with both shapes and the fix."""
-    from lfm_studio.engine.calibration import rectify_frame
+    from lfm_studio.engine.calibration import rectified_shape_fix, rectify_frame
 
     lenslets = None if args.lenslets is None else tuple(args.lenslets)
     try:
@@ -154,7 +142,7 @@ def rectified_image(args: argparse.Namespace, image, calibration, psf_shape: tup
         )
         raise ValueError(
             f"{args.image} {what} with {args.calibration}, but the PSF stack {args.psf} images "
-            f"{tuple(psf_shape)} pixels. {_fix(calibration, tuple(psf_shape))}"
+            f"{tuple(psf_shape)} pixels. {rectified_shape_fix(calibration, tuple(psf_shape), '--lenslets {ny} {nx}')}"
         )
     data = frames.to(dtype=getattr(torch, args.dtype), device=device)
     return dataclasses.replace(image, data=data)

@@ -7,7 +7,9 @@ one-thread processes (a LocalCluster; 1: in this process) or by the cluster at
 ``--scheduler tcp://host:8786``; each finished chunk is recorded in the store, so ``--resume``
 (after a crash, Ctrl+C or failed frames) computes only the missing frames and those that failed.
 Camera counts become photons per frame as in the TIFF path (metadata or
-``--baseline/--gain/--read-noise``). Needs the ``scale`` extra (``pip install "lfm-studio[scale]"``).
+``--baseline/--gain/--read-noise``); raw frames with ``--calibration calib.json`` (and
+``--lenslets``) are corrected and rectified frame by frame first, as in the TIFF path
+(:mod:`lfm_studio.cli.raw_frames`). Needs the ``scale`` extra (``pip install "lfm-studio[scale]"``).
 """
 
 from __future__ import annotations
@@ -20,7 +22,6 @@ from lfm_studio.cli.progress import progress_bar
 
 _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
     "measured": "--measured (prepare the bead PSF once with the TIFF path, then pass it as --psf)",
-    "calibration": "--calibration (raw frames: rectify them first)",
     "pixel_size_um": "--pixel-size-um (a video's PSF stack must carry its metadata)",
     "magnification": "--magnification (a video's PSF stack must carry its metadata)",
     "wavelength_nm": "--wavelength-nm (a video's PSF stack must carry its metadata)",
@@ -57,10 +58,14 @@ def add_video_arguments(parser: argparse.ArgumentParser) -> None:
     )  # fmt: skip
 
 
-def _camera(args: argparse.Namespace, source) -> Any:
-    """The camera calibration of the frames (warnings printed for what was assumed)."""
-    from lfm_studio.engine.batch.camera import video_camera
+def _camera(args: argparse.Namespace, source, raw_calibration) -> Any:
+    """The camera calibration of the frames (warnings printed for what was assumed); after a
+    ``--calibration`` the dark-subtracted camera (baseline 0)."""
+    from lfm_studio.cli.raw_frames import calibrated_camera
+    from lfm_studio.engine.batch.camera import tiff_metadata, video_camera
 
+    if raw_calibration is not None:
+        return calibrated_camera(args, tiff_metadata(source.path), raw_calibration)
     calibration, notes = video_camera(
         source, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
     )
@@ -89,12 +94,15 @@ def run_video(args: argparse.Namespace) -> int:
     except MissingExtraError as error:  # a usage error here (exit 2), not a traceback
         raise ValueError(f"--out {args.out} (OME-Zarr): {error}") from error
     from lfm_studio.cli.method_options import method_options
+    from lfm_studio.cli.raw_frames import load_raw_calibration
     from lfm_studio.engine.batch import client_for, dashboard_link, open_frames, reconstruct_video
 
     _refuse_unsupported(args)
     method, options = method_options(args)
+    raw_calibration = load_raw_calibration(args)  # refuses --baseline and --lenslets misuse
     source = open_frames(args.image)
-    camera = _camera(args, source)
+    camera = _camera(args, source, raw_calibration)
+    lenslets = None if args.lenslets is None else tuple(args.lenslets)
     fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
     with client_for(None, args.workers, args.scheduler) as client:
         link = dashboard_link(client)
@@ -105,7 +113,8 @@ def run_video(args: argparse.Namespace) -> int:
                 source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
                 overwrite=args.overwrite,
                 client=client, chunk_frames=args.chunk_frames, frame_interval_s=args.frame_interval_s,
-                camera=camera, field_of_view=fov, dtype=args.dtype,
+                camera=camera, field_of_view=fov, dtype=args.dtype, calibration=args.calibration,
+                lenslets=lenslets,
                 progress=lambda done, total, message: bar(done, total, message),
             )  # fmt: skip
     print(

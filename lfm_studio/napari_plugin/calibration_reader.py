@@ -102,3 +102,10 @@ def read_calibration(path: Any) -> list[LayerData]:
         report_error(f"lfm-studio could not open the calibration {source.name}: {error}")
         return NOTHING
     return overlay_layer_data(calibration, name=source.stem, source=str(source))
+
+
+def calibration_source(layer: Any) -> str | None:
+    """The calibration file a layer was opened from (its overlay's ``source``), or None for other layers."""
+    metadata = getattr(layer, "metadata", None) or {}
+    source = metadata.get("source")
+    return str(source) if metadata.get("kind") == CALIBRATION_KIND and source else None

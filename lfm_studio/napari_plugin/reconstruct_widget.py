@@ -45,6 +45,7 @@ from lfm_studio.engine.calibration import CalibrationFileError, load_calibration
 from lfm_studio.engine.errors import error_text
 from lfm_studio.napari_plugin import reconstruction
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.calibration_reader import calibration_source
 from lfm_studio.napari_plugin.layer_data import (
     LayerError,
     image_from_layer,
@@ -237,9 +238,9 @@ class ReconstructWidget(QWidget):
     def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
         """A calibration overlay opened by the reader fills the calibration field."""
         layer = event.value if layer is None else layer
-        metadata = getattr(layer, "metadata", None) or {}
-        if metadata.get("kind") == "calibration" and metadata.get("source"):
-            self.set_calibration(metadata["source"])
+        source = calibration_source(layer)
+        if source is not None:
+            self.set_calibration(source)
 
     def _on_ended(self, outcome: Outcome) -> None:
         request, self._task, self._request = self._request, None, None

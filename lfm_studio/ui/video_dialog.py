@@ -2,8 +2,9 @@
 
 The dialog asks for the frames (a multi-page TIFF or a folder of single-frame TIFFs), the
 output store (``*.ome.zarr``), whether to resume an interrupted run into it, the frames per
-chunk, the worker processes (1: in the studio's process) and whether the frames are camera
-counts. The reconstruction uses the studio's design and the "Simulate and reconstruct" panel's
+chunk, the worker processes (1: in the studio's process), whether the frames are camera
+counts and, for raw frames of a real microscope, their calibration file (each frame is corrected
+and rectified with it, as File > Open raw light field… does for one frame). The reconstruction uses the studio's design and the "Simulate and reconstruct" panel's
 method and options (named in the dialog). An existing store is continued only when "Resume"
 is ticked, and replaced only after the user said so in a question.
 
@@ -45,6 +46,7 @@ from lfm_studio.widgets.numeric_text import NumberRule
 JOB = "video"
 TIFF_FILTER = "TIFF frames (*.tif *.tiff)"
 ZARR_FILTER = "OME-Zarr store (*.ome.zarr *.zarr)"
+CALIBRATION_FILTER = "Calibration (*.json)"
 TITLE = "Reconstruct light-field video"
 _Buttons = QMessageBox.StandardButton
 
@@ -82,6 +84,13 @@ class VideoDialog(PathFormDialog):
             self,
         )
         self.counts.setChecked(True)
+        self.calibration_edit = QLineEdit(self)
+        self.calibration_edit.setPlaceholderText("raw frames only: their calibration .json (optional)")
+        self.calibration_edit.setToolTip(
+            "Raw frames of a real microscope: each frame is dark-subtracted, defect-corrected, flat-fielded "
+            "and rectified with this calibration before reconstruction. Leave empty for frames that are "
+            "already the pixels the design images."
+        )
         self.method_label = QLabel(method_text, self)
         self.method_label.setWordWrap(True)
         form = QFormLayout()
@@ -94,6 +103,9 @@ class VideoDialog(PathFormDialog):
         form.addRow("Frames per chunk", self.chunk_frames)
         form.addRow("Worker processes", self.workers)
         form.addRow(self.counts)
+        form.addRow(
+            "Calibration", self.path_row(self.calibration_edit, ("Browse…", self._browse_calibration))
+        )
         self.lay_out(form, self.method_label)
         assert self.ok_button is not None
         self.ok_button.setText("Reconstruct")
@@ -106,6 +118,10 @@ class VideoDialog(PathFormDialog):
         self.chosen(
             self.frames_edit, QFileDialog.getExistingDirectory(self, "Folder of TIFF frames", self.folder)
         )
+
+    def _browse_calibration(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Calibration", self.folder, CALIBRATION_FILTER)
+        self.chosen(self.calibration_edit, path)
 
     def _browse_output(self) -> None:
         path, _ = QFileDialog.getSaveFileName(
@@ -134,6 +150,14 @@ class VideoDialog(PathFormDialog):
             return f"Output store: {output} is a file, not a Zarr store. Fix: choose another name."
         if self.resume.isChecked() and not output.exists():
             return f"Resume: {output} does not exist yet, so there is nothing to resume. Fix: untick Resume."
+        calibration = path_of(self.calibration_edit)
+        if calibration is not None and not calibration.is_file():
+            return f"Calibration: {calibration} does not exist. Fix: choose the calibration .json, or clear the field."
+        if calibration is not None and not self.counts.isChecked():
+            return (
+                "Calibration: raw frames are camera counts (the calibration subtracts the dark level in ADU). "
+                "Fix: tick “Frames are camera counts”, or clear the calibration."
+            )
         if not commit_all((self.chunk_frames, self.workers)):
             return next(str(f.error()) for f in (self.chunk_frames, self.workers) if f.error() is not None)
         return None
@@ -147,7 +171,7 @@ class VideoDialog(PathFormDialog):
         return VideoRequest(
             frames, output, design, settings, resume=self.resume.isChecked(),
             chunk_frames=int(self.chunk_frames.value()), workers=None if workers == 1 else workers,
-            counts=self.counts.isChecked(),
+            counts=self.counts.isChecked(), calibration=path_of(self.calibration_edit),
         )  # fmt: skip
 
 
@@ -165,7 +189,8 @@ def method_text(settings: WorkflowSettings, design: Any) -> str:
     camera = "" if (py, px) == (ny, nx) else f" of its {ny} x {nx} px camera"
     return (
         f"Method: {settings.method}{iterations}{options} (the “Simulate and reconstruct” panel's). "
-        f"Design: “{design.name}”: frames must be {py} x {px} px (what it images{camera})."
+        f"Design: “{design.name}”: frames must be {py} x {px} px (what it images{camera}), or raw frames "
+        "that its Calibration rectifies to that."
     )
 
 

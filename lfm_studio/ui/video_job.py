@@ -59,6 +59,9 @@ class VideoRequest:
     chunk_frames : frames per task and per status record.
     workers : worker processes of a local Dask cluster (None or 1: in this process).
     counts : the frames are camera counts (converted to photons); False: already photons.
+    calibration : raw frames of a real microscope: the calibration file (``lfm-studio calibrate``)
+        that corrects and rectifies each frame before the camera conversion; None: the frames are
+        already the pixels the design images.
     """
 
     frames: Path
@@ -70,10 +73,19 @@ class VideoRequest:
     chunk_frames: int = DEFAULT_CHUNK_FRAMES
     workers: int | None = None
     counts: bool = True
+    calibration: Path | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "frames", Path(self.frames).expanduser())
         object.__setattr__(self, "output", Path(self.output).expanduser())
+        if self.calibration is not None:
+            object.__setattr__(self, "calibration", Path(self.calibration).expanduser())
+            if not self.counts:
+                raise ValueError(
+                    f"calibration {self.calibration} with frames in photons: raw frames are camera counts "
+                    "(the calibration subtracts the dark level in ADU). Fix: tick “Frames are camera counts”, "
+                    "or clear the calibration."
+                )
         if self.resume and self.overwrite:
             raise ValueError(
                 f"{self.output}: resume and overwrite exclude each other. Fix: choose one (resume keeps "
@@ -161,9 +173,9 @@ def frame_shape_fix(design: Design) -> str:
     return (
         f"open the design of the camera that recorded these frames (File > Open…; “{design.name}” has "
         f"camera.pixel_count {tuple(design.camera.pixel_count)}), or crop the frames to the pixels it images. "
-        "Raw frames of a real microscope (lenslet grid off the pixel lattice) need their calibration, which "
-        "a video run does not take yet: reconstruct them with File > Open raw light field… one frame at a "
-        "time, or rectify the series first (rectify_frame, docs/calibration.md)."
+        "Raw frames of a real microscope (lenslet grid off the pixel lattice) need their calibration: "
+        "choose it in the dialog's Calibration field (a file from File > Open raw light field… or "
+        "'lfm-studio calibrate'), with the rectified design open."
     )
 
 
@@ -199,7 +211,11 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
     built = cached_projector(projector_spec(design))  # reconstruct_video reuses it in this process
     ctx.check()
     camera, notes = None, []
-    if request.counts:
+    if request.calibration is not None:  # the engine converts with the dark-subtracted camera
+        notes = [
+            f"Raw frames corrected and rectified with {request.calibration.name} before the camera conversion."
+        ]
+    elif request.counts:
         camera, notes = video_camera(
             source, fallback=design_camera(design.camera, f"the design's camera ({design.name})")
         )
@@ -211,6 +227,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
         source, design, method=method, options=options, output=request.output, resume=request.resume,
         overwrite=request.overwrite, workers=request.workers, chunk_frames=request.chunk_frames,
         camera=camera, progress=progress, cancel=ctx.cancel, shape_fix=frame_shape_fix(design),
+        calibration=request.calibration,
     )  # fmt: skip
     ctx.progress(source.count, source.count, "reading the last frame for the viewer")
     frame, volume = _last_volume(result)

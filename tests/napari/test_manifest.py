@@ -8,7 +8,7 @@ from npe2 import PluginManager, PluginManifest
 
 from tests.napari.conftest import PLUGIN
 
-WIDGETS = {"Simulate PSF", "Reconstruct light field", "MLA editor", "Calibrate"}
+WIDGETS = {"Simulate PSF", "Reconstruct light field", "MLA editor", "Calibrate", "Reconstruct video"}
 
 
 def test_manifest_validates_with_imports():
@@ -21,7 +21,7 @@ def test_manifest_validates_with_imports():
 def test_every_command_resolves_to_a_callable():
     manifest = PluginManifest.from_distribution(PLUGIN)
     commands = manifest.contributions.commands
-    assert len(commands) == 8
+    assert len(commands) == 9
     for command in commands:
         module, _, attribute = command.python_name.partition(":")
         assert callable(getattr(importlib.import_module(module), attribute)), command.python_name

@@ -188,6 +188,32 @@ def test_the_dialog_names_the_frame_size_the_projector_images_and_raw_frames_nee
     assert "frames must be 114 x 114 px (what it images of its 128 x 128 px camera)" in method_text(
         WorkflowSettings(), conventional
     )
-    assert "frames must be 256 x 256 px (what it images)." in method_text(WorkflowSettings(), fourier)
+    assert "frames must be 256 x 256 px (what it images), or raw frames that its Calibration rectifies" in (
+        method_text(WorkflowSettings(), fourier)
+    )
     fix = frame_shape_fix(conventional)
-    assert "calibration" in fix and "Open raw light field" in fix and "rectify_frame" in fix
+    assert "Calibration field" in fix and "Open raw light field" in fix
+
+
+def test_the_calibration_field_is_checked_and_reaches_the_request(qtbot, tmp_path):
+    from lfm_studio.ui.results import WorkflowSettings
+    from lfm_studio.ui.video_dialog import VideoDialog
+
+    dialog = VideoDialog(None, folder=str(tmp_path))
+    qtbot.addWidget(dialog)
+    frames = tmp_path / "raw.tif"
+    frames.write_bytes(b"")
+    dialog.frames_edit.setText(str(frames))
+    dialog.output_edit.setText(str(tmp_path / "run"))
+    assert (
+        dialog.problem() is None
+        and dialog.request(small_fourier_design(), WorkflowSettings()).calibration is None
+    )
+    dialog.calibration_edit.setText(str(tmp_path / "calib.json"))
+    assert dialog.problem().startswith("Calibration: ") and "does not exist" in dialog.problem()
+    (tmp_path / "calib.json").write_text("{}")
+    dialog.counts.setChecked(False)
+    assert "tick “Frames are camera counts”" in dialog.problem()
+    dialog.counts.setChecked(True)
+    assert dialog.problem() is None
+    assert dialog.request(small_fourier_design(), WorkflowSettings()).calibration == tmp_path / "calib.json"

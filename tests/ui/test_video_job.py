@@ -202,3 +202,40 @@ def test_a_missing_scale_extra_is_named_with_the_install_line(monkeypatch, video
     )
     with pytest.raises(extras.MissingExtraError, match="pip install"):
         reconstruct_video_job(Ctx(), _request(video, tmp_path / "run.ome.zarr"))
+
+
+def test_raw_frames_with_a_calibration_equal_the_series_rectified_first(tmp_path):
+    """Raw frames of a misaligned conventional LFM (the calibration tests' scene) with the calibration
+    in the request: the job's volumes equal the engine run on the series rectified first."""
+    from lfm_studio.engine.batch import reconstruct_video
+    from lfm_studio.engine.calibration import calibrate, rectify_frame, save_calibration
+    from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
+    from lfm_studio.engine.calibration.synthetic_scene import misaligned_bead_scene
+    from lfm_studio.ui.video_job import video_options
+
+    scene = misaligned_bead_scene(8)
+    calibration = calibrate(scene.radiometry, scene.nominal, dark=scene.dark)
+    calib = save_calibration(calibration, tmp_path / "calib.json")
+    raw = torch.stack([scene.raw, scene.raw]).numpy().astype(np.float32)
+    frames = tmp_path / "raw.tif"
+    tifffile.imwrite(frames, raw, photometric="minisblack")
+    design = scene.stack.design  # the rectified design: its projector images the rectified frames
+    request = VideoRequest(frames, tmp_path / "raw.ome.zarr", design, SETTINGS, calibration=calib)
+    run = reconstruct_video_job(Ctx(), request)
+    assert run.result.failed == {} and any("rectified with calib.json" in note for note in run.notes)
+
+    rectified = tmp_path / "rectified.tif"
+    tifffile.imwrite(rectified, rectify_frame(raw, calibration).numpy(), photometric="minisblack")
+    method, options = video_options(SETTINGS)
+    reference = reconstruct_video(
+        rectified, design, method=method, options=options, output=tmp_path / "ref.ome.zarr",
+        camera=dark_subtracted_camera(calibration),
+    )  # fmt: skip
+    expected = _level0(reference.path)
+    assert float(np.abs(expected).max()) > 0
+    _close(_level0(run.result.path), expected)
+
+
+def test_a_calibration_with_frames_in_photons_is_refused(video, tmp_path):
+    with pytest.raises(ValueError, match="raw frames are camera counts"):
+        _request(video, tmp_path / "run.ome.zarr", counts=False, calibration=tmp_path / "calib.json")

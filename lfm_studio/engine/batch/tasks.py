@@ -26,6 +26,7 @@ from lfm_studio.engine.allocator import keep_freed_memory
 from lfm_studio.engine.batch.frames import FrameSource
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import ProjectorSpec, cached_projector
+from lfm_studio.engine.batch.raw_frames import RawFrameSpec, rectified_frame
 from lfm_studio.engine.batch.store import ChunkRecord, FrameStatus, VideoStore
 from lfm_studio.engine.io import CameraCalibration, counts_to_photons
 from lfm_studio.engine.operators.protocol import Projector
@@ -47,6 +48,7 @@ class ChunkTask:
     store: VideoStore
     camera: CameraCalibration | None
     run_id: str
+    raw: RawFrameSpec | None = None  # raw frames: rectified with this calibration first
 
 
 def in_dask_worker() -> bool:
@@ -61,7 +63,11 @@ def in_dask_worker() -> bool:
 
 
 def _reconstruct(task: ChunkTask, projector: Projector, frame: NumpyArray, t: int) -> npt.NDArray[np.float32]:
-    data = torch.from_numpy(np.ascontiguousarray(frame)).to(getattr(torch, task.projector.dtype))
+    dtype = getattr(torch, task.projector.dtype)
+    if task.raw is not None:  # dark-subtracted, defects replaced, flat-fielded, rectified (ADU)
+        data = rectified_frame(task.raw, frame, dtype)
+    else:
+        data = torch.from_numpy(np.ascontiguousarray(frame)).to(dtype)
     floor = 0.0
     if task.camera is not None:  # counts -> photons; refuses NaN/Inf pixels with a named error
         data, floor = counts_to_photons(data, task.camera, name=f"frame {t}")

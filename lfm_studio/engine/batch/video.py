@@ -22,13 +22,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from lfm_studio import __version__
+from lfm_studio.engine.batch.camera import tiff_metadata
 from lfm_studio.engine.batch.client import Client, check_placement, client_for, dashboard_link
 from lfm_studio.engine.batch.frames import FrameSource, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import cached_projector, planned_image_shape, projector_spec
 from lfm_studio.engine.batch.pyramid import level_count
+from lfm_studio.engine.batch.raw_frames import RawFrameSpec, raw_frame_spec
 from lfm_studio.engine.batch.store import ChunkRecord, VideoStore, create_store, open_store
 from lfm_studio.engine.batch.tasks import ChunkTask, done_frames, process_chunk
+from lfm_studio.engine.calibration import FrameRectifier, rectified_shape_fix
+from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.io import CameraCalibration, OutputError
 from lfm_studio.engine.io.file_checks import names_zarr_store
@@ -37,6 +41,8 @@ from lfm_studio.engine.types import JSONValue, OptionValue
 
 DEFAULT_CHUNK_FRAMES = 4
 UM = 1e-6
+LENSLETS_OPTION = "lenslets=({ny}, {nx}) (`--lenslets {ny} {nx}` on the command line)"
+"""How a shape refusal of raw frames names the matching lenslet block (:func:`check_rectified_shape`)."""
 FRAME_SHAPE_FIX = "use the design/PSF of this camera (or crop= matching the frames)."
 """What to do about frames of another shape (the end of :func:`check_frame_shape`'s refusal)."""
 
@@ -85,7 +91,7 @@ class VideoResult:
 
 
 def _run_record(source: FrameSource, spec_key: str, options: ReconstructionOptions, chunk_frames: int,
-                camera: CameraCalibration | None) -> dict[str, JSONValue]:  # fmt: skip
+                camera: CameraCalibration | None, raw: RawFrameSpec | None) -> dict[str, JSONValue]:  # fmt: skip
     """What must match for a resume to continue the same reconstruction."""
     return {
         "frames": {"path": source.path, "shape": list(source.shape)},
@@ -93,7 +99,59 @@ def _run_record(source: FrameSource, spec_key: str, options: ReconstructionOptio
         "options": options.to_dict(),
         "chunk_frames": chunk_frames,
         "camera": None if camera is None else camera.to_dict(),
+        "calibration": None if raw is None else raw.describe(),
     }
+
+
+def _raw_frames(
+    calibration: str | os.PathLike | None,
+    lenslets: tuple[int, int] | None,
+    source: FrameSource,
+    camera: CameraCalibration | None,
+) -> tuple[RawFrameSpec | None, FrameRectifier | None, CameraCalibration | None]:
+    """The raw-frame spec, its rectifier and the camera conversion after it (baseline 0: the
+    calibration subtracts its dark); without ``calibration``, none and ``camera`` unchanged."""
+    if calibration is None:
+        if lenslets is not None:
+            raise ValueError(
+                f"lenslets={tuple(lenslets)!r} needs calibration= (it picks the rectified block of raw "
+                "frames). Fix: pass calibration='calib.json' or drop lenslets."
+            )
+        return None, None, camera
+    if camera is not None and camera.baseline_adu != 0:
+        raise ValueError(
+            f"camera baseline {camera.baseline_adu:g} ADU with calibration {calibration}: the calibration "
+            "subtracts its dark frame, a baseline would subtract the dark level twice. Fix: camera=None "
+            "(the frames' metadata or the calibration's design camera, baseline 0) or a baseline of 0."
+        )
+    spec, rectifier = raw_frame_spec(calibration, lenslets)
+    raw_shape = tuple(int(n) for n in rectifier.corrections.frame_shape)
+    if tuple(source.shape[1:]) != raw_shape:
+        raise ValueError(
+            f"frames {source.path} are {tuple(source.shape[1:])} pixels but calibration {spec.path} was "
+            f"measured on {raw_shape}-pixel frames. Fix: record with the same camera region (ROI) and "
+            "binning as the radiometry frame, or calibrate again."
+        )
+    if camera is None:
+        camera = dark_subtracted_camera(
+            rectifier.calibration,
+            tiff_metadata(source.path),
+            source=f"calibration {spec.path} (dark subtracted)",
+        )
+    return spec, rectifier, camera
+
+
+def check_rectified_shape(spec: RawFrameSpec, rectifier: FrameRectifier, sensor: tuple[int, ...]) -> None:
+    """Refuse raw frames whose rectified ``(Y, X)`` pixels are not ``sensor``, the pixels the
+    projector images: a ``ValueError`` naming both shapes and the fix (the PSF of the rectified
+    design, or the lenslet block that matches this PSF)."""
+    shape = tuple(rectifier.output_shape)
+    if shape == tuple(sensor):
+        return
+    raise ValueError(
+        f"raw frames rectified with {spec.path} are {shape} pixels but the projector images "
+        f"{tuple(sensor)} pixels. {rectified_shape_fix(rectifier.calibration, sensor, LENSLETS_OPTION)}"
+    )
 
 
 def _check_chunk_frames(chunk_frames: int) -> None:
@@ -190,6 +248,8 @@ def reconstruct_video(
     progress: ProgressCallback | None = None,
     cancel: CancelToken = None,
     shape_fix: str = FRAME_SHAPE_FIX,
+    calibration: str | os.PathLike | None = None,
+    lenslets: tuple[int, int] | None = None,
     **method_options: OptionValue,
 ) -> VideoResult:
     """Reconstruct every frame ``(T, Y, X)`` of ``frames`` into the OME-Zarr store ``output``.
@@ -198,7 +258,8 @@ def reconstruct_video(
     ----------
     frames : a (multi-page) TIFF, a folder of single-frame TIFFs, a Zarr/OME-Zarr array, or a
         :class:`FrameSource`; read lazily, chunk by chunk, by the workers. Photons per pixel,
-        or camera counts when ``camera`` is given (converted per frame).
+        or camera counts when ``camera`` is given (converted per frame), or raw camera frames
+        with ``calibration``.
     design_or_psf : a :class:`Design`, preset name, design file, or simulated PSF stack TIFF;
         each worker builds the projector once (``crop``: camera pixels kept around the axis).
     method, options, **method_options : a method of the reconstruction registry and its options
@@ -219,6 +280,12 @@ def reconstruct_video(
     shape_fix : the fix named when the frames are not the pixels the projector images
         (:func:`check_frame_shape`, before a design's PSF is simulated; a front end says it in its
         own words).
+    calibration, lenslets : raw frames of a real microscope: the calibration file of
+        ``lfm-studio calibrate``; each frame is dark-subtracted, defect-corrected, flat-fielded
+        and (conventional LFM) rectified onto ``lenslets=(ny, nx)`` lenslets around the frame
+        centre (None: the calibration's lit block), as
+        :func:`~lfm_studio.engine.calibration.rectify_frame` does, before the camera conversion
+        (``camera`` None: the frames' metadata, else the calibration's design camera, baseline 0).
 
     The result's ``computed`` and ``skipped`` list the frames reconstructed (now, before);
     a frame that failed is only in ``failed``; ``retried`` lists the earlier failures tried again.
@@ -229,12 +296,20 @@ def reconstruct_video(
     _check_chunk_frames(chunk_frames)
     interval = _frame_interval(frame_interval_s)
     source = frames if isinstance(frames, FrameSource) else open_frames(frames)
+    raw, rectifier, camera = _raw_frames(calibration, lenslets, source, camera)
     spec = projector_spec(design_or_psf, crop=crop, field_of_view=field_of_view, dtype=dtype)
+
+    def check_shape(sensor: tuple[int, ...]) -> None:
+        if raw is not None and rectifier is not None:
+            check_rectified_shape(raw, rectifier, sensor)
+        else:
+            check_frame_shape(source, sensor, shape_fix)
+
     planned = planned_image_shape(spec)
     if planned is not None:  # a design: refuse other frames before simulating its PSF
-        check_frame_shape(source, planned, shape_fix)
+        check_shape(planned)
     built = cached_projector(spec)
-    check_frame_shape(source, tuple(built.setup.projector.image_shape), shape_fix)
+    check_shape(tuple(built.setup.projector.image_shape))
     nz, ny, nx = (int(n) for n in built.setup.volume_shape)
     shape = (int(source.count), nz, ny, nx)
     levels = level_count((ny, nx))
@@ -242,7 +317,7 @@ def reconstruct_video(
     scale = (interval, dz / UM, dy / UM, dx / UM)
     # first depth on z; y and x centred on the optical axis (the napari plugin's volume convention)
     origin = (0.0, built.depths[0] / UM, -(shape[2] // 2) * dy / UM, -(shape[3] // 2) * dx / UM)
-    run = _run_record(source, spec.key, reconstruction, chunk_frames, camera)
+    run = _run_record(source, spec.key, reconstruction, chunk_frames, camera, raw)
     attributes: dict[str, JSONValue] = {
         "version": __version__,
         "run": run,
@@ -267,7 +342,7 @@ def reconstruct_video(
     chunks = store.chunks()
     run_id = uuid.uuid4().hex
     tasks = [
-        ChunkTask(i, start, stop, source, spec, reconstruction, store, camera, run_id)
+        ChunkTask(i, start, stop, source, spec, reconstruction, store, camera, run_id, raw)
         for i, (start, stop) in enumerate(chunks)
         if len(done_before.get(i, ())) < stop - start
     ]

@@ -30,7 +30,14 @@ from lfm_studio.engine.calibration.grid_fit import LatticeFit
 from lfm_studio.engine.calibration.grid_fourier import NoGridError
 from lfm_studio.engine.calibration.lattice import LensletLattice
 from lfm_studio.engine.calibration.overlay import GridOverlay, grid_overlay
-from lfm_studio.engine.calibration.pipeline import calibrate, correct_frame, rectify_frame
+from lfm_studio.engine.calibration.pipeline import (
+    FrameRectifier,
+    calibrate,
+    correct_frame,
+    frame_rectifier,
+    rectified_shape_fix,
+    rectify_frame,
+)
 from lfm_studio.engine.calibration.record import CALIBRATION_VERSION, Calibration
 from lfm_studio.engine.calibration.sub_images import SubImageFit
 
@@ -38,6 +45,7 @@ __all__ = [
     "CALIBRATION_VERSION",
     "Calibration",
     "CalibrationFileError",
+    "FrameRectifier",
     "GridOverlay",
     "LatticeFit",
     "LensletLattice",
@@ -48,10 +56,12 @@ __all__ = [
     "calibration_to_dict",
     "correct_frame",
     "fitted_design",
+    "frame_rectifier",
     "grid_overlay",
     "load_calibration",
     "nominal_design",
     "rectified_design",
+    "rectified_shape_fix",
     "rectify_frame",
     "save_calibration",
 ]

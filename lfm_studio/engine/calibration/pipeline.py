@@ -12,13 +12,14 @@ reconstruct it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 
 import torch
 
 from lfm_studio.engine.calibration import defects as defect_pixels
 from lfm_studio.engine.calibration.checks import as_frame, check_frames, check_pitch
-from lfm_studio.engine.calibration.corrections import frame_corrections
+from lfm_studio.engine.calibration.corrections import FrameCorrections, frame_corrections
 from lfm_studio.engine.calibration.flat_field import fit_envelope, flat_field
 from lfm_studio.engine.calibration.grid_fit import DIM, LatticeFit, refine_lattice
 from lfm_studio.engine.calibration.grid_fourier import fourier_lattice
@@ -124,6 +125,68 @@ def correct_frame(raw: object, calibration: Calibration) -> torch.Tensor:
     return frame_corrections(calibration).apply(raw)
 
 
+@dataclass(frozen=True)
+class FrameRectifier:
+    """:func:`rectify_frame` for one calibration, with its corrections prepared once: a video's
+    frames are rectified one at a time (each may fail on its own) without preparing the defect
+    mask, dark frame and flat-field map again per frame. Call it on one raw frame ``(Y, X)``."""
+
+    calibration: Calibration
+    corrections: FrameCorrections
+    block: tuple[int, int, int, int] | None
+
+    @property
+    def output_shape(self) -> tuple[int, int]:
+        """``(Y, X)`` pixels of a rectified frame: the lenslet block times ``pixels_per_lenslet``
+        (conventional LFM), else the raw frame's shape."""
+        n = self.calibration.pixels_per_lenslet
+        if self.calibration.grid is None or self.block is None or n is None:
+            rows, columns = self.corrections.frame_shape
+            return (int(rows), int(columns))
+        return (self.block[1] * n, self.block[3] * n)
+
+    def __call__(self, frame: object) -> torch.Tensor:
+        image = self.corrections.apply(frame)
+        grid, n = self.calibration.grid, self.calibration.pixels_per_lenslet
+        if grid is None or self.block is None or n is None:  # Fourier LFM: corrected only
+            return image
+        return rectify(image, grid.lattice, n, self.block)
+
+
+def frame_rectifier(calibration: Calibration, *, lenslets: tuple[int, int] | None = None) -> FrameRectifier:
+    """The :class:`FrameRectifier` of ``calibration`` (``lenslets``: as in :func:`rectify_frame`)."""
+    corrections = frame_corrections(calibration)  # mask, dark frame, flat-field map
+    grid, n = calibration.grid, calibration.pixels_per_lenslet
+    block = None
+    if grid is not None:
+        block = (
+            calibration.block
+            if lenslets is None
+            else lenslet_block(grid.lattice, calibration.frame_shape, lenslets)
+        )
+        if block is None or n is None:
+            raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
+    return FrameRectifier(calibration, corrections, block)
+
+
+def rectified_shape_fix(
+    calibration: Calibration, sensor: tuple[int, ...], lenslets_option: str = "lenslets=({ny}, {nx})"
+) -> str:
+    """How to make frames rectified with ``calibration`` and a PSF imaging ``sensor`` pixels agree:
+    the PSF of the rectified design, or (conventional LFM, when ``sensor`` is whole lenslets) the
+    lenslet block that matches it, written as ``lenslets_option`` (e.g. ``"--lenslets {ny} {nx}"``)."""
+    fix = (
+        "Fix: simulate the PSF for these frames ('lfm-studio calibrate --radiometry ... --design-out "
+        "rectified.json', then 'lfm-studio simulate rectified.json --out psf.tif')"
+    )
+    n = calibration.pixels_per_lenslet
+    if calibration.grid is not None and n and sensor[0] % n == 0 and sensor[1] % n == 0:
+        fix += (
+            ", or pass " + lenslets_option.format(ny=sensor[0] // n, nx=sensor[1] // n) + " to match this PSF"
+        )
+    return fix + "."
+
+
 def rectify_frame(
     raw: object, calibration: Calibration, *, lenslets: tuple[int, int] | None = None
 ) -> torch.Tensor:
@@ -135,25 +198,8 @@ def rectify_frame(
     the frame centre. Fourier LFM: corrected only; the measured sub-image centres enter
     through :func:`~lfm_studio.engine.calibration.fitted_design.fitted_design` instead.
     A time series ``(T, Y, X)`` is rectified frame by frame into ``(T, ...)``; the defect mask,
-    dark frame and flat-field map are prepared once for the series (:mod:`.corrections`).
+    dark frame and flat-field map are prepared once for the series (:class:`FrameRectifier`).
     """
     frames = torch.as_tensor(raw)
-    corrections = frame_corrections(calibration)  # once per series: mask, dark frame, flat-field map
-    grid, n = calibration.grid, calibration.pixels_per_lenslet
-    block = None
-    if grid is not None:
-        block = (
-            calibration.block
-            if lenslets is None
-            else lenslet_block(grid.lattice, calibration.frame_shape, lenslets)
-        )
-        if block is None or n is None:
-            raise ValueError("a conventional calibration needs its lenslet block and pixels_per_lenslet.")
-
-    def one(frame: object) -> torch.Tensor:
-        image = corrections.apply(frame)
-        if grid is None or block is None or n is None:  # Fourier LFM: corrected only
-            return image
-        return rectify(image, grid.lattice, n, block)
-
+    one = frame_rectifier(calibration, lenslets=lenslets)
     return torch.stack([one(frame) for frame in frames]) if frames.ndim == 3 else one(raw)

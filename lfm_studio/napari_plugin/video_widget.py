@@ -1,0 +1,335 @@
+"""Dock widget "Reconstruct video": a recording, frame by frame, into an OME-Zarr store, in the background.
+
+A recording is too large to hold as a layer, so the frames are a file (a multi-page TIFF, a
+folder of single-frame TIFFs or a Zarr array) that the engine reads lazily, chunk by chunk
+(:func:`lfm_studio.engine.batch.reconstruct_video`, docs/scale_out.md). Pick the frames, the
+PSF stack TIFF (filled from the PSF layer opened from a file), the method and its options (the
+engine's registry, as in "Reconstruct light field"), the output store and how to run: Resume an
+interrupted run, worker processes (1: in napari's process; N: a local Dask cluster), whether the
+frames are camera counts (converted with the file's camera metadata, else an estimated baseline,
+said in a warning) and, for raw frames of a real microscope, their calibration file (each frame
+corrected and rectified first; filled from the calibration overlay opened last).
+
+The run is a :class:`~lfm_studio.napari_plugin.background.BackgroundTask`: the progress bar counts
+frames, Cancel stops between chunks and leaves a store that Resume finishes. An existing store is
+continued only with Resume and replaced only after the user agrees. When the run ends the store
+is opened lazily as one multiscale layer (the plugin's OME-Zarr reader), and failed frames are
+listed in a warning; a failed or cancelled run adds no layer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import napari
+from napari.layers import Layer
+from qtpy.QtWidgets import (
+    QCheckBox,
+    QFileDialog,
+    QFormLayout,
+    QHBoxLayout,
+    QLineEdit,
+    QMessageBox,
+    QPushButton,
+    QSpinBox,
+    QVBoxLayout,
+    QWidget,
+)
+
+from lfm_studio.engine.errors import error_text
+from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
+from lfm_studio.napari_plugin.calibration_reader import calibration_source
+from lfm_studio.napari_plugin.notify import report_error, report_info, report_warning
+from lfm_studio.napari_plugin.reconstruct_widget import is_psf_stack
+from lfm_studio.napari_plugin.task_controls import TaskControls
+from lfm_studio.widgets.method_options import MethodOptions
+
+MAX_WORKERS = 256
+
+
+@dataclass(frozen=True)
+class VideoJob:
+    """What one run reconstructs (checked on the GUI thread, run on a worker thread).
+
+    Attributes
+    ----------
+    frames : the recording (multi-page TIFF, folder of TIFFs or Zarr array).
+    psf : the PSF stack TIFF.
+    output : the OME-Zarr store (``*.zarr``).
+    method, options : the registry method and its options.
+    resume, overwrite : continue the store's run, or replace the store (the user agreed).
+    workers : worker processes (None: in this process).
+    counts : the frames are camera counts (converted to photons).
+    calibration : raw frames: the calibration file (None: none).
+    """
+
+    frames: Path
+    psf: Path
+    output: Path
+    method: str
+    options: dict[str, Any]
+    resume: bool = False
+    overwrite: bool = False
+    workers: int | None = None
+    counts: bool = True
+    calibration: Path | None = None
+
+
+def run_video_job(job: VideoJob, progress: Any, cancel: Any) -> Any:
+    """The worker-thread body: the camera conversion (noted), then ``reconstruct_video``; returns
+    ``(result, notes)``."""
+    from lfm_studio.engine.batch import open_frames, reconstruct_video
+    from lfm_studio.engine.batch.camera import video_camera
+
+    source = open_frames(job.frames)
+    camera, notes = None, []
+    if job.counts and job.calibration is None:  # with a calibration the engine converts (baseline 0)
+        camera, notes = video_camera(source)
+    result = reconstruct_video(
+        source, job.psf, method=job.method, options=job.options, output=job.output, resume=job.resume,
+        overwrite=job.overwrite, workers=job.workers, camera=camera, calibration=job.calibration,
+        progress=lambda done, total, message: progress(done, total, f"{done}/{total} frames ({message})"),
+        cancel=cancel,
+    )  # fmt: skip
+    return result, notes
+
+
+def _store_path(text: str) -> Path:
+    """``text`` as a store path: ``.ome.zarr`` added when it names no ``.zarr``."""
+    path = Path(text).expanduser()
+    return path if path.name.lower().endswith(".zarr") else path.with_name(path.name + ".ome.zarr")
+
+
+def _path_row(edit: QLineEdit, *buttons: tuple[str, Any]) -> QHBoxLayout:
+    row = QHBoxLayout()
+    row.addWidget(edit, 1)
+    for text, slot in buttons:
+        button = QPushButton(text)
+        button.clicked.connect(slot)
+        row.addWidget(button)
+    return row
+
+
+class VideoWidget(QWidget):
+    """The "Reconstruct video" dock widget of ``napari_viewer``."""
+
+    def __init__(self, napari_viewer: napari.viewer.Viewer, parent: QWidget | None = None) -> None:
+        super().__init__(parent)
+        self.viewer = napari_viewer
+        self.frames = QLineEdit()
+        self.frames.setPlaceholderText("a multi-page TIFF, a folder of TIFFs or a Zarr array")
+        self.psf = QLineEdit()
+        self.psf.setPlaceholderText("PSF stack TIFF (lfm-studio simulate, or Simulate PSF saved)")
+        self.output = QLineEdit()
+        self.output.setPlaceholderText("run.ome.zarr")
+        self.calibration = QLineEdit()
+        self.calibration.setPlaceholderText("raw frames only: their calibration .json")
+        self.options = MethodOptions()
+        self.resume = QCheckBox("Resume an interrupted run into this store (only missing frames)")
+        self.counts = QCheckBox("Frames are camera counts (ADU)")
+        self.counts.setChecked(True)
+        self.workers = QSpinBox()
+        self.workers.setRange(1, MAX_WORKERS)
+        self.workers.setToolTip(
+            "1: in napari's process; N > 1: a local Dask cluster of N one-thread processes"
+        )
+        self.controls = TaskControls("Reconstruct video")
+        form = QFormLayout()
+        form.addRow(
+            "Frames",
+            _path_row(self.frames, ("File...", self._browse_frames), ("Folder...", self._browse_folder)),
+        )
+        form.addRow("PSF stack", _path_row(self.psf, ("Browse...", self._browse_psf)))
+        form.addRow(
+            "Calibration (raw frames)", _path_row(self.calibration, ("Browse...", self._browse_calibration))
+        )
+        form.addRow("Output store", _path_row(self.output, ("Browse...", self._browse_output)))
+        form.addRow("", self.resume)
+        form.addRow("Worker processes", self.workers)
+        form.addRow("", self.counts)
+        layout = QVBoxLayout(self)
+        layout.addLayout(form)
+        layout.addWidget(self.options)
+        layout.addWidget(self.controls)
+        layout.addStretch(1)
+        self.controls.runClicked.connect(self.start)
+        self._task: BackgroundTask | None = None
+        self._job: VideoJob | None = None
+        self.last_result: Any = None
+        napari_viewer.layers.events.inserted.connect(self._on_layer_inserted)
+        for layer in napari_viewer.layers:
+            self._on_layer_inserted(layer=layer)
+
+    # ----- the contract (buttons call these; so can tests and scripts) -----
+
+    @property
+    def busy(self) -> bool:
+        """Whether a video reconstruction is running."""
+        return self._task is not None
+
+    def job(self) -> VideoJob:
+        """The run the fields describe; a ``ValueError`` naming the field and the fix when refused."""
+        frames, psf = (
+            self._existing(self.frames, "Frames", "the recording"),
+            self._existing(self.psf, "PSF stack", "a PSF stack TIFF"),
+        )
+        text = self.output.text().strip()
+        if not text:
+            raise ValueError("Output store: empty. Fix: name the OME-Zarr store to write, e.g. run.ome.zarr.")
+        output = _store_path(text)
+        if output.exists() and not output.is_dir():
+            raise ValueError(f"Output store: {output} is a file, not a Zarr store. Fix: choose another name.")
+        if self.resume.isChecked() and not output.exists():
+            raise ValueError(
+                f"Resume: {output} does not exist yet, so there is nothing to resume. Fix: untick Resume."
+            )
+        calibration = self._existing(self.calibration, "Calibration", "the calibration .json", optional=True)
+        if calibration is not None and not self.counts.isChecked():
+            raise ValueError(
+                "Calibration: raw frames are camera counts (the calibration subtracts the dark level in ADU). "
+                "Fix: tick 'Frames are camera counts', or clear the calibration."
+            )
+        workers = int(self.workers.value())
+        return VideoJob(
+            frames, psf, output, self.options.method_name(), dict(self.options.values()),
+            resume=self.resume.isChecked(), workers=None if workers == 1 else workers,
+            counts=self.counts.isChecked(), calibration=calibration,
+        )  # fmt: skip
+
+    def start(self, *, overwrite: bool | None = None) -> bool:
+        """Check the fields and start the run; False (with an error notification) if refused or not agreed.
+
+        An existing store without Resume is replaced only when ``overwrite`` is True, or (None) after
+        the user agrees in a question."""
+        if self._task is not None:
+            return False
+        from lfm_studio.engine.batch.extras import MissingExtraError, require_scale
+
+        try:
+            require_scale()
+            job = self.job()
+        except (ValueError, MissingExtraError) as error:
+            report_error(f"Cannot reconstruct the video: {error_text(error)}")
+            return False
+        if job.output.exists() and not job.resume:
+            agreed = self._ask_replace(job.output) if overwrite is None else overwrite
+            if not agreed:
+                report_info(f"{job.output} kept: tick Resume to continue its run, or choose another store.")
+                return False
+            job = VideoJob(**{**job.__dict__, "overwrite": True})
+        self._job = job
+        task = BackgroundTask(lambda progress, cancel: run_video_job(job, progress, cancel), self)
+        task.ended.connect(self._on_ended)
+        self.controls.attach(task, f"reconstructing {job.frames.name} into {job.output.name}")
+        self._task = task
+        task.start()
+        return True
+
+    def cancel(self) -> None:
+        """Stop the run between chunks (the store stays resumable; no layer is added)."""
+        self.controls.cancel()
+
+    def set_calibration(self, path: str | Path | None) -> None:
+        """Treat the frames as raw frames of the calibration file ``path`` (None: no calibration)."""
+        self.calibration.setText("" if path is None else str(path))
+
+    # ----- internals -----
+
+    @staticmethod
+    def _existing(edit: QLineEdit, field: str, what: str, *, optional: bool = False) -> Path | None:
+        text = edit.text().strip()
+        if not text:
+            if optional:
+                return None
+            raise ValueError(f"{field}: empty. Fix: choose {what}.")
+        path = Path(text).expanduser()
+        if not path.exists():
+            raise ValueError(f"{field}: {path} does not exist. Fix: choose {what}.")
+        return path
+
+    def _ask_replace(self, path: Path) -> bool:
+        answer = QMessageBox.question(
+            self, "Replace store?",
+            f"{path} already exists. Replace it (every frame is computed again)?\n\nTo continue an "
+            "interrupted run instead, choose No and tick Resume.",
+        )  # fmt: skip
+        return answer == QMessageBox.StandardButton.Yes
+
+    def _browse_frames(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Frames (multi-page TIFF)", "", "TIFF (*.tif *.tiff)")
+        if path:
+            self.frames.setText(path)
+
+    def _browse_folder(self) -> None:
+        path = QFileDialog.getExistingDirectory(self, "Folder of TIFF frames (or a Zarr array)")
+        if path:
+            self.frames.setText(path)
+
+    def _browse_psf(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "PSF stack", "", "TIFF (*.tif *.tiff)")
+        if path:
+            self.psf.setText(path)
+
+    def _browse_calibration(self) -> None:
+        path, _ = QFileDialog.getOpenFileName(self, "Calibration file", "", "Calibration (*.json)")
+        if path:
+            self.set_calibration(path)
+
+    def _browse_output(self) -> None:
+        path, _ = QFileDialog.getSaveFileName(
+            self,
+            "Output store",
+            "",
+            "OME-Zarr (*.ome.zarr *.zarr)",
+            options=QFileDialog.Option.DontConfirmOverwrite,
+        )  # asked in start()
+        if path:
+            self.output.setText(str(_store_path(path)))
+
+    def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
+        """A PSF stack opened from a file fills the PSF field; a calibration overlay the calibration."""
+        layer = event.value if layer is None else layer
+        source = calibration_source(layer)
+        if source is not None:
+            self.set_calibration(source)
+        path = getattr(getattr(layer, "source", None), "path", None)
+        if is_psf_stack(layer) and path:
+            self.psf.setText(str(path))
+
+    def _on_ended(self, outcome: Outcome) -> None:
+        job, self._task, self._job = self._job, None, None
+        if outcome.state == "cancelled":
+            report_info(
+                "Video reconstruction cancelled; the store keeps the finished chunks (tick Resume to finish)."
+            )
+        elif outcome.state == "failed":
+            report_error(f"Video reconstruction failed: {outcome.message}")
+        elif outcome.state == "done" and job is not None:
+            result, notes = outcome.value
+            self.last_result = result
+            for note in notes:
+                report_warning(f"{job.frames.name}: {note}")
+            self._show(result)
+
+    def _show(self, result: Any) -> None:
+        from lfm_studio.napari_plugin.zarr_reader import read_ome_zarr
+
+        for data, meta, kind in read_ome_zarr(result.path):
+            self.viewer.add_layer(Layer.create(data, meta, kind))
+        done = result.frame_count - len(result.failed)
+        message = (
+            f"{result.path}: {done} of {result.frame_count} frames reconstructed "
+            f"({len(result.computed)} now, {len(result.skipped)} before)."
+        )
+        if result.failed or result.unfinished:
+            listed = "; ".join(f"frame {t}: {error}" for t, error in result.failed.items())
+            lost = (
+                f" Chunks {list(result.unfinished)} were lost with their worker: Resume finishes them."
+                if result.unfinished
+                else ""
+            )
+            report_warning(f"{message} {len(result.failed)} failed ({listed}).{lost}")
+        else:
+            report_info(message)
