@@ -318,11 +318,14 @@ class VideoWidget(QWidget):
 
         for data, meta, kind in read_ome_zarr(result.path):
             self.viewer.add_layer(Layer.create(data, meta, kind))
-        done = result.frame_count - len(result.failed)
+        done = len(result.computed) + len(result.skipped)  # lost chunks and failed frames are in neither
         message = (
             f"{result.path}: {done} of {result.frame_count} frames reconstructed "
             f"({len(result.computed)} now, {len(result.skipped)} before)."
         )
+        retried = result.retried_note()
+        if retried:
+            message += f" {retried}"
         if result.failed or result.unfinished:
             listed = "; ".join(f"frame {t}: {error}" for t, error in result.failed.items())
             lost = (
