@@ -314,9 +314,9 @@ class VideoWidget(QWidget):
             self._show(result)
 
     def _show(self, result: Any) -> None:
-        from lfm_studio.napari_plugin.zarr_reader import read_ome_zarr
+        from lfm_studio.napari_plugin.zarr_reader import ome_zarr_layers
 
-        for data, meta, kind in read_ome_zarr(result.path):
+        for data, meta, kind in ome_zarr_layers(result.path, warn=False):  # failures are listed below
             self.viewer.add_layer(Layer.create(data, meta, kind))
         done = len(result.computed) + len(result.skipped)  # lost chunks and failed frames are in neither
         message = (

@@ -58,7 +58,23 @@ def _transform(transforms: list[dict[str, Any]], kind: str, default: float, n: i
 
 
 def read_ome_zarr(path: Any) -> list[LayerData]:
-    """One lazy multiscale image layer of the OME-Zarr image at ``path``."""
+    """One lazy multiscale image layer of the OME-Zarr image at ``path``; a video store whose failed
+    or not yet computed frames hold zeros says so in a warning, the layer name and its metadata."""
+    return ome_zarr_layers(path, warn=True)
+
+
+def _frame_report(folder: Path) -> Any:
+    """The store's :class:`~lfm_studio.engine.batch.store.FrameReport`, or None where it cannot be read."""
+    try:
+        from lfm_studio.engine.batch.store import frame_report
+
+        return frame_report(folder)
+    except (ImportError, OSError, ValueError, KeyError):  # no scale extra, or not a video store of ours
+        return None
+
+
+def ome_zarr_layers(path: Any, *, warn: bool) -> list[LayerData]:
+    """:func:`read_ome_zarr`; ``warn=False`` leaves the warning on zero frames to the caller."""
     import dask.array as da
     import zarr
 
@@ -88,4 +104,17 @@ def read_ome_zarr(path: Any) -> list[LayerData]:
     }
     if len(units) == ndim:
         meta["units"] = tuple(units)
+    report = _frame_report(folder) if ours else None
+    if report is not None and (report.failed or report.missing):
+        meta["metadata"] |= {"failed_frames": report.failed, "missing_frames": list(report.missing)}
+        counts = [
+            f"{n} {what}"
+            for n, what in ((len(report.failed), "failed"), (len(report.missing), "not computed"))
+            if n
+        ]
+        meta["name"] = f"{meta['name']} ({', '.join(counts)})"
+        if warn:
+            from lfm_studio.napari_plugin.notify import report_warning
+
+            report_warning(f"{folder.name}: {report.summary()}")
     return [(levels if len(levels) > 1 else levels[0], meta, "image")]

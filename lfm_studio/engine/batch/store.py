@@ -181,15 +181,62 @@ class VideoStore:
 
     def records(self) -> dict[int, ChunkRecord]:
         """Finished chunks: index -> record."""
-        folder = Path(self.path) / STATUS_GROUP
-        found = {}
-        for file in sorted(folder.glob("chunk_*.json")):
-            found[int(file.stem.split("_")[1])] = _read_record(file)
-        return found
+        return read_records(self.path)
 
     def attributes(self) -> dict[str, JSONValue]:
         """The run record stored under ``"lfm_studio"`` in the root group."""
         return run_attributes(zarr.open_group(self.path, mode="r"))
+
+
+def read_records(path: str | os.PathLike) -> dict[int, ChunkRecord]:
+    """The finished chunks of the store at ``path``: index -> record (ValueError for a malformed one)."""
+    found = {}
+    for file in sorted((Path(path) / STATUS_GROUP).glob("chunk_*.json")):
+        found[int(file.stem.split("_")[1])] = _read_record(file)
+    return found
+
+
+@dataclass(frozen=True)
+class FrameReport:
+    """Which frames of a store hold no reconstruction (their volumes are zeros, not data).
+
+    Attributes
+    ----------
+    failed : frame -> the error recorded when its reconstruction failed.
+    missing : frames not computed yet (a cancelled, killed or running run: resume finishes them).
+    """
+
+    failed: dict[int, str]
+    missing: tuple[int, ...]
+
+    def summary(self) -> str | None:
+        """One sentence for a viewer ("frames 3, 7 failed; 4 not computed yet: their volumes are
+        zeros"), or None when every frame holds a reconstruction."""
+        parts = []
+        if self.failed:
+            parts.append(f"frame(s) {_listed(self.failed)} failed")
+        if self.missing:
+            parts.append(f"frame(s) {_listed(self.missing)} not computed yet (resume the run to finish them)")
+        return None if not parts else "; ".join(parts) + ": their volumes are zeros, not data."
+
+
+def _listed(frames: Mapping[int, object] | tuple[int, ...], most: int = 8) -> str:
+    ordered = sorted(frames)
+    text = ", ".join(str(t) for t in ordered[:most])
+    return text + (f" and {len(ordered) - most} more" if len(ordered) > most else "")
+
+
+def frame_report(path: str | os.PathLike) -> FrameReport:
+    """The frames of the store at ``path`` that hold no reconstruction (from its chunk records)."""
+    count = int(_array(zarr.open_group(str(path), mode="r"), "0").shape[0])
+    failed: dict[int, str] = {}
+    recorded: set[int] = set()
+    for record in read_records(path).values():
+        for key, info in record["frames"].items():
+            recorded.add(int(key))
+            if info["status"] == "failed":
+                failed[int(key)] = info["error"]
+    return FrameReport(dict(sorted(failed.items())), tuple(t for t in range(count) if t not in recorded))
 
 
 def run_attributes(group: zarr.Group) -> dict[str, JSONValue]:

@@ -88,3 +88,42 @@ def test_napari_reader_opens_the_store_lazily_with_scales(video, store):
     np.testing.assert_allclose(layer.scale, _expected_scale(video, 0), rtol=1e-12)
     assert layer.multiscale and layer.metadata["lfm_studio"]["method"] == METHOD
     assert layer.data[0].shape == video.reference.shape
+
+
+def test_frames_without_a_reconstruction_are_named_by_the_reader(video, store, tmp_path):
+    """A failed frame and a chunk not computed yet hold zeros: the report, the layer name and its
+    metadata say which, so a zero volume is not read as an empty sample."""
+    import shutil
+
+    from lfm_studio.engine.batch.store import frame_report
+    from lfm_studio.napari_plugin.zarr_reader import ome_zarr_layers
+
+    copy = tmp_path / "run.ome.zarr"
+    shutil.copytree(store, copy)
+    assert frame_report(copy).failed == {} and frame_report(copy).missing == ()
+    assert frame_report(copy).summary() is None
+    status = copy / "lfm_studio_status"
+    first = json.loads((status / "chunk_000000.json").read_text())
+    first["frames"]["1"] = {
+        "status": "failed",
+        "attempts": 2,
+        "error": "ValueError: frame 1 has 3 NaN pixel(s)",
+    }
+    (status / "chunk_000000.json").write_text(json.dumps(first))
+    (status / "chunk_000001.json").unlink()  # as if the run was cancelled before its second chunk
+    report = frame_report(copy)
+    assert report.failed == {1: "ValueError: frame 1 has 3 NaN pixel(s)"} and report.missing == (4, 5, 6, 7)
+    assert report.summary() == (
+        "frame(s) 1 failed; frame(s) 4, 5, 6, 7 not computed yet (resume the run to finish them): their "
+        "volumes are zeros, not data."
+    )
+    [(_, meta, _)] = ome_zarr_layers(copy, warn=False)
+    assert meta["name"].endswith("(1 failed, 4 not computed)")
+    assert meta["metadata"]["failed_frames"] == report.failed and meta["metadata"]["missing_frames"] == [
+        4,
+        5,
+        6,
+        7,
+    ]
+    [(_, complete, _)] = ome_zarr_layers(store, warn=False)
+    assert "failed_frames" not in complete["metadata"] and "(" not in complete["name"]
