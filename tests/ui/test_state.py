@@ -114,7 +114,7 @@ def test_recent_files_are_unique_newest_first_and_bounded(design, tmp_path):
 def test_an_invalid_edit_is_refused_with_the_design_error_text(design):
     outcome = try_changes(design, {"objective.numerical_aperture": 1.2})  # air objective: NA < 1
     assert not outcome.ok and outcome.design is None
-    assert "numerical_aperture 1.2 must be below immersion_index 1" in outcome.error
+    assert "Numerical aperture 1.2 must be below immersion index 1" in outcome.error  # the studio's labels
     assert "validation error" not in outcome.error and "pydantic" not in outcome.error
 
 
