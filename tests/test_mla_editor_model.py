@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 
@@ -281,3 +282,26 @@ def test_matching_preset_names_the_builder_that_rebuilds_a_layout():
     assert matching_preset(build_preset("hex", PresetParams(300.0, 2, (3.0,), 200.0))) == ("hex", 2)
     assert matching_preset(load_preset("flfm_guo2019").mla.lenslets[:8]) == ("custom", 0)  # one missing
     assert matching_preset(()) == ("custom", 0)
+
+
+def replace_lens(lens: LensletSpec, **changes: object) -> LensletSpec:
+    """``lens`` with ``changes`` (validated again)."""
+    return LensletSpec(**{**lens.model_dump(), **changes})
+
+
+def test_a_preset_rebuilds_the_lenslet_shape_it_reads_off_the_layout():
+    """The FLFM preset's row read "Square grid", but applying it built circles: no shape option."""
+    from lfm_studio.widgets.mla_editor.presets import matching_preset
+
+    flfm = load_preset("flfm_guo2019").mla.lenslets  # 3 x 3 square apertures
+    kind, count = matching_preset(flfm)
+    params = estimate_params(flfm)
+    assert params.lenslet_shape == "square"
+    rebuilt = build_preset(kind, replace(params, count=count))  # what Apply builds from the row
+    assert rebuilt == tuple(flfm)
+    circles = tuple(replace_lens(lens, shape="circle") for lens in flfm)
+    assert matching_preset(circles) == ("square", 3) and estimate_params(circles).lenslet_shape == "circle"
+    squares = build_preset("hex", PresetParams(300.0, 1, (3.0,), 200.0, "square"))
+    assert {lens.shape for lens in squares} == {"square"} and matching_preset(squares) == ("hex", 1)
+    mixed = (*flfm[:8], replace_lens(flfm[8], shape="circle"))
+    assert matching_preset(mixed) == ("custom", 0)  # no preset builds one circle among squares

@@ -97,7 +97,7 @@ class StudioController(QObject):
         """Simulate the light-field image now (and keep it up to date while auto-update is on)."""
         self.image_requested = True
         self._asked.add("image")
-        self.state.mark_stale("image", "reconstruction")
+        self.state.mark_stale("image", "reconstruction", changed=False)  # asked for: nothing changed
         self.run_stale()
 
     def request_reconstruction(self) -> None:
@@ -109,8 +109,8 @@ class StudioController(QObject):
         if self.state.image is None:
             self.image_requested = True
             self._asked.add("image")
-            self.state.mark_stale("image")
-        self.state.mark_stale("reconstruction")
+            self.state.mark_stale("image", changed=False)
+        self.state.mark_stale("reconstruction", changed=False)  # asked for: nothing changed
         self.run_stale()
 
     def cancel(self, name: str | None = None) -> None:

@@ -4,7 +4,9 @@ Several fields may hold values not yet in force (an NA above the immersion index
 waits for the index to be raised), so an edit is applied together with the other
 pending values in ONE validation (:meth:`Design.updated` on each top-level part), and
 either everything is accepted or nothing is. Design warnings raised while validating
-are collected, not printed.
+are collected, not printed. Refusals and warnings are worded as the studio shows them
+(:func:`studio_text`): parameters by the labels of the parameter panel's fields and
+micrometres as "µm"; the engine's messages (CLI, files) keep the keys and "um".
 """
 
 from __future__ import annotations
@@ -18,6 +20,13 @@ from pydantic import BaseModel
 
 from lfm_studio.engine.design import Design, DesignWarning
 from lfm_studio.engine.errors import error_text
+from lfm_studio.ui.field_specs import in_field_labels
+from lfm_studio.widgets.numeric_text import shown_units_in
+
+
+def studio_text(message: str) -> str:
+    """A design check's ``message`` in the studio's words: field labels for keys, "µm" for "um"."""
+    return shown_units_in(in_field_labels(message))
 
 
 @dataclass(frozen=True)
@@ -86,9 +95,14 @@ def try_changes(design: Design, changes: Mapping[str, Any]) -> EditOutcome:
         try:
             new = apply_changes(design, changes)
         except (ValueError, KeyError, TypeError) as error:
-            return EditOutcome(None, error_text(error))
-    found = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DesignWarning)))
-    return EditOutcome(new, None, found)
+            return EditOutcome(None, studio_text(error_text(error)))
+    return EditOutcome(new, None, _warning_texts(caught))
+
+
+def _warning_texts(caught: Sequence[warnings.WarningMessage]) -> tuple[str, ...]:
+    """The distinct design warnings among ``caught``, in the studio's words."""
+    found = (str(w.message) for w in caught if issubclass(w.category, DesignWarning))
+    return tuple(dict.fromkeys(studio_text(text) for text in found))
 
 
 def with_design_warnings(load: Callable[..., Design], *args: Any) -> tuple[Design, tuple[str, ...]]:
@@ -96,8 +110,7 @@ def with_design_warnings(load: Callable[..., Design], *args: Any) -> tuple[Desig
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", DesignWarning)
         design = load(*args)
-    found = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, DesignWarning)))
-    return design, found
+    return design, _warning_texts(caught)
 
 
 def design_warnings(design: Design) -> tuple[str, ...]:

@@ -110,6 +110,7 @@ class MainWindow(QMainWindow):
         self.optimise = OptimiseDock(state, controller.runner)  # free parameters, run a study, compare
         self.tabifyDockWidget(workflow, self._dock("Optimise", self.optimise, Area.BottomDockWidgetArea))
         self.train_dock = TrainDock(state, controller.runner, viewer)  # learned model from the design
+        self.stale_marks.add_layer_marks(self.train_dock.layer_marks, self.train_dock.layer_marks_changed)
         self.tabifyDockWidget(workflow, self._dock("Train", self.train_dock, Area.BottomDockWidgetArea))
         mla_dock.raise_()
 

@@ -1,7 +1,7 @@
 """The editable design parameters of the parameter panel and the input widget of one of them.
 
-Each :class:`FieldSpec` names a design value by its path (as in
-:func:`~lfm_studio.engine.design.evolve`), the unit shown and the input range. Ranges
+Each :class:`FieldSpec` (:mod:`lfm_studio.ui.field_specs`, Qt-free) names a design value by its
+path (as in :func:`~lfm_studio.engine.design.evolve`), the unit shown and the input range. Ranges
 are deliberately wider than what is physically valid, so that a wrong value reaches
 the design checks and comes back with their reason (NA above the immersion index,
 quantum efficiency above 1, ...) instead of being silently clamped.
@@ -9,82 +9,13 @@ quantum efficiency above 1, ...) instead of being silently clamped.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from qtpy.QtCore import Signal
 from qtpy.QtWidgets import QHBoxLayout, QLabel, QWidget
 
-from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, KINDS, SystemKind
+from lfm_studio.ui.field_specs import FIELDS as FIELDS  # re-exported: the panel's fields
+from lfm_studio.ui.field_specs import FieldSpec
 from lfm_studio.widgets.numeric_field import NumericField
 from lfm_studio.widgets.numeric_text import NumberRule
-
-
-@dataclass(frozen=True)
-class FieldSpec:
-    """One editable value.
-
-    Attributes
-    ----------
-    path : design path, e.g. ``"objective.numerical_aperture"``.
-    label : what the user reads.
-    unit : suffix shown in the box ("nm", "µm", "mm", "×", "" ...).
-    group : the panel section.
-    decimals, minimum, maximum, step : of the input box.
-    parts : 1 for a number, 2 for a pair such as ``pixel_count`` (y, x) or ``depth_range_um``.
-    integer : whole numbers (pixel counts).
-    optional : the minimum means "none" (the design value is None).
-    kinds : system kinds where the field applies (default: all).
-    tip : tooltip.
-    """
-
-    path: str
-    label: str
-    unit: str
-    group: str
-    decimals: int = 3
-    minimum: float = 0.0
-    maximum: float = 1e6
-    step: float = 1.0
-    parts: int = 1
-    integer: bool = False
-    optional: bool = False
-    kinds: tuple[SystemKind, ...] = KINDS
-    tip: str = ""
-
-
-FIELDS: tuple[FieldSpec, ...] = (
-    FieldSpec("wavelength_nm", "Emission wavelength", "nm", "Light", 1, 0.0, 1e5, 5.0,
-              tip="Emission wavelength in vacuum (GCaMP: 525 nm)."),
-    FieldSpec("objective.magnification", "Magnification", "×", "Objective", 2, 0.0, 1000.0, 1.0,
-              tip="Lateral magnification with the tube lens below."),
-    FieldSpec("objective.numerical_aperture", "Numerical aperture", "", "Objective", 3, 0.0, 10.0, 0.05,
-              tip="NA = n sin(alpha); must stay below the immersion index."),
-    FieldSpec("objective.immersion_index", "Immersion index", "", "Objective", 3, 0.0, 10.0, 0.01,
-              tip="1.0 air, 1.333 water, 1.515 oil."),
-    FieldSpec("objective.tube_lens_focal_length_mm", "Tube lens focal length", "mm", "Objective", 1, 0.0, 1e4, 5.0,
-              tip="Olympus 180 mm, Nikon 200 mm, Zeiss 165 mm."),
-    FieldSpec("relay.focal_length_mm", "Fourier lens focal length", "mm", "Fourier lens", 1, 0.0, 1e4, 5.0,
-              kinds=(FOURIER,), tip="Relay lens that images the back pupil onto the MLA."),
-    FieldSpec("relay.field_stop_diameter_mm", "Field stop diameter", "mm", "Fourier lens", 2, 0.0, 1e3, 0.1,
-              optional=True, kinds=(FOURIER,), tip="Iris at the native image plane (0 = none)."),
-    FieldSpec("mla_to_camera_distance_mm", "MLA to camera distance", "mm", "MLA and camera", 2, 0.0, 1e4, 0.25,
-              tip="Distance from the microlens array to the sensor."),
-    FieldSpec("camera.pixel_pitch_um", "Pixel pitch", "µm", "MLA and camera", 2, 0.0, 1e3, 0.1),
-    FieldSpec("camera.pixel_count", "Pixel count (y, x)", "px", "MLA and camera", 0, 0, 100_000, 64,
-              parts=2, integer=True),
-    FieldSpec("camera.quantum_efficiency", "Quantum efficiency", "", "MLA and camera", 3, 0.0, 10.0, 0.05,
-              tip="Fraction of photons detected, in (0, 1]."),
-    FieldSpec("camera.read_noise_e", "Read noise", "e⁻ rms", "MLA and camera", 2, 0.0, 1e4, 0.1),
-    FieldSpec("depths.depth_range_um", "Depth range (from, to)", "µm", "Depths", 1, -1e5, 1e5, 10.0, parts=2,
-              tip="Source depths below the native focal plane (positive: away from the objective)."),
-    FieldSpec("depths.depth_step_um", "Depth step", "µm", "Depths", 2, 0.0, 1e5, 1.0),
-    FieldSpec("accuracy.voxels_per_lenslet", "Voxels per lenslet", "", "Computation", 0, 0, 99, 2, integer=True,
-              kinds=(CONVENTIONAL,), tip="Lateral volume voxels per lenslet pitch (odd). Finer grids resolve "
-              "closer pairs (never below 2 voxels) at the square of the PSF cost."),
-    FieldSpec("accuracy.volume_oversampling", "Volume voxels per pixel", "", "Computation", 0, 0, 7, 2,
-              integer=True, kinds=(FOURIER,), tip="1, 3, 5 or 7 volume voxels per sensor pixel (the PSF is "
-              "sampled to match). Finer grids resolve closer pairs at k² the PSF and volume size."),
-)  # fmt: skip
 
 
 class QuantityInput(QWidget):

@@ -177,5 +177,22 @@ class WorkflowSettings:
         return any(getattr(self, f) != getattr(other, f) for f in self.IMAGE_FIELDS)
 
     def reconstruction_changed(self, other: WorkflowSettings) -> bool:
-        """Whether the reconstruction settings (method, its options, iterations) differ."""
-        return any(getattr(self, f) != getattr(other, f) for f in self.RECONSTRUCTION_FIELDS)
+        """Whether the reconstruction settings (method, its options, iterations) differ: options left
+        out and the same options written out at their defaults are the same settings."""
+        return (
+            self.iterations != other.iterations
+            or self.method != other.method
+            or self.resolved_options() != other.resolved_options()
+        )
+
+    def resolved_options(self) -> dict[str, Any]:
+        """The method's options as a run uses them: those given, every other at its default (as given
+        when the method is unknown or the reconstruction package is missing)."""
+        given = dict(self.method_options)
+        try:
+            from lfm_studio.engine.reconstruct import get_method
+
+            defaults = get_method(self.method).defaults()
+        except (ImportError, ValueError):
+            return given
+        return {**defaults, **given}

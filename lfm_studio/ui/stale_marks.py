@@ -1,10 +1,11 @@
 """Stale marks: what the views say when the result they show no longer matches the design.
 
-A stage (:data:`~lfm_studio.ui.results.STAGES`) whose result is on screen but stale (the
-design or settings changed since), being recomputed, or whose job failed or was cancelled,
-gets a one-line :class:`~lfm_studio.widgets.stale_mark.StaleMark` such as ``"stale: shows the
-previous design; PSF failed: out of memory"`` (with the job's activity, so views colour it
-without reading the text). :func:`stage_mark` computes it from the state alone;
+A stage (:data:`~lfm_studio.ui.results.STAGES`) whose result is on screen but out of date (the
+design or settings changed since: :attr:`~lfm_studio.ui.state.StudioState.outdated`; a run asked
+for again with nothing changed does not count), or whose job failed with nothing shown, gets a
+one-line :class:`~lfm_studio.widgets.stale_mark.StaleMark` such as ``"stale: shows the
+previous design; PSF failed: out of memory"`` (with the job's activity: recomputing, failed or
+cancelled, so views colour it without reading the text). :func:`stage_mark` computes it from the state alone;
 :class:`StaleMarks` keeps the views' marks up to date: the viewer's banner per layer, the
 PSF profile plots, the measured rows of the requirements table and the RL convergence plot.
 A fresh result clears the mark.
@@ -12,6 +13,7 @@ A fresh result clears the mark.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from qtpy.QtCore import QObject
@@ -72,6 +74,8 @@ def stage_mark(state: StudioState, stage: str) -> StaleMark | None:
     activity, part = _job_part(state, stage)
     if shown is None:
         return StaleMark(part, activity) if activity == "failed" else None
+    if stage not in state.outdated:  # only run again (a button pressed twice): what is shown still matches
+        return None
     if stage == "psf" and _current_preview_only(state):
         return StaleMark(
             f"quick preview of this design; full PSF: {part or 'not computed yet'}", activity, preview=True
@@ -120,6 +124,7 @@ class StaleMarks(QObject):
         self.state = state
         self.viewer = viewer if hasattr(viewer, "set_stale_marks") else None
         self.profiles, self.convergence, self.requirements = profiles, convergence, requirements
+        self._layer_sources: list[tuple[Callable[[], dict[str, StaleMark]], Any]] = []
         self._signals = (
             state.stale_changed, state.psf_changed, state.preview_changed,
             state.image_changed, state.reconstruction_changed, state.metrics_changed,
@@ -136,6 +141,14 @@ class StaleMarks(QObject):
         found = {stage: stage_mark(self.state, stage) for stage in STAGE_LABELS}
         return {stage: mark for stage, mark in found.items() if mark}
 
+    def add_layer_marks(self, source: Callable[[], dict[str, StaleMark]], changed: Any) -> None:
+        """Marks of more viewer layers than the stages' (e.g. the Train dock's "RL" and "learned"):
+        ``source()`` gives them by layer name; they are asked for again at every change of the
+        state's results or staleness and when the signal ``changed`` fires."""
+        self._layer_sources.append((source, changed))
+        changed.connect(self.refresh)
+        self.refresh()
+
     def _on_job_changed(self, *_: Any) -> None:
         if (self.marks(), metrics_mark(self.state)) != self._shown:
             self.refresh()
@@ -145,9 +158,10 @@ class StaleMarks(QObject):
         marks = self.marks()
         self._shown = (marks, metrics_mark(self.state))
         if self.viewer is not None:
-            self.viewer.set_stale_marks(
-                {layer: marks[stage] for layer, stage in LAYER_STAGES.items() if stage in marks}
-            )
+            layers = {layer: marks[stage] for layer, stage in LAYER_STAGES.items() if stage in marks}
+            for source, _ in self._layer_sources:
+                layers.update(source())
+            self.viewer.set_stale_marks(layers)
         if self.profiles is not None:
             self.profiles.set_stale(marks.get("psf"))
         if self.convergence is not None:
@@ -159,3 +173,5 @@ class StaleMarks(QObject):
         for signal in self._signals:
             signal.disconnect(self.refresh)
         self.state.job_changed.disconnect(self._on_job_changed)
+        for _, changed in self._layer_sources:
+            changed.disconnect(self.refresh)

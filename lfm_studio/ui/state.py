@@ -72,7 +72,7 @@ class StudioState:
     convergence_changed = Signal(object)  # (NCC per iteration, relative change per iteration)
     metrics_changed = Signal(object)  # DesignMetrics | None
     workflow_changed = Signal(object)  # WorkflowSettings
-    stale_changed = Signal(object)  # frozenset[str] of STAGES
+    stale_changed = Signal(object)  # frozenset[str] of STAGES (also at a change to stale stages' inputs)
     job_changed = Signal(object)  # JobStatus
     dirty_changed = Signal(bool)
     unsaved_model_changed = Signal(object)  # str | None: what a trained, not yet saved model is
@@ -94,6 +94,8 @@ class StudioState:
         self._metrics: DesignMetrics | None = None
         self._workflow = WorkflowSettings()
         self._stale: frozenset[str] = frozenset(STAGES)
+        self._inputs_version = dict.fromkeys(STAGES, 1)  # counts the changes to each stage's inputs
+        self._fresh_at = dict.fromkeys(STAGES, 0)  # the inputs version of each stage's fresh result
         self._jobs: dict[str, JobStatus] = {}
         self._dirty = False
         self._unsaved_model: str | None = None
@@ -293,19 +295,39 @@ class StudioState:
 
     @property
     def stale(self) -> frozenset[str]:
-        """Stages whose result (if any) no longer matches the design and settings."""
+        """Stages to compute again: their result (if any) no longer matches the design and settings,
+        or a run of them was asked for (:meth:`mark_stale` with ``changed=False``)."""
         return self._stale
 
-    def mark_stale(self, *stages: str) -> None:
+    @property
+    def outdated(self) -> frozenset[str]:
+        """The stale stages whose inputs (design, device or settings) changed since their result was
+        made; a stage that is stale only because a run was asked for again is not outdated: what it
+        shows still matches the design and settings in force."""
+        return frozenset(s for s in self._stale if self._inputs_version[s] != self._fresh_at[s])
+
+    def inputs_version(self, stage: str) -> int:
+        """A count that grows at every change to ``stage``'s inputs (a result made at one version is
+        out of date once the count differs)."""
+        return self._inputs_version[stage]
+
+    def mark_stale(self, *stages: str, changed: bool = True) -> None:
+        """``stages`` are to be computed again: their inputs changed (default), or, with
+        ``changed=False``, a run was asked for with the same inputs (e.g. a button pressed again)."""
         unknown = set(stages) - set(STAGES)
         if unknown:
             raise ValueError(f"unknown stages {sorted(unknown)}; known: {STAGES}.")
-        new = self._stale | frozenset(stages)
-        if new != self._stale:
-            self._stale = new
-            self.stale_changed.emit(new)
+        before = (self._stale, self.outdated)
+        if changed:
+            for stage in stages:
+                self._inputs_version[stage] += 1
+        self._stale = self._stale | frozenset(stages)
+        if (changed and stages) or (self._stale, self.outdated) != before:  # a new inputs version too
+            self.stale_changed.emit(self._stale)
 
     def mark_fresh(self, stage: str) -> None:
+        """``stage``'s result on screen matches the design and settings in force."""
+        self._fresh_at[stage] = self._inputs_version[stage]
         if stage in self._stale:
             self._stale = self._stale - {stage}
             self.stale_changed.emit(self._stale)

@@ -16,17 +16,22 @@ After a run: "Save checkpoint…" writes the model (safetensors, atomic; an exis
 after a yes to the overwrite question) and "Compare with RL" reconstructs the studio's current
 simulated image with the registry's default method and with the model (job "compare"); the
 table shows both score sets beside the all-zero volume's, and both volumes go to the viewer
-("RL" and "learned").
+("RL" and "learned"). Those layers are marked stale (:meth:`TrainDock.layer_marks`, shown by
+:class:`~lfm_studio.ui.stale_marks.StaleMarks`) once the design or settings they were made with
+change (the state's inputs version of the reconstruction), and "learned" also once another model
+is trained; pressing Compare again with nothing changed marks nothing.
 """
 
 from __future__ import annotations
 
 import math
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import pyqtgraph as pg
+from qtpy.QtCore import Signal
 from qtpy.QtWidgets import (
     QComboBox,
     QFileDialog,
@@ -63,8 +68,10 @@ from lfm_studio.ui.training import (
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
 from lfm_studio.widgets.numeric_text import NumberRule
+from lfm_studio.widgets.stale_mark import StaleMark
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
+COMPARE_LAYERS = ("RL", "learned")  # the viewer layers of a comparison
 MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
 PLOT_KEY = (
     '<span style="color:#9ecae1;">━</span> training (per step)&nbsp;&nbsp;&nbsp;'
@@ -84,6 +91,22 @@ JITTER_TIP = (
 )
 
 
+@dataclass(frozen=True)
+class ComparedWith:
+    """What a comparison on screen was made with.
+
+    Attributes
+    ----------
+    version : the state's inputs version of the reconstruction when the comparison started.
+    image_outdated : the image compared already missed a change of the design or settings.
+    model : the trained model compared.
+    """
+
+    version: int
+    image_outdated: bool
+    model: TrainedModel
+
+
 class TrainDock(QWidget):
     """Training controls, the live loss curve and the RL comparison for ``state``.
 
@@ -93,6 +116,8 @@ class TrainDock(QWidget):
     runner : the studio's job runner (jobs "train" and "compare").
     viewer : the studio viewer (``show_volume``) or None.
     """
+
+    layer_marks_changed = Signal()  # a comparison arrived or a model was trained: see layer_marks()
 
     def __init__(
         self, state: StudioState, runner: JobRunner, viewer: Any = None, parent: QWidget | None = None
@@ -104,6 +129,8 @@ class TrainDock(QWidget):
         self.live: list[tuple[int, float, float]] = []
         self._scratch = tempfile.TemporaryDirectory(prefix="lfm_train_")
         self._compared_path: Path | None = None
+        self._comparing: ComparedWith | None = None  # the running comparison's inputs
+        self.compared_with: ComparedWith | None = None  # the inputs of the comparison in the viewer
         self._replaced = state.design_replaced  # kept: disconnected on closing
         self._replaced.connect(self._on_design_replaced)
 
@@ -276,6 +303,10 @@ class TrainDock(QWidget):
             return False
         path = save_trained(self.trained, Path(self._scratch.name) / "compare.safetensors", overwrite=True)
         self._compared_path = path
+        state = self.state
+        self._comparing = ComparedWith(
+            state.inputs_version("reconstruction"), "image" in state.outdated, self.trained
+        )
         self._say("reconstructing the current image with RL and the learned model…")
         self.runner.submit(COMPARE_JOB, compare_with_rl, self.state.design, image, self.state.workflow, str(path),
                            on_result=self._on_compared)  # fmt: skip
@@ -321,9 +352,11 @@ class TrainDock(QWidget):
         self.comparison = None
         steps = trained.result.header.training["steps"]
         self.state.set_unsaved_model(f"the trained {trained.settings.model} model ({steps} steps)")
+        self.layer_marks_changed.emit()  # the "learned" layer shows the previous model
 
     def _on_design_replaced(self, *_: Any) -> None:
-        """Another document: the model (trained for the previous design) and its comparison go."""
+        """Another document: the model (trained for the previous design) and its comparison go (layers
+        in the viewer stay, marked stale)."""
         self.trained, self.comparison, self.live = None, None, []
         self._draw(self.live)
         self.table.setRowCount(0)
@@ -346,17 +379,38 @@ class TrainDock(QWidget):
             self._say("training cancelled; the previous model (if any) is kept.")
 
     def _on_compared(self, comparison: Comparison) -> None:
-        self.comparison = comparison
+        self.comparison, self.compared_with = comparison, self._comparing
         rows = comparison_rows(comparison)
         self.table.setRowCount(len(rows))
         for r, row in enumerate(rows):
             for c, text in enumerate(row):
                 self.table.setItem(r, c, QTableWidgetItem(text))
         if self.viewer is not None and hasattr(self.viewer, "show_volume"):
-            for name, result in (("RL", comparison.rl), ("learned", comparison.learned)):
+            for name, result in zip(COMPARE_LAYERS, (comparison.rl, comparison.learned), strict=True):
                 self.viewer.show_volume(result.volume, result.voxel_size, name=name)
         self._say(f"RL ({comparison.rl.method}, {comparison.rl.iterations} iterations) and the learned model "
                   "on the current image; higher is better, the all-zero column is the trivial floor.")  # fmt: skip
+        self.layer_marks_changed.emit()
+
+    def layer_marks(self) -> dict[str, StaleMark]:
+        """Stale marks of the comparison's viewer layers ("RL", "learned"): out of date once the design
+        or settings changed since it was made (or the image it used already was), and "learned" also
+        once another model was trained; none while they match (e.g. Compare pressed again)."""
+        made = self.compared_with
+        if made is None:
+            return {}
+        changed = made.image_outdated or self.state.inputs_version("reconstruction") != made.version
+        inputs = ["design or settings"] if changed else []
+        rl, learned = COMPARE_LAYERS
+        reasons = {
+            rl: inputs,
+            learned: inputs + (["trained model"] if self.trained is not made.model else []),
+        }
+        return {
+            layer: StaleMark(f"stale: made with the previous {' and '.join(why)}")
+            for layer, why in reasons.items()
+            if why
+        }
 
     # ----- display -----
 

@@ -36,6 +36,7 @@ from superqt.utils import create_worker
 from lfm_studio.engine.errors import error_text
 from lfm_studio.engine.progress import CancelledError
 from lfm_studio.widgets.job_status import JobStatus
+from lfm_studio.widgets.numeric_text import shown_units_in
 
 
 class JobContext:
@@ -109,8 +110,9 @@ def _root_cause(error: BaseException) -> BaseException:
 
 def _one_line(error: BaseException | None) -> str:
     """``error`` for the status bar: its first non-empty line (the type name when it has no message; a
-    refused design's own text, not pydantic's "1 validation error for ..." header)."""
-    message = str(error) if error is None else error_text(error)
+    refused design's own text, not pydantic's "1 validation error for ..." header), micrometres as
+    the studio writes them ("µm", where the engine's message says "um")."""
+    message = str(error) if error is None else shown_units_in(error_text(error))
     lines = [line.strip() for line in message.splitlines() if line.strip()]
     text = lines[0] if lines else ""
     return (

@@ -13,7 +13,8 @@ The policy (:func:`parse_number`):
 - integer fields refuse fractions (``2.5``) but take ``1e3`` as 1000.
 
 Every refusal is a :class:`ValueError` naming the parameter, the text typed and the fix.
-:func:`format_number` writes a value back with the locale's decimal mark.
+:func:`format_number` writes a value back with the locale's decimal mark; :func:`shown_units_in`
+writes an engine message's "um" as the studio's "µm".
 """
 
 from __future__ import annotations
@@ -147,3 +148,15 @@ def format_number(value: float, decimal_point: str = ".") -> str:
     else:
         text = f"{value:.10g}"
     return text.replace(".", decimal_point) if decimal_point != "." else text
+
+
+# The unit token "um" (or "um^2") alone: not inside a word ("number", "maximum"), a key ("center_um"),
+# a path ("/data/um/x") or a file name ("a.um", "um.tif").
+_UM_TOKEN = re.compile(r"(?<![\w/\\.])um(\^2)?(?![\w/\\^]|\.\w)")
+
+
+def shown_units_in(text: str) -> str:
+    """``text`` (an engine message, which writes ``um``) with the unit as the studio shows it:
+    ``"got 0 um"`` -> ``"got 0 µm"``, ``"(um)"`` -> ``"(µm)"``, ``"um^2"`` -> ``"µm²"``; words that
+    contain "um" (``number``, ``maximum``), keys (``depth_step_um``) and paths are left alone."""
+    return _UM_TOKEN.sub(lambda m: "µm²" if m.group(1) else "µm", text)

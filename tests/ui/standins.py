@@ -66,6 +66,10 @@ class FakePSFViewer(QWidget):
         super().__init__(parent)
         self.calls: list[tuple[str, str, tuple[int, ...]]] = []
         self.closed = False
+        self.stale_marks: dict[str, str] = {}  # layer -> the text of its stale mark
+
+    def set_stale_marks(self, marks):
+        self.stale_marks = {layer: mark.text for layer, mark in marks.items()}
 
     @property
     def backend(self):

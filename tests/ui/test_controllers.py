@@ -429,3 +429,39 @@ def test_the_default_bead_count_places_as_many_as_fit_with_a_note_like_the_cli(q
     qtbot.waitUntil(lambda: state.job("image").state == "failed", timeout=TIMEOUT_MS)
     assert "could place only" in panel.message.text()
     panel.disconnect_state()
+
+
+def test_pressing_reconstruct_again_with_nothing_changed_marks_nothing_stale(qtbot, studio):
+    """The scores and the viewer read "stale: made with the previous design or settings; recomputing…"
+    when only the button was pressed again: the press counted as a change (and the panel's settings,
+    with the method's options written out at their defaults, differed from the state's)."""
+    from lfm_studio.ui.results import WorkflowSettings
+    from lfm_studio.ui.stale_marks import StaleMarks
+    from lfm_studio.ui.workflow_panel import WorkflowPanel
+
+    if not pipeline.reconstruction_available():
+        pytest.skip("lfm_studio.engine.reconstruct is not installed")
+    state, controller, _, _ = studio
+    panel = WorkflowPanel(state)
+    qtbot.addWidget(panel)
+    panel.reconstruct_requested.connect(controller.request_reconstruction)
+    panel.simulate_requested.connect(controller.request_image)
+    marks = StaleMarks(state)
+    state.set_workflow(WorkflowSettings(bead_count=3, photons=1e6, seed=1, iterations=2))
+    controller.start()
+    _wait_psf(qtbot, state)
+    controller.request_reconstruction()  # simulates the image first
+    qtbot.waitUntil(lambda: state.reconstruction is not None and "reconstruction" not in state.stale,
+                    timeout=TIMEOUT_MS)  # fmt: skip
+    for button in (panel.reconstruct_button, panel.simulate_button):
+        button.click()  # asked for again, nothing changed: a run, no stale mark (read before it ends)
+        assert "stale" not in panel.quality.text() and marks.marks() == {}
+        assert "reconstruction" in state.stale and not state.outdated
+        qtbot.waitUntil(lambda: not state.stale and not state.busy, timeout=TIMEOUT_MS)
+    panel.iterations.setValue(3)  # a change: the scores on screen are the previous settings'
+    panel.iterations.committed.emit(3)
+    assert "stale: made with the previous design or settings" in panel.quality.text()
+    assert state.outdated == {"reconstruction"}
+    qtbot.waitUntil(lambda: not state.stale and not state.busy, timeout=TIMEOUT_MS)
+    marks.disconnect_state()
+    panel.disconnect_state()

@@ -114,6 +114,21 @@ def test_a_failed_job_reports_and_keeps_the_previous_result(qtbot, runner):
     assert statuses[-1].state == "failed" and "x must be > 0 m" in statuses[-1].message
 
 
+def _refuses_in_um(ctx):
+    raise ValueError("the window (5 um) must hold the number of pixels (maximum 3 um); see /data/um/a.tif")
+
+
+def test_a_failure_line_writes_micrometres_as_the_studio_does(qtbot, runner):
+    """Engine refusals (shared with the CLI) say "um"; the studio's own text says "µm"."""
+    errors, statuses = [], []
+    runner.status_changed.connect(statuses.append)
+    runner.submit("image", _refuses_in_um, on_error=errors.append)
+    qtbot.waitUntil(lambda: bool(errors), timeout=TIMEOUT_MS)
+    assert statuses[-1].message == (
+        "failed: the window (5 µm) must hold the number of pixels (maximum 3 µm); see /data/um/a.tif"
+    )
+
+
 def test_a_result_the_gui_cannot_take_fails_the_job_instead_of_saying_done(qtbot, runner, monkeypatch):
     # The KeyError 'PSF' case: the job succeeded but showing its result raised (inside a
     # psygnal emission, which wraps it). The stage must read "failed" with the cause, not "done".

@@ -455,6 +455,22 @@ def test_the_preset_row_shows_the_preset_of_the_layout_or_custom(qtbot, editor):
     assert (fresh.presets.current_kind(), fresh.presets.count.value()) == ("xlfm", 27)
 
 
+def test_applying_the_preset_the_row_names_rebuilds_the_layout_with_its_shape(editor):
+    """The FLFM row read "Square grid" (square lenslets on screen), but Apply built circles."""
+    design = load_preset("flfm_guo2019")
+    bar, flfm = editor.presets, design.mla.lenslets
+    editor.set_pupil_radius(design.pupil_diameter_at_mla / 2.0 * 1e6)  # as the studio sets it
+    editor.set_lenslets(flfm)
+    assert (bar.kind.currentText(), bar.shape.currentText()) == ("Square grid", "squares")
+    bar.apply.click()  # Apply as the row reads
+    assert editor.lenslets() == flfm and {lens.shape for lens in editor.lenslets()} == {"square"}
+    bar.shape.setCurrentIndex(bar.shape.findData("circle"))
+    bar.apply.click()
+    assert [lens.center_um for lens in editor.lenslets()] == [lens.center_um for lens in flfm]
+    assert {lens.shape for lens in editor.lenslets()} == {"circle"}
+    assert (bar.kind.currentText(), bar.shape.currentText()) == ("Square grid", "circles")
+
+
 def test_preset_row_applies_and_bad_preset_is_refused(editor):
     rec = Recorder(editor)
     editor.presets.kind.setCurrentIndex(editor.presets.kind.findData("xlfm"))  # the layout is custom

@@ -70,7 +70,8 @@ def test_an_invalid_value_is_marked_with_the_reason_and_the_design_stays(panel, 
     assert state.design == design  # the last valid design stays in force
     field, label = panel.inputs[NA], panel.error_labels[NA]
     assert field.property("invalid") is True
-    assert "numerical_aperture 1.2 must be below immersion_index 1" in label.text()
+    assert "Numerical aperture 1.2 must be below immersion index 1" in label.text()  # the field labels
+    assert "numerical_aperture" not in label.text() and "immersion_index" not in label.text()
     assert not label.isHidden()
     assert "border" in field.boxes[0].styleSheet() and "must be below" in field.boxes[0].toolTip()
     assert field.value() == pytest.approx(1.2)  # the user's value stays visible to be corrected
@@ -87,7 +88,7 @@ def test_an_invalid_value_is_marked_with_the_reason_and_the_design_stays(panel, 
 def test_a_refused_value_is_dropped_when_the_document_is_replaced(panel, design):
     state = panel.state
     _set(panel, "depths.depth_step_um", 0.0)
-    assert "depth_step_um must be a finite number > 0" in state.errors["depths.depth_step_um"]
+    assert "Depth step must be a finite number > 0" in state.errors["depths.depth_step_um"]
     state.replace_design(design)
     assert panel.inputs["depths.depth_step_um"].value() == pytest.approx(10.0)
     assert panel.inputs["depths.depth_step_um"].property("invalid") is False
@@ -148,7 +149,7 @@ def test_volume_grid_settings_are_edited_per_kind(panel, design):
     assert state.design.accuracy.volume_oversampling == 3 and state.errors == {}
     _set(panel, "accuracy.volume_oversampling", 2)  # even: refused with the reason, design stays
     assert state.design.accuracy.volume_oversampling == 3
-    assert "volume_oversampling must be 1, 3, 5 or 7" in state.errors["accuracy.volume_oversampling"]
+    assert "Volume voxels per pixel must be 1, 3, 5 or 7" in state.errors["accuracy.volume_oversampling"]
 
 
 def test_a_field_shows_only_its_own_reason_while_another_field_is_refused(panel, design):
@@ -156,11 +157,9 @@ def test_a_field_shows_only_its_own_reason_while_another_field_is_refused(panel,
     _set(panel, "depths.depth_step_um", 0.0)  # refused, waits to be corrected
     _set(panel, "camera.quantum_efficiency", 1.5)  # refused too: together and alone
     qe, step = panel.error_labels["camera.quantum_efficiency"], panel.error_labels["depths.depth_step_um"]
-    assert "quantum_efficiency must be in (0, 1]" in qe.text()
-    assert (
-        "depth_step_um" not in qe.text() and "depth_step_um" not in state.errors["camera.quantum_efficiency"]
-    )
-    assert "depth_step_um must be a finite number > 0" in step.text() and "quantum" not in step.text()
+    assert "Quantum efficiency must be in (0, 1]" in qe.text()
+    assert "Depth step" not in qe.text() and "Depth step" not in state.errors["camera.quantum_efficiency"]
+    assert "Depth step must be a finite number > 0" in step.text() and "uantum" not in step.text()
     assert state.design == design
 
 

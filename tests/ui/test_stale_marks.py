@@ -67,6 +67,24 @@ def test_marks_follow_staleness_jobs_and_results(design):
         stage_mark(state, "metrics")
 
 
+def test_a_result_is_not_marked_when_only_a_run_was_asked_for_again(design):
+    """ "stale: made with the previous design or settings" showed when the button was pressed again."""
+    state = StudioState(design)
+    state.set_image(SimpleNamespace(design=design))
+    state.set_reconstruction(SimpleNamespace(ncc_curve=(0.5,), change_curve=(0.1,)))
+    for stage in ("psf", "image", "reconstruction"):
+        state.mark_fresh(stage)
+    state.mark_stale("image", "reconstruction", changed=False)  # Simulate image pressed again
+    state.set_job(JobStatus("reconstruction", "running", 1, 4, "iteration 1 of 4", generation=2))
+    assert stage_mark(state, "image") is None and stage_mark(state, "reconstruction") is None
+    state.set_job(JobStatus("reconstruction", "failed", message="failed: RL diverged", generation=2))
+    assert stage_mark(state, "reconstruction") is None  # the panel's message line says why
+    state.set_workflow(replace(state.workflow, seed=state.workflow.seed + 1))  # now a change
+    head = "stale: made with the previous design or settings"
+    assert stage_mark(state, "image").text == head
+    assert stage_mark(state, "reconstruction").text == f"{head}; reconstruction failed: RL diverged"
+
+
 class _MarkRecorder:
     def __init__(self):
         self.marks: dict[str, str] = {}

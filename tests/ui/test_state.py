@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from dataclasses import replace
 
 import pytest
 
@@ -114,7 +115,7 @@ def test_recent_files_are_unique_newest_first_and_bounded(design, tmp_path):
 def test_an_invalid_edit_is_refused_with_the_design_error_text(design):
     outcome = try_changes(design, {"objective.numerical_aperture": 1.2})  # air objective: NA < 1
     assert not outcome.ok and outcome.design is None
-    assert "numerical_aperture 1.2 must be below immersion_index 1" in outcome.error
+    assert "Numerical aperture 1.2 must be below immersion index 1" in outcome.error  # the studio's labels
     assert "validation error" not in outcome.error and "pydantic" not in outcome.error
 
 
@@ -147,3 +148,40 @@ def test_preview_of_a_big_design_is_binned_with_few_depths():
 
 def test_a_small_design_needs_no_preview(design):
     assert pipeline.PSFRequest.for_design(design).preview is None
+
+
+def test_a_run_asked_for_again_is_stale_but_not_outdated(design):
+    state = StudioState(design)
+    emitted = []
+    state.stale_changed.connect(emitted.append)
+    for stage in STAGES:
+        state.mark_fresh(stage)
+    assert state.stale == state.outdated == frozenset()
+    version = state.inputs_version("reconstruction")
+    state.mark_stale("reconstruction", changed=False)  # the button pressed again
+    assert state.stale == {"reconstruction"} and state.outdated == frozenset()
+    assert state.inputs_version("reconstruction") == version
+    state.set_workflow(replace(state.workflow, iterations=state.workflow.iterations + 1))  # a change
+    assert state.outdated == {"reconstruction"} and state.inputs_version("reconstruction") == version + 1
+    count = len(emitted)
+    state.set_workflow(replace(state.workflow, iterations=state.workflow.iterations + 1))
+    assert len(emitted) == count + 1  # a new inputs version is announced though the stale set is the same
+    state.mark_fresh("reconstruction")
+    assert state.stale == state.outdated == frozenset()
+
+
+def test_options_left_out_or_written_out_at_their_defaults_are_the_same_settings():
+    """The workflow panel writes every option of the method (at its default); the state started with
+    none: the first press of Reconstruct counted as a change of settings."""
+    from lfm_studio.engine.reconstruct import get_method
+
+    plain = WorkflowSettings()
+    written_out = replace(plain, method_options=tuple(sorted(
+        (k, v) for k, v in get_method(plain.method).defaults().items() if k not in ("iterations", "background")
+    )))  # fmt: skip
+    assert written_out.method_options and not plain.reconstruction_changed(written_out)
+    assert plain.reconstruction_changed(replace(plain, method_options=(("tv_weight", 0.01),)))
+    state = StudioState(small_fourier_design())
+    state.mark_fresh("reconstruction")
+    state.set_workflow(written_out)
+    assert "reconstruction" not in state.stale

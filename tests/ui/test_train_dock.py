@@ -137,6 +137,19 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     shown = [(name, shape) for call, name, shape in window.viewer.calls if call == "show_volume"]
     assert ("RL", tuple(truth.shape)) in shown and ("learned", tuple(truth.shape)) in shown
 
+    # The comparison's layers: fresh after Compare, and after Compare again with nothing changed;
+    # stale once a setting they were made with changed (they were never marked).
+    assert not {"RL", "learned"} & set(window.viewer.stale_marks)
+    assert dock.compare()
+    qtbot.waitUntil(lambda: dock.comparison is not comparison, timeout=TIMEOUT_MS)
+    assert not {"RL", "learned"} & set(window.viewer.stale_marks)
+    window.state.set_workflow(replace(window.state.workflow, iterations=window.state.workflow.iterations + 1))
+    head = "stale: made with the previous design or settings"
+    assert {layer: window.viewer.stale_marks.get(layer) for layer in ("RL", "learned")} == {
+        "RL": head,
+        "learned": head,
+    }
+
 
 def test_an_unsaved_trained_model_is_unsaved_input_until_saved(monkeypatch, qtbot, window, tmp_path):
     # (monkeypatch first: its dialog stand-ins outlive the window's closing in teardown)
@@ -223,3 +236,39 @@ def test_optics_jitter_field_trains_with_the_augmentation_and_records_it(
         and "Fix: set Optics jitter to off" in (dock.message.text())
     )
     assert not dock.runner.is_running("train") and dock.trained is trained
+
+
+def test_comparison_layers_are_stale_only_after_a_change_since_the_comparison(qtbot):
+    """The layers of Compare with RL ("RL", "learned") had no stale mark at all: a change of the design
+    or settings (or, for "learned", another model) since the comparison marks them; a run asked for
+    again with nothing changed does not."""
+    from lfm_studio.ui.edits import apply_changes
+    from lfm_studio.ui.state import StudioState
+    from lfm_studio.ui.train_dock import ComparedWith, TrainDock
+    from lfm_studio.widgets.jobs import JobRunner
+
+    design = small_fourier_design()
+    state, runner = StudioState(design), JobRunner()
+    dock = TrainDock(state, runner)
+    qtbot.addWidget(dock)
+    dock.trained = SimpleNamespace(name="the model compared")
+    for stage in ("psf", "image", "reconstruction"):
+        state.mark_fresh(stage)
+    dock.compared_with = ComparedWith(state.inputs_version("reconstruction"), False, dock.trained)
+    assert dock.layer_marks() == {}
+    state.mark_stale("image", "reconstruction", changed=False)  # Simulate pressed again: no change
+    assert dock.layer_marks() == {}
+    dock.trained = SimpleNamespace(name="trained again")
+    assert {k: m.text for k, m in dock.layer_marks().items()} == {
+        "learned": "stale: made with the previous trained model"
+    }
+    state.set_design(apply_changes(design, {"camera.read_noise_e": 2.0}))  # a new image is due
+    assert {k: m.text for k, m in dock.layer_marks().items()} == {
+        "RL": "stale: made with the previous design or settings",
+        "learned": "stale: made with the previous design or settings and trained model",
+    }
+    state.mark_stale("image", changed=False)
+    dock.compared_with = ComparedWith(state.inputs_version("reconstruction"), True, dock.trained)
+    assert set(dock.layer_marks()) == {"RL", "learned"}  # compared on an image already out of date
+    dock.disconnect_state()
+    assert runner.shutdown(5000)

@@ -19,6 +19,7 @@ from lfm_studio.widgets.mla_editor.presets import (
     CUSTOM_LABEL,
     DEFAULT_COUNTS,
     PRESET_LABELS,
+    SHAPE_LABELS,
     PresetParams,
 )
 from lfm_studio.widgets.mla_editor.symmetry import MAX_ROTATION, Symmetry
@@ -70,12 +71,16 @@ class PresetBar(QWidget):
                               value=defaults.focal_lengths_mm[1], step=0.5)  # fmt: skip
         self.diameter = number("preset Ø", "µm", minimum=0.001, maximum=1e6, value=defaults.aperture_diameter_um,
                                step=10)  # fmt: skip
+        self.shape = QComboBox()  # the apertures the preset builds
+        for key, label in SHAPE_LABELS.items():
+            self.shape.addItem(label, key)
+        self.shape.setToolTip("aperture shape of the preset's lenslets (Ø: a square's side)")
         self.apply = QPushButton("Apply preset")
         self.apply.setToolTip("Replace all lenslets by this preset (undo with Ctrl+Z)")
         self._counts = dict(DEFAULT_COUNTS)
         _row(
             self, "Preset", self.kind, "pitch", self.pitch, "n", self.count, "f",
-            self.focal_a, self.focal_b, "Ø", self.diameter, self.apply,
+            self.focal_a, self.focal_b, "Ø", self.diameter, self.shape, self.apply,
         )  # fmt: skip
         self.kind.currentIndexChanged.connect(self._on_kind)
         self.count.committed.connect(self._remember_count)
@@ -94,10 +99,12 @@ class PresetBar(QWidget):
             count=self.count.value(),
             focal_lengths_mm=focals if self.current_kind() == "xlfm" else focals[:1],
             aperture_diameter_um=self.diameter.value(),
+            lenslet_shape=self.shape.currentData(),
         )
 
     def set_params(self, params: PresetParams) -> None:
-        """Show ``params`` (pitch, focal lengths, aperture; the count stays per kind)."""
+        """Show ``params`` (pitch, focal lengths, aperture and its shape; the count stays per kind)."""
+        self.shape.setCurrentIndex(self.shape.findData(params.lenslet_shape))
         self.pitch.setValue(params.pitch_um)
         self.focal_a.setValue(params.focal_lengths_mm[0])
         self.focal_b.setValue(params.focal_lengths_mm[-1])
@@ -115,7 +122,7 @@ class PresetBar(QWidget):
     def _on_kind(self, *_args) -> None:
         kind = self.current_kind()
         custom = kind == CUSTOM
-        for widget in (*self.fields(), self.apply):
+        for widget in (*self.fields(), self.shape, self.apply):
             widget.setEnabled(not custom)
         self.apply.setToolTip(
             "The layout as drawn matches no preset: pick one to replace it"

@@ -4,7 +4,9 @@
 (:meth:`MLASpec.square_grid`, :meth:`MLASpec.hex_grid`), kept inside the pupil
 when its radius is known; ``xlfm`` is the XLFM-like multifocal layout of Cong et
 al. 2017 (:meth:`MLASpec.multifocal_hex`, centred between three lenslets, focal
-groups alternating around each shell).
+groups alternating around each shell). Every preset builds lenslets of one aperture shape
+(:attr:`PresetParams.lenslet_shape`, "circle" or "square"); the preset row reads the shape off
+the layout shown, so applying the preset it names rebuilds that layout, squares included.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from pydantic import ValidationError
 
 from lfm_studio.engine.design import LensletSpec, MLASpec
 from lfm_studio.engine.design.geometry import candidate_pairs
+from lfm_studio.engine.design.lenslet import LensletShape
 from lfm_studio.engine.errors import error_text
 
 PresetKind = Literal["square", "hex", "xlfm"]
@@ -36,6 +39,7 @@ COUNT_MEANING: dict[str, str] = {
 }
 
 DEFAULT_COUNTS: dict[str, int] = {"square": 5, "hex": 2, "xlfm": 27}
+SHAPE_LABELS: dict[str, str] = {"circle": "circles", "square": "squares"}  # the lenslet apertures
 
 
 @dataclass(frozen=True)
@@ -47,13 +51,15 @@ class PresetParams:
     pitch_um : lattice spacing, micrometres.
     count : square: lenslets per side; hex: rings; xlfm: number of lenslets.
     focal_lengths_mm : square and hex use the first; xlfm one per focal group, mm.
-    aperture_diameter_um : aperture diameter of every lenslet, micrometres.
+    aperture_diameter_um : aperture diameter (a square's side) of every lenslet, micrometres.
+    lenslet_shape : the aperture shape of every lenslet, "circle" or "square".
     """
 
     pitch_um: float = 2200.0
     count: int = 27
     focal_lengths_mm: tuple[float, ...] = (26.0, 28.5)
     aperture_diameter_um: float = 1000.0
+    lenslet_shape: LensletShape = "circle"
 
 
 def build_preset(
@@ -69,6 +75,7 @@ def build_preset(
                 p.count,
                 p.focal_lengths_mm[0],
                 fill_factor=p.aperture_diameter_um / p.pitch_um,
+                lenslet_shape=p.lenslet_shape,
                 keep_within_diameter_um=keep,
             )
         elif kind == "hex":
@@ -77,6 +84,7 @@ def build_preset(
                 p.focal_lengths_mm[0],
                 rings=p.count,
                 fill_factor=p.aperture_diameter_um / p.pitch_um,
+                lenslet_shape=p.lenslet_shape,
                 keep_within_diameter_um=keep,
             )
         elif kind == "xlfm":
@@ -86,6 +94,7 @@ def build_preset(
                 p.focal_lengths_mm,
                 aperture_diameter_um=p.aperture_diameter_um,
                 center="triangle",
+                lenslet_shape=p.lenslet_shape,
             )
         else:
             raise ValueError(f"preset must be one of {', '.join(PRESET_LABELS)}; got {kind!r}.")
@@ -97,7 +106,8 @@ def build_preset(
 
 
 def estimate_params(lenslets: Sequence[LensletSpec], default: PresetParams = PresetParams()) -> PresetParams:
-    """Preset parameters that resemble ``lenslets``: nearest-neighbour pitch, median aperture, focal lengths."""
+    """Preset parameters that resemble ``lenslets``: nearest-neighbour pitch, median aperture, focal
+    lengths and the most common aperture shape."""
     if not lenslets:
         return default
     diameter = statistics.median(lens.aperture_diameter_um for lens in lenslets)
@@ -115,12 +125,13 @@ def estimate_params(lenslets: Sequence[LensletSpec], default: PresetParams = Pre
         count=default.count,
         focal_lengths_mm=tuple(focals[:2]),
         aperture_diameter_um=diameter,
+        lenslet_shape=statistics.mode(lens.shape for lens in lenslets),
     )
 
 
 def matching_preset(lenslets: Sequence[LensletSpec]) -> tuple[str, int]:
-    """The preset kind and count that rebuild the centres and focal lengths of ``lenslets``, with the
-    parameters :func:`estimate_params` reads off them; ``(CUSTOM, 0)`` when none does."""
+    """The preset kind and count that rebuild the centres, focal lengths and shapes of ``lenslets``,
+    with the parameters :func:`estimate_params` reads off them; ``(CUSTOM, 0)`` when none does."""
     n = len(lenslets)
     if not n:
         return CUSTOM, 0
@@ -133,7 +144,9 @@ def matching_preset(lenslets: Sequence[LensletSpec]) -> tuple[str, int]:
     }
     wanted = sorted(_key(lens) for lens in lenslets)
     for kind, count in counts.items():
-        params = PresetParams(estimate.pitch_um, count, focals, estimate.aperture_diameter_um)
+        params = PresetParams(
+            estimate.pitch_um, count, focals, estimate.aperture_diameter_um, estimate.lenslet_shape
+        )
         try:
             built = build_preset(kind, params)  # type: ignore[arg-type]
         except ValueError:
@@ -143,6 +156,7 @@ def matching_preset(lenslets: Sequence[LensletSpec]) -> tuple[str, int]:
     return CUSTOM, 0
 
 
-def _key(lens: LensletSpec) -> tuple[float, float, float]:
+def _key(lens: LensletSpec) -> tuple[float, float, float, str]:
+    """What a preset must rebuild of ``lens``: its centre (to 1 nm), focal length and shape."""
     x, y = lens.center_um
-    return round(x, 3) + 0.0, round(y, 3) + 0.0, lens.focal_length_mm
+    return round(x, 3) + 0.0, round(y, 3) + 0.0, lens.focal_length_mm, lens.shape
