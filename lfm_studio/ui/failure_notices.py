@@ -18,6 +18,7 @@ from qtpy.QtWidgets import QMessageBox, QWidget
 
 from lfm_studio.ui.results import JobStatus
 from lfm_studio.ui.state import StudioState
+from lfm_studio.widgets.numeric_text import shown_units_in
 
 JOB_WHAT = {
     "psf": "The PSF computation",
@@ -30,8 +31,13 @@ _READ_ONLY = {errno.EACCES: "you have no permission to write there", errno.EPERM
 
 
 def show_failure(parent: QWidget | None, title: str, text: str, details: str = "") -> QMessageBox:
-    """A warning box over ``parent`` with ``text`` (and ``details`` behind "Show Details…"); returns it open."""
-    box = QMessageBox(QMessageBox.Icon.Warning, title, text, QMessageBox.StandardButton.Ok, parent)
+    """A warning box over ``parent`` with ``text`` (and ``details`` behind "Show Details…"); returns it open.
+
+    The engine's unit "um" in ``text`` reads "µm", as everywhere in the studio (:func:`shown_units_in`;
+    the details, a traceback, stay as they were)."""
+    box = QMessageBox(
+        QMessageBox.Icon.Warning, title, shown_units_in(text), QMessageBox.StandardButton.Ok, parent
+    )
     box.setAttribute(Qt.WidgetAttribute.WA_DeleteOnClose)
     box.setWindowModality(Qt.WindowModality.WindowModal)
     if details:

@@ -118,3 +118,18 @@ def test_a_truncated_phantom_tiff_is_reported_as_truncated(tmp_path):
     with pytest.raises(ValueError, match="is truncated: its ImageJ header announces 5 images but only 1"):
         from_tiff(path, normalize=True)
     assert os.path.getsize(path) == size // 3
+
+
+def test_a_failure_dialog_writes_the_engines_um_as_micrometres(qtbot):
+    """Dialogs built from an engine message directly (open file, raw frame, video, docks) read µm,
+    as the studio's own text does; words, keys and paths keep their letters; the details stay raw."""
+    from lfm_studio.ui.failure_notices import show_failure
+
+    parent = QWidget()
+    qtbot.addWidget(parent)
+    box = show_failure(
+        parent, "Cannot open", "depth_step_um 0 um must be > 0 (maximum 5 um^2)", details="at 3 um"
+    )
+    assert box.text() == "depth_step_um 0 µm must be > 0 (maximum 5 µm²)"
+    assert box.detailedText() == "at 3 um"
+    box.close()
