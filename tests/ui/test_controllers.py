@@ -354,11 +354,9 @@ def test_a_cancelled_first_reconstruction_leaves_no_curve(qtbot, kept_run, monke
     assert state.convergence == ((), ())
 
 
-def test_a_learned_model_path_that_is_not_a_file_fails_in_the_studios_words_and_marks_the_scores_stale(
-    qtbot, studio, tmp_path
-):
-    from dataclasses import replace
-
+def _reconstructed_once(qtbot, studio):
+    """The studio's state and controller with a workflow panel and stale marks, after one
+    reconstruction of 3 beads (2 iterations); skips where the reconstruction engine is missing."""
     from lfm_studio.ui.results import WorkflowSettings
     from lfm_studio.ui.stale_marks import StaleMarks
     from lfm_studio.ui.workflow_panel import WorkflowPanel
@@ -375,6 +373,15 @@ def test_a_learned_model_path_that_is_not_a_file_fails_in_the_studios_words_and_
     controller.request_reconstruction()  # simulates the image first
     qtbot.waitUntil(lambda: state.reconstruction is not None and "reconstruction" not in state.stale,
                     timeout=TIMEOUT_MS)  # fmt: skip
+    return state, controller, panel, marks
+
+
+def test_a_learned_model_path_that_is_not_a_file_fails_in_the_studios_words_and_marks_the_scores_stale(
+    qtbot, studio, tmp_path
+):
+    from dataclasses import replace
+
+    state, _, panel, marks = _reconstructed_once(qtbot, studio)
     kept = state.reconstruction
     assert "NCC" in panel.quality.text() and "stale" not in panel.quality.text()
     assert panel.message.isHidden()
@@ -435,24 +442,9 @@ def test_pressing_reconstruct_again_with_nothing_changed_marks_nothing_stale(qtb
     """The scores and the viewer read "stale: made with the previous design or settings; recomputing…"
     when only the button was pressed again: the press counted as a change (and the panel's settings,
     with the method's options written out at their defaults, differed from the state's)."""
-    from lfm_studio.ui.results import WorkflowSettings
-    from lfm_studio.ui.stale_marks import StaleMarks
-    from lfm_studio.ui.workflow_panel import WorkflowPanel
-
-    if not pipeline.reconstruction_available():
-        pytest.skip("lfm_studio.engine.reconstruct is not installed")
-    state, controller, _, _ = studio
-    panel = WorkflowPanel(state)
-    qtbot.addWidget(panel)
+    state, controller, panel, marks = _reconstructed_once(qtbot, studio)
     panel.reconstruct_requested.connect(controller.request_reconstruction)
     panel.simulate_requested.connect(controller.request_image)
-    marks = StaleMarks(state)
-    state.set_workflow(WorkflowSettings(bead_count=3, photons=1e6, seed=1, iterations=2))
-    controller.start()
-    _wait_psf(qtbot, state)
-    controller.request_reconstruction()  # simulates the image first
-    qtbot.waitUntil(lambda: state.reconstruction is not None and "reconstruction" not in state.stale,
-                    timeout=TIMEOUT_MS)  # fmt: skip
     for button in (panel.reconstruct_button, panel.simulate_button):
         button.click()  # asked for again, nothing changed: a run, no stale mark (read before it ends)
         assert "stale" not in panel.quality.text() and marks.marks() == {}
