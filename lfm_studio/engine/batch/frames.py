@@ -8,6 +8,7 @@ and a long video is never held in memory. :meth:`FrameSource.to_dask` gives the 
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections import OrderedDict
 from collections.abc import Mapping, Sequence
@@ -94,6 +95,15 @@ def _level0_path(attributes: Mapping[str, object], path: Path) -> str:
     return str(level0)
 
 
+def frame_digest(frame: NumpyArray) -> str:
+    """A 128-bit BLAKE2b digest of one frame's pixels, shape and dtype (a chunk record keeps it for
+    each frame done, so a resume can tell whether the recording under it changed)."""
+    data = np.ascontiguousarray(frame)
+    digest = hashlib.blake2b(f"{data.shape}{data.dtype.str}".encode(), digest_size=16)
+    digest.update(data.tobytes())
+    return digest.hexdigest()
+
+
 def _folder_files(path: Path) -> list[Path]:
     files = sorted(p for p in path.iterdir() if p.suffix.lower() in TIFF_SUFFIXES and p.is_file())
     if not files:
@@ -126,6 +136,23 @@ class FrameSource:
             files = _folder_files(Path(self.path))[start:stop]
             return np.stack([tifffile.imread(f) for f in files]).reshape(stop - start, *self.shape[1:])
         return np.asarray(self._array()[start:stop]).reshape(stop - start, *self.shape[1:])
+
+    def stamp(self) -> str:
+        """SHA-256 of the names, sizes and modification times (ns) of the files holding the frames:
+        changes when the recording is rewritten (a resume then checks the frames already done)."""
+        root = Path(self.path)
+        if self.kind == "tiff":
+            files = [root]
+        elif self.kind == "tiff-folder":
+            files = _folder_files(root)
+        else:
+            files = sorted(p for p in root.rglob("*") if p.is_file())
+        digest = hashlib.sha256()
+        for file in files:
+            info = file.stat()
+            name = file.name if file == root else file.relative_to(root).as_posix()
+            digest.update(f"{name}\0{info.st_size}\0{info.st_mtime_ns}\n".encode())
+        return digest.hexdigest()
 
     def to_dask(self) -> da.Array:
         """The frames as a lazy ``dask.array`` (one chunk per frame for a folder)."""

@@ -22,7 +22,7 @@ import tempfile
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, TypeAlias, TypedDict, TypeGuard
+from typing import Literal, NotRequired, TypeAlias, TypedDict, TypeGuard
 
 import numpy as np
 import numpy.typing as npt
@@ -39,6 +39,7 @@ from ome_zarr.format import FormatV05  # noqa: E402
 from ome_zarr.writer import write_multiscales_metadata  # noqa: E402
 
 STATUS_GROUP = "lfm_studio_status"
+FRAMES_STAMP = "frames_stamp.json"  # in STATUS_GROUP: the stamp of the frames file(s) last read
 RUN_KEY = "lfm_studio"  # our attributes in the root group
 AXES = (
     {"name": "t", "type": "time", "unit": "second"},
@@ -50,10 +51,12 @@ AXES = (
 
 class FrameDone(TypedDict):
     """A chunk record's entry for a reconstructed frame (``attempts``: tries over every run,
-    failed ones of earlier runs included)."""
+    failed ones of earlier runs included; ``digest``: :func:`~.frames.frame_digest` of the frame
+    read, absent in records written before it was kept)."""
 
     status: Literal["done"]
     attempts: int
+    digest: NotRequired[str]
 
 
 class FrameFailed(TypedDict):
@@ -182,6 +185,20 @@ class VideoStore:
     def records(self) -> dict[int, ChunkRecord]:
         """Finished chunks: index -> record."""
         return read_records(self.path)
+
+    def frames_stamp(self) -> str | None:
+        """The :meth:`~.frames.FrameSource.stamp` of the frames this store's frames were read from
+        (None for a store written before it was kept)."""
+        try:
+            stamp = json.loads((Path(self.path) / STATUS_GROUP / FRAMES_STAMP).read_text()).get("stamp")
+        except FileNotFoundError:
+            return None
+        return stamp if isinstance(stamp, str) else None
+
+    def write_frames_stamp(self, stamp: str) -> None:
+        """Keep ``stamp`` (atomic; replaces the one kept before)."""
+        text = json.dumps({"stamp": stamp}).encode()
+        atomic_write(Path(self.path) / STATUS_GROUP / FRAMES_STAMP, lambda fh: fh.write(text), overwrite=True)
 
     def attributes(self) -> dict[str, JSONValue]:
         """The run record stored under ``"lfm_studio"`` in the root group."""

@@ -23,7 +23,7 @@ import numpy.typing as npt
 import torch
 
 from lfm_studio.engine.allocator import keep_freed_memory
-from lfm_studio.engine.batch.frames import FrameSource
+from lfm_studio.engine.batch.frames import FrameSource, frame_digest
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import ProjectorSpec, cached_projector
 from lfm_studio.engine.batch.raw_frames import RawFrameSpec, rectified_frame
@@ -90,12 +90,12 @@ def _attempt(
     task: ChunkTask, projector: Projector, frame: NumpyArray, t: int, earlier: int = 0
 ) -> tuple[npt.NDArray[np.float32] | None, FrameStatus]:
     """Reconstruct frame ``t`` (up to :data:`ATTEMPTS` tries); its status counts ``earlier``
-    attempts of previous runs too."""
+    attempts of previous runs too and, when done, keeps the frame's digest."""
     error = ""  # always replaced: ATTEMPTS >= 1
     for attempt in range(1, ATTEMPTS + 1):
         try:
             volume = _reconstruct(task, projector, frame, t)
-            return volume, {"status": "done", "attempts": earlier + attempt}
+            return volume, {"status": "done", "attempts": earlier + attempt, "digest": frame_digest(frame)}
         except Exception as caught:  # recorded and reported; the run goes on
             error = f"{type(caught).__name__}: {caught}"
     return None, {"status": "failed", "attempts": earlier + ATTEMPTS, "error": error}

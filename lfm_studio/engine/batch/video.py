@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import uuid
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,7 +25,7 @@ from pathlib import Path
 from lfm_studio import __version__
 from lfm_studio.engine.batch.camera import tiff_metadata
 from lfm_studio.engine.batch.client import Client, check_placement, client_for, dashboard_link
-from lfm_studio.engine.batch.frames import FrameSource, open_frames
+from lfm_studio.engine.batch.frames import FrameSource, frame_digest, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
 from lfm_studio.engine.batch.projectors import cached_projector, planned_image_shape, projector_spec
 from lfm_studio.engine.batch.pyramid import level_count
@@ -214,13 +215,60 @@ def _run_chunks(
     return sorted(lost)
 
 
-def _prepare_store(output: str | os.PathLike, *, resume: bool, overwrite: bool, run: dict[str, JSONValue],
+class FramesUncheckedWarning(UserWarning):
+    """A store written before frame digests were kept is resumed: a changed recording cannot be told."""
+
+
+def check_frames_unchanged(store: VideoStore, source: FrameSource) -> None:
+    """Refuse to resume ``store`` when the recording under it changed: unless the frame files' stamp
+    is the one kept, every frame recorded as done is read again and compared with its digest.
+
+    A file repaired in place (failed frames rewritten, the others unchanged) resumes; another
+    recording at the same path is refused, naming the frames that differ, before any work. A store
+    written before stamps were kept resumes with a :class:`FramesUncheckedWarning`."""
+    kept = store.frames_stamp()
+    if kept == source.stamp():
+        return
+    if kept is None:
+        warnings.warn(
+            f"{store.path} was written before lfm_studio kept the frames' digests, so a changed {source.path} "
+            "cannot be detected; resuming as before.",
+            FramesUncheckedWarning,
+            stacklevel=3,
+        )
+        return
+    changed = [
+        int(key)
+        for record in store.records().values()
+        for key, info in record["frames"].items()
+        if info["status"] == "done"
+        and info.get("digest", "") != frame_digest(source.read(int(key), int(key) + 1)[0])
+    ]
+    if changed:
+        raise ValueError(
+            f"frames {source.path} changed since {store.path} was written: frame(s) {_first_few(changed)} "
+            "differ from those reconstructed. Resuming would mix two recordings in one store. Fix: "
+            "overwrite the store (start again), or write to another store."
+        )
+
+
+def _first_few(frames: list[int], most: int = 8) -> str:
+    ordered = sorted(frames)
+    return ", ".join(map(str, ordered[:most])) + (
+        f" and {len(ordered) - most} more" if len(ordered) > most else ""
+    )
+
+
+def _prepare_store(output: str | os.PathLike, source: FrameSource, *, resume: bool, overwrite: bool,
+                   run: dict[str, JSONValue],
                    attributes: dict[str, JSONValue], shape: tuple[int, int, int, int],
                    scale: tuple[float, float, float, float], origin: tuple[float, float, float, float],
                    levels: int, chunk_frames: int) -> VideoStore:  # fmt: skip
     target = Path(output).expanduser()
     if target.exists() and resume and not overwrite:
-        return open_store(target, run=run)
+        store = open_store(target, run=run)
+        check_frames_unchanged(store, source)
+        return store
     return create_store(
         target, shape=shape, scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
         attributes=attributes, overwrite=overwrite,
@@ -334,9 +382,10 @@ def reconstruct_video(
         "units": "photons per voxel" if camera is None else camera.volume_units,
     }
     store = _prepare_store(
-        output, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
+        output, source, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
         scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
     )  # fmt: skip
+    store.write_frames_stamp(source.stamp())
     before = store.records()
     done_before = {i: done_frames(record) for i, record in before.items()}
     chunks = store.chunks()

@@ -19,6 +19,7 @@ import tifffile
 import zarr
 
 from lfm_studio.engine.batch import get_client, reconstruct_video
+from lfm_studio.engine.batch.frames import frame_digest
 from lfm_studio.engine.batch.projectors import projector_spec
 from lfm_studio.engine.batch.store import STATUS_GROUP
 from lfm_studio.engine.design import save_design
@@ -184,5 +185,5 @@ def test_a_frame_that_failed_on_the_cluster_is_recomputed_on_resume(video, clien
     assert np.array_equal(_level0(out), video.reference)  # bit for bit, 1 thread each
     assert {p.name: p.read_bytes() for p in folder.glob("chunk_*.json") if p.name in untouched} == untouched
     record = json.loads((folder / "chunk_000001.json").read_text())
-    assert record["frames"]["2"] == {"status": "done", "attempts": 3}
-    assert record["frames"]["3"] == {"status": "done", "attempts": 1}
+    assert record["frames"]["2"] == {"status": "done", "attempts": 3, "digest": frame_digest(video.frames[2])}
+    assert record["frames"]["3"] == {"status": "done", "attempts": 1, "digest": frame_digest(video.frames[3])}

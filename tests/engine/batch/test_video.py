@@ -10,6 +10,7 @@ import tifffile
 import zarr
 
 from lfm_studio.engine.batch import reconstruct_video
+from lfm_studio.engine.batch.frames import frame_digest
 from lfm_studio.engine.batch.projectors import BUILDS, cached_projector, projector_spec
 from lfm_studio.engine.batch.store import STATUS_GROUP
 from lfm_studio.engine.io import OutputError
@@ -66,7 +67,7 @@ def test_a_nan_frame_is_reported_and_the_run_goes_on(video, tmp_path):
     assert not out[5].any()  # left at the fill value, not half-written
     record = json.loads((tmp_path / "run.ome.zarr" / STATUS_GROUP / "chunk_000001.json").read_text())
     assert record["frames"]["5"]["status"] == "failed" and record["frames"]["5"]["attempts"] == 2
-    assert record["frames"]["4"] == {"status": "done", "attempts": 1}
+    assert record["frames"]["4"] == {"status": "done", "attempts": 1, "digest": frame_digest(frames[4])}
 
 
 def test_cancel_then_resume_computes_only_the_missing_frames(video, tmp_path):
@@ -182,8 +183,9 @@ def test_a_frame_that_failed_is_recomputed_on_resume_and_the_good_frames_are_not
     for name in ("chunk_000000.json", "chunk_000002.json"):  # chunks without a failure: untouched
         assert (folder / name).read_bytes() == records[name]
     record = json.loads((folder / "chunk_000001.json").read_text())
-    assert record["frames"]["4"] == {"status": "done", "attempts": 3}  # 2 failed before, 1 now
-    assert record["frames"]["3"] == {"status": "done", "attempts": 1}
+    digests = [frame_digest(frame) for frame in video.frames]  # of the frames read
+    assert record["frames"]["4"] == {"status": "done", "attempts": 3, "digest": digests[4]}  # 2 failed, 1 now
+    assert record["frames"]["3"] == {"status": "done", "attempts": 1, "digest": digests[3]}
     again = _run(video, out)
     assert calls == [4] and again.computed == () and again.skipped == tuple(range(FRAMES))
 
@@ -210,3 +212,35 @@ def test_a_frame_that_fails_again_on_resume_stays_failed_with_its_new_error(vide
     record = json.loads((out / STATUS_GROUP / "chunk_000002.json").read_text())
     assert record["frames"]["6"]["attempts"] == 4 and record["frames"]["7"]["status"] == "done"
     assert not _level(out)[6].any()
+
+
+def test_a_resume_on_another_recording_at_the_same_path_is_refused_naming_the_frames(video, tmp_path):
+    """Same path, same shape, other pixels: resuming would mix two recordings in one store. The
+    frames recorded as done are compared with their digests once the file's stamp changed."""
+    tiff = tmp_path / "frames.tif"
+    tifffile.imwrite(tiff, video.frames)
+    out = tmp_path / "run.ome.zarr"
+    options = {"method": METHOD, "iterations": ITERATIONS, "crop": CROP, "output": out, "chunk_frames": 3}
+    first = reconstruct_video(tiff, video.design, **options)
+    (out / STATUS_GROUP / "chunk_000002.json").unlink()  # as if stopped before the last chunk
+    stored = _level(out).copy()
+    other = video.frames.copy()
+    other[1] *= 2.0  # another recording: frame 1 differs
+    tifffile.imwrite(tiff, other)
+    with pytest.raises(ValueError, match=r"changed since .*frame\(s\) 1 differ .*Fix: overwrite the store"):
+        reconstruct_video(tiff, video.design, **options)
+    assert np.array_equal(_level(out), stored) and first.failed == {}  # nothing computed or written
+    tifffile.imwrite(tiff, video.frames)  # the same pixels again (a new file, so a new stamp): resumes
+    assert reconstruct_video(tiff, video.design, **options).computed == (6, 7)
+
+
+def test_a_store_written_before_digests_resumes_with_a_warning(video, tmp_path):
+    from lfm_studio.engine.batch.store import FRAMES_STAMP
+    from lfm_studio.engine.batch.video import FramesUncheckedWarning
+
+    out = tmp_path / "run.ome.zarr"
+    _run(video, out)
+    (out / STATUS_GROUP / FRAMES_STAMP).unlink()  # as an earlier version wrote it
+    with pytest.warns(FramesUncheckedWarning, match="cannot be detected"):
+        again = _run(video, out)
+    assert again.skipped == tuple(range(FRAMES)) and (out / STATUS_GROUP / FRAMES_STAMP).is_file()
