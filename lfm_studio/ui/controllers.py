@@ -309,8 +309,8 @@ class MLAEditorBinding(QObject):
             if editable
             else "A regular lenslet grid (conventional LFM): edit its pitch in the design file."
         )
-        if design.pupil_diameter_at_mla is not None:
-            editor.set_pupil_radius(design.pupil_diameter_at_mla / 2.0 * 1e6)
+        pupil = design.pupil_diameter_at_mla  # None (conventional LFM) clears the previous design's circle
+        editor.set_pupil_radius(None if pupil is None else pupil / 2.0 * 1e6)
         width, height = design.camera.sensor_size
         radius = design.sub_image_radius
         editor.set_sensor((width * 1e6, height * 1e6), 0.0 if radius is None else radius * 1e6)
