@@ -231,8 +231,13 @@ def test_a_stopped_first_run_leaves_its_curve_dashed_beside_the_kept_model(qtbot
     monkeypatch.setattr("lfm_studio.ui.train_dock.train_model", _three_steps_then("cancel"))
     assert dock.start_training()
     assert _stopped_steps(dock) == [] and "stopped run" not in dock.plot.getPlotItem().titleLabel.text
+    qtbot.waitUntil(lambda: len(dock.live) == 3, timeout=TIMEOUT_MS)
     dock.cancel()
     qtbot.waitUntil(lambda: not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
+    assert _stopped_steps(dock) == [1, 2, 3]
+    # Another document drops the stopped run's line (it was for the previous design).
+    window.state.replace_design(window.state.design)
+    assert _stopped_steps(dock) == [] and "stopped run" not in dock.plot.getPlotItem().titleLabel.text
 
 
 def test_optics_jitter_field_trains_with_the_augmentation_and_records_it(
