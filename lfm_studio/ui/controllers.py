@@ -265,6 +265,13 @@ class StudioController(QObject):
 REGULAR_PATCH_PITCHES = 5  # a regular array is shown (read-only) within this many pitches of its centre
 
 
+def editor_pupil_radius_um(design: Any) -> float | None:
+    """The pupil footprint's radius at the MLA in micrometres (the editor's unit); None when the
+    design has no pupil image at the MLA (conventional LFM): the editor then draws no circle."""
+    pupil = design.pupil_diameter_at_mla
+    return None if pupil is None else pupil / 2.0 * 1e6
+
+
 def editor_lenslets(design: Any) -> tuple:
     """The lenslets the MLA editor shows: all of an explicit array; a regular array's central patch
     (its thousands of lenslets are edited by pitch, not one by one)."""
@@ -309,8 +316,7 @@ class MLAEditorBinding(QObject):
             if editable
             else "A regular lenslet grid (conventional LFM): edit its pitch in the design file."
         )
-        if design.pupil_diameter_at_mla is not None:
-            editor.set_pupil_radius(design.pupil_diameter_at_mla / 2.0 * 1e6)
+        editor.set_pupil_radius(editor_pupil_radius_um(design))  # None also clears the previous circle
         width, height = design.camera.sensor_size
         radius = design.sub_image_radius
         editor.set_sensor((width * 1e6, height * 1e6), 0.0 if radius is None else radius * 1e6)

@@ -109,33 +109,49 @@ class _StateView(QWidget):
         self._connections.clear()
 
 
-FULL_NAME, PREVIEW_NAME = "full PSF", "quick preview"  # the profile plots' legend
+FULL_NAME, PREVIEW_NAME = "full PSF", "quick preview"  # the profile plots' key
+PROFILE_COLOUR = "#1565c0"
+_KEY_GAP = "&nbsp;&nbsp;&nbsp;"
+
+
+def keyed_title(title: str, entries: list[tuple[str, str]]) -> str:
+    """``title`` with a key line below it: ``(sample, name)`` pairs, the sample an HTML snippet.
+
+    The key sits in the plot's title, above the data, never over a curve (a legend box inside the
+    axes hid part of the lateral profile, walk 4).
+    """
+    if not entries:
+        return title
+    key = _KEY_GAP.join(f"{sample} {name}" for sample, name in entries)
+    return f'{title}<br><span style="font-size:8pt;">{key}</span>'
+
+
+def _sample(text: str) -> str:
+    return f'<span style="color:{PROFILE_COLOUR};">{text}</span>'
 
 
 class ProfilePlots(_StateView):
-    """Lateral and axial PSF profiles of the current full stack (dashed: the quick preview)."""
+    """Lateral and axial PSF profiles of the current full stack (dashed: the quick preview).
+
+    The key (which curve is which; the dashed one is not obvious) is in each plot's title and
+    names the curves shown.
+    """
+
+    LATERAL_TITLE, AXIAL_TITLE = "Lateral PSF profile (sharpest depth)", "Peak intensity per depth"
 
     def __init__(self, state: StudioState | None = None, parent: QWidget | None = None) -> None:
         super().__init__(state, parent)
-        self.lateral_plot = _plot("Lateral PSF profile (sharpest depth)", "x (µm, sample)", "intensity")
-        self.axial_plot = _plot("Peak intensity per depth", "depth (µm)", "peak")
+        self.lateral_plot = _plot(self.LATERAL_TITLE, "x (µm, sample)", "intensity")
+        self.axial_plot = _plot(self.AXIAL_TITLE, "depth (µm)", "peak")
         self.layout().addWidget(self.lateral_plot)
         self.layout().addWidget(self.axial_plot)
         solid, dashed = (
-            pg.mkPen("#1565c0", width=2),
-            pg.mkPen("#1565c0", width=1.5, style=Qt.PenStyle.DashLine),
+            pg.mkPen(PROFILE_COLOUR, width=2),
+            pg.mkPen(PROFILE_COLOUR, width=1.5, style=Qt.PenStyle.DashLine),
         )
-        for plot in (
-            self.lateral_plot,
-            self.axial_plot,
-        ):  # which curve is which (the dashed one is not obvious)
-            # an opaque box: the peak-per-depth curve runs under the top right corner
-            plot.getPlotItem().addLegend(
-                offset=(-5, 5), labelTextSize="8pt", brush=pg.mkBrush(255, 255, 255, 230)
-            )
         self.lateral_curve = self.lateral_plot.plot(pen=solid, name=FULL_NAME)
         self.axial_curve = self.axial_plot.plot(
-            pen=solid, symbol="o", symbolSize=4, symbolBrush="#1565c0", name=FULL_NAME
+            pen=solid, symbol="o", symbolSize=4, symbolBrush=PROFILE_COLOUR, name=FULL_NAME
         )
         self.lateral_preview = self.lateral_plot.plot(pen=dashed, name=PREVIEW_NAME)
         self.axial_preview = self.axial_plot.plot(pen=dashed, symbol="t", symbolSize=5, name=PREVIEW_NAME)
@@ -154,10 +170,38 @@ class ProfilePlots(_StateView):
         if result is None or result.profiles is None:
             lateral.setData([], [])
             axial.setData([], [])
-            return
-        p = result.profiles
-        lateral.setData((p.lateral_x * 1e6).numpy(), p.lateral.numpy())
-        axial.setData((p.axial_z * 1e6).numpy(), p.axial.numpy())
+        else:
+            p = result.profiles
+            lateral.setData((p.lateral_x * 1e6).numpy(), p.lateral.numpy())
+            axial.setData((p.axial_z * 1e6).numpy(), p.axial.numpy())
+        self._show_keys()
+
+    def _show_keys(self) -> None:
+        """Title each plot with the key of the curves it shows."""
+        for plot, title, curves, markers in (
+            (self.lateral_plot, self.LATERAL_TITLE, (self.lateral_curve, self.lateral_preview), ("", "")),
+            (self.axial_plot, self.AXIAL_TITLE, (self.axial_curve, self.axial_preview), ("●", "▲")),
+        ):
+            plot.getPlotItem().setTitle(
+                keyed_title(title, _key_entries(curves, markers)), color="k", size="10pt"
+            )
+
+
+def _key_entries(
+    curves: tuple[pg.PlotDataItem, pg.PlotDataItem], markers: tuple[str, str]
+) -> list[tuple[str, str]]:
+    """Key entries of the (full, preview) curves that hold data: a solid or dashed line with its marker."""
+    lines = ("━", "╌")
+    return [
+        (_sample(f"{line}{marker}{line}"), name)
+        for curve, line, marker, name in zip(curves, lines, markers, (FULL_NAME, PREVIEW_NAME), strict=True)
+        if _has_data(curve)
+    ]
+
+
+def _has_data(curve: pg.PlotDataItem) -> bool:
+    x, _ = curve.getData()
+    return x is not None and len(x) > 0
 
 
 _SHORT = {

@@ -5,7 +5,8 @@ Top: model, time budget (minutes), max steps, photon budgets, phantoms, seed, op
 :func:`lfm_studio.ui.training.train_model` as job "train" on the studio's job runner on the
 current full PSF stack (the status bar shows its progress and a Cancel button; the dock has its
 own Cancel). A live pyqtgraph curve shows the training loss per step (thin line), its running mean
-(thick line) and the validation loss (points), log scale. A cancelled or failed run leaves the previous model and its curve.
+(thick line) and the validation loss (points), log scale. A cancelled or failed run leaves the previous model and its curve,
+and its own steps as a dashed grey line ("stopped run, not kept": how far it got) until the next run.
 
 A finished model lives only in memory until "Save checkpoint…" (the done message says so); while
 it is unsaved it is the studio's unsaved input (:attr:`~lfm_studio.ui.state.StudioState.unsaved_model`):
@@ -31,7 +32,7 @@ from pathlib import Path
 from typing import Any
 
 import pyqtgraph as pg
-from qtpy.QtCore import Signal
+from qtpy.QtCore import Qt, Signal
 from qtpy.QtWidgets import (
     QComboBox,
     QFileDialog,
@@ -73,11 +74,14 @@ from lfm_studio.widgets.stale_mark import StaleMark
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
 COMPARE_LAYERS = ("RL", "learned")  # the viewer layers of a comparison
 MEAN_STEPS = 10  # steps in the running mean of the training loss (one random sample per step: noisy)
+STOPPED_COLOR = "#8c8c8c"  # the stopped run's dashed line
+KEY_GAP = "&nbsp;&nbsp;&nbsp;"
 PLOT_KEY = (
-    '<span style="color:#9ecae1;">━</span> training (per step)&nbsp;&nbsp;&nbsp;'
-    f'<span style="color:#1f77b4;">━━</span> training (mean of {MEAN_STEPS} steps)&nbsp;&nbsp;&nbsp;'
+    f'<span style="color:#9ecae1;">━</span> training (per step){KEY_GAP}'
+    f'<span style="color:#1f77b4;">━━</span> training (mean of {MEAN_STEPS} steps){KEY_GAP}'
     '<span style="color:#d62728;">●</span> validation'
 )
+STOPPED_KEY = f'{KEY_GAP}<span style="color:{STOPPED_COLOR};">╌╌</span> stopped run (not kept)'
 UNSAVED_NOTE = (
     "Not saved yet: the model is only in memory. Save checkpoint… keeps it "
     "(the Learned model method reads it from that file)."
@@ -89,6 +93,12 @@ JITTER_TIP = (
     "by up to ± this percentage; the model keeps the nominal design. Costs one PSF simulation per "
     f"jittered design ({TrainingDataSpec().jitter_designs}) before training starts. Off (0) by default."
 )
+
+
+def _loss_points(history: list[tuple[int, float, float]]) -> tuple[list[int], list[float]]:
+    """Steps and training losses of ``(step, loss, validation)`` points a log axis can show (loss > 0)."""
+    kept = [(step, loss) for step, loss, _ in history if loss > 0]
+    return [step for step, _ in kept], [loss for _, loss in kept]
 
 
 @dataclass(frozen=True)
@@ -188,6 +198,12 @@ class TrainDock(QWidget):
         self.validation_points = self.plot.plot(
             [], [], pen=None, symbol="o", symbolSize=7, symbolBrush="#d62728", name="validation"
         )
+        self.stopped_curve = self.plot.plot(
+            [],
+            [],
+            pen=pg.mkPen(STOPPED_COLOR, width=1.5, style=Qt.PenStyle.DashLine),
+            name="stopped run (not kept)",
+        )
         self.plot.setMinimumHeight(160)
 
         self.table = QTableWidget(0, len(TABLE_HEADER))
@@ -250,6 +266,7 @@ class TrainDock(QWidget):
             return False
         self.live = []
         self._draw(self.live)
+        self._draw_stopped([])
         jitter = (
             f", optics jitter ±{100 * settings.optics_jitter:g} %: simulating the jittered designs first"
             if settings.optics_jitter > 0
@@ -359,6 +376,7 @@ class TrainDock(QWidget):
         in the viewer stay, marked stale)."""
         self.trained, self.comparison, self.live = None, None, []
         self._draw(self.live)
+        self._draw_stopped([])
         self.table.setRowCount(0)
         self._say("Train a model on the current design's PSF stack.")
         self._update_buttons()
@@ -371,12 +389,15 @@ class TrainDock(QWidget):
             what = "failed: " + str(outcome.error) if outcome.state == "failed" else "cancelled"
             self._say(f"comparison {what}", error=outcome.state == "failed")
             return
+        stopped = self.live
         self.live = list(self.trained.result.history) if self.trained is not None else []
         self._draw(self.live)
+        self._draw_stopped(stopped)
+        reached = f" after {len(stopped)} step(s) (dashed grey line)" if stopped else ""
         if outcome.state == "failed":
-            self._say(f"training failed: {outcome.error}", error=True)
+            self._say(f"training failed{reached}: {outcome.error}", error=True)
         else:
-            self._say("training cancelled; the previous model (if any) is kept.")
+            self._say(f"training cancelled{reached}; the previous model (if any) is kept.")
 
     def _on_compared(self, comparison: Comparison) -> None:
         self.comparison, self.compared_with = comparison, self._comparing
@@ -415,12 +436,17 @@ class TrainDock(QWidget):
     # ----- display -----
 
     def _draw(self, history: list[tuple[int, float, float]]) -> None:
-        steps = [s for s, loss, _ in history if loss > 0]
-        losses = [loss for _, loss, _ in history if loss > 0]
+        steps, losses = _loss_points(history)
         checked = [(s, v) for s, _, v in history if not math.isnan(v) and v > 0]
         self.loss_curve.setData(steps, losses)
         self.mean_curve.setData(steps, running_mean(losses, MEAN_STEPS))
         self.validation_points.setData([s for s, _ in checked], [v for _, v in checked])
+
+    def _draw_stopped(self, history: list[tuple[int, float, float]]) -> None:
+        """Show a stopped run's loss (its running mean) dashed, and its key entry; [] hides both."""
+        steps, losses = _loss_points(history)
+        self.stopped_curve.setData(steps, running_mean(losses, MEAN_STEPS))
+        self.plot.setTitle(PLOT_KEY + (STOPPED_KEY if steps else ""), size="9pt")
 
     def _on_refused(self, reason: str) -> None:
         self._refusal = reason

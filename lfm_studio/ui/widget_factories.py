@@ -44,16 +44,15 @@ def prepare_qt_app() -> QApplication:
 
 def make_mla_editor(design: Design) -> QWidget | None:
     """The MLA layout editor on ``design``'s lenslets, or None when the editor is unavailable."""
-    from lfm_studio.ui.controllers import editor_lenslets
+    from lfm_studio.ui.controllers import editor_lenslets, editor_pupil_radius_um
 
     module = _optional("lfm_studio.widgets.mla_editor")
     if module is None:
         return None
-    pupil = design.pupil_diameter_at_mla
     width, height = design.camera.sensor_size
     return module.MLAEditor(
         editor_lenslets(design),
-        pupil_radius_um=None if pupil is None else pupil / 2.0 * 1e6,
+        pupil_radius_um=editor_pupil_radius_um(design),
         sensor_size_um=(width * 1e6, height * 1e6),
     )
 

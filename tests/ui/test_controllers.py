@@ -15,7 +15,8 @@ from lfm_studio.ui import pipeline
 from lfm_studio.ui.controllers import MLAEditorBinding, StudioController, ViewerBinding
 from lfm_studio.ui.edits import apply_changes
 from lfm_studio.ui.state import StudioState
-from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_fourier_design
+from lfm_studio.widgets.mla_editor import MLAEditor
+from tests.ui.standins import FakeMLAEditor, FakePSFViewer, small_conventional_design, small_fourier_design
 
 TIMEOUT_MS = 60_000  # generous: only a hang should reach it (CI may share its cores)
 
@@ -73,6 +74,26 @@ def test_state_changes_reach_the_editor(qtbot, studio, design):
     pupil_um = moved.pupil_diameter_at_mla / 2 * 1e6
     assert editor.pupil_radius_um == pytest.approx(pupil_um)
     assert editor.sensor[0] == pytest.approx((256 * 6.5, 256 * 6.5))
+
+
+def test_a_design_without_a_pupil_clears_the_editor_s_pupil_footprint(qtbot, studio, design):
+    """Fourier -> conventional (File > Open, a preset): no stale pupil circle, no "inside the pupil" check."""
+    state, _, editor, _ = studio
+    assert editor.pupil_radius_um == pytest.approx(design.pupil_diameter_at_mla / 2 * 1e6)
+    state.set_design(small_conventional_design())
+    assert editor.pupil_radius_um is None
+
+
+def test_the_real_editor_drops_the_pupil_circle_and_check_for_a_conventional_design(qtbot, design):
+    state = StudioState(design)
+    editor = MLAEditor()
+    qtbot.addWidget(editor)
+    binding = MLAEditorBinding(state, editor)
+    assert "all inside the pupil" in editor.status_text()
+    state.set_design(small_conventional_design())
+    assert "pupil" not in editor.canvas.getPlotItem().titleLabel.text
+    assert "pupil" not in editor.status_text()
+    binding.disconnect_state()
 
 
 def test_an_overlapping_lenslet_from_the_editor_is_refused_and_the_design_kept(qtbot, studio, design):

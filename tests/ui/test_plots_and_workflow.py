@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 from types import SimpleNamespace
 
+import pyqtgraph as pg
 import pytest
 
 from lfm_studio.ui import pipeline
@@ -39,9 +40,8 @@ def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
     state.set_metrics(metrics)
     x, y = profiles.lateral_curve.getData()
     assert len(x) > 10 and y.max() == pytest.approx(1.0) and abs(x[y.argmax()]) < 1e-9
-    for plot in (profiles.lateral_plot, profiles.axial_plot):  # the dashed curve is named
-        legend = plot.getPlotItem().legend
-        assert [label.text for _, label in legend.items] == ["full PSF", "quick preview"]
+    for plot in (profiles.lateral_plot, profiles.axial_plot):  # the key names the curve shown
+        assert _key_names(plot) == ["full PSF"]
     z, peak = profiles.axial_curve.getData()
     assert list(z) == pytest.approx([-10.0, 0.0, 10.0]) and peak.max() == pytest.approx(1.0)
     rows = requirements.rows()
@@ -63,6 +63,44 @@ def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
         view.disconnect_state()
     state.set_metrics(None)  # disconnected: the table keeps its rows
     assert len(requirements.rows()) == len(metrics.requirements)
+
+
+def _key_names(plot) -> list[str]:
+    """The curve names the plot's key shows, in order (the key is the title's second line)."""
+    title = plot.getPlotItem().titleLabel.text
+    return [name for name in ("full PSF", "quick preview") if name in title.partition("<br>")[2]]
+
+
+def _boxes_over_the_axes(plot) -> list:
+    """Items drawn over the data area that are not data (a legend box hid part of a curve, walk 4)."""
+    item = plot.getPlotItem()
+    area = item.getViewBox().sceneBoundingRect()
+    return [
+        child
+        for child in item.scene().items()
+        if isinstance(child, pg.LegendItem)
+        and child.isVisible()
+        and child.sceneBoundingRect().intersects(area)
+    ]
+
+
+def test_the_profile_keys_sit_above_the_axes_and_name_the_curves_shown(qtbot, computed):
+    """No key box over the curves: the key is in the title, full PSF and the dashed preview."""
+    _, psf, _ = computed
+    profiles = ProfilePlots()
+    qtbot.addWidget(profiles)
+    profiles.resize(380, 360)
+    profiles.show()
+    qtbot.waitExposed(profiles)
+    for plot in (profiles.lateral_plot, profiles.axial_plot):
+        assert _key_names(plot) == []  # nothing shown: no key
+    profiles.show_preview(psf)
+    profiles.show_result(psf)
+    for plot in (profiles.lateral_plot, profiles.axial_plot):
+        assert _boxes_over_the_axes(plot) == []
+        assert _key_names(plot) == ["full PSF", "quick preview"]
+    profiles.show_preview(None)  # the preview gone: its key entry too
+    assert _key_names(profiles.lateral_plot) == ["full PSF"]
 
 
 def test_workflow_panel_both_ways(qtbot, computed):

@@ -99,6 +99,7 @@ def test_train_live_curve_cancel_save_and_compare_with_rl(qtbot, window, tmp_pat
     qtbot.waitUntil(lambda: not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
     assert dock.trained is first and _points(dock) == (4, 1)
     assert "cancelled" in dock.message.text()
+    assert len(_stopped_steps(dock)) >= 1  # how far the cancelled run got, dashed beside the kept curve
 
     # Save: atomic, and an existing file is replaced only after a yes.
     target = tmp_path / "model.safetensors"
@@ -190,6 +191,53 @@ def test_an_unsaved_trained_model_is_unsaved_input_until_saved(monkeypatch, qtbo
     assert state.unsaved_model is None and not state.unsaved_input and not window.isWindowModified()
     asked = len(questions)
     assert window.file_actions.confirm_discard() and len(questions) == asked
+
+
+def _three_steps_then(stop: str):
+    """Stands in for train_model: streams three loss points, then fails (stop="fail") or runs until cancelled."""
+
+    def run(ctx, design, stack, settings):
+        for step in (1, 2, 3):
+            ctx.partial((step, 1.0 / step, math.nan))
+        if stop == "fail":
+            raise RuntimeError("out of memory")
+        while True:
+            ctx.check()
+            ctx.cancel.wait(0.01)
+
+    return run
+
+
+def _stopped_steps(dock):
+    steps, _ = dock.stopped_curve.getData()
+    return [] if steps is None else [int(s) for s in steps]
+
+
+@pytest.mark.parametrize("stop", ["cancel", "fail"])
+def test_a_stopped_first_run_leaves_its_curve_dashed_beside_the_kept_model(qtbot, window, monkeypatch, stop):
+    """Walk 4: Cancel wiped the loss curve of a first run, so one could not see how far it got."""
+    dock = window.train_dock
+    monkeypatch.setattr("lfm_studio.ui.train_dock.train_model", _three_steps_then(stop))
+    assert dock.start_training()
+    qtbot.waitUntil(lambda: len(dock.live) == 3 or not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
+    dock.cancel()
+    qtbot.waitUntil(lambda: not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
+    assert dock.trained is None and _points(dock) == (0, 0)  # no model kept: no kept curve
+    assert _stopped_steps(dock) == [1, 2, 3]  # the stopped run, dashed
+    assert "stopped run (not kept)" in dock.plot.getPlotItem().titleLabel.text
+    said = "training failed after 3 step(s)" if stop == "fail" else "training cancelled after 3 step(s)"
+    assert said in dock.message.text()
+    # The next run starts from clean axes.
+    monkeypatch.setattr("lfm_studio.ui.train_dock.train_model", _three_steps_then("cancel"))
+    assert dock.start_training()
+    assert _stopped_steps(dock) == [] and "stopped run" not in dock.plot.getPlotItem().titleLabel.text
+    qtbot.waitUntil(lambda: len(dock.live) == 3, timeout=TIMEOUT_MS)
+    dock.cancel()
+    qtbot.waitUntil(lambda: not dock.runner.is_running("train"), timeout=TIMEOUT_MS)
+    assert _stopped_steps(dock) == [1, 2, 3]
+    # Another document drops the stopped run's line (it was for the previous design).
+    window.state.replace_design(window.state.design)
+    assert _stopped_steps(dock) == [] and "stopped run" not in dock.plot.getPlotItem().titleLabel.text
 
 
 def test_optics_jitter_field_trains_with_the_augmentation_and_records_it(
