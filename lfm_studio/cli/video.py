@@ -7,7 +7,7 @@ one-thread processes (a LocalCluster; 1: in this process) or by the cluster at
 ``--scheduler tcp://host:8786``; each finished chunk is recorded in the store, so ``--resume``
 (after a crash, Ctrl+C or failed frames) computes only the missing frames and those that failed.
 Camera counts become photons per frame as in the TIFF path (metadata or
-``--baseline/--gain/--read-noise``); raw frames with ``--calibration calib.json`` (and
+``--baseline/--gain/--read-noise/--quantum-efficiency``); raw frames with ``--calibration calib.json`` (and
 ``--lenslets``) are corrected and rectified frame by frame first, as in the TIFF path
 (:mod:`lfm_studio.cli.raw_frames`). Needs the ``scale`` extra (``pip install "lfm-studio[scale]"``).
 """
@@ -67,7 +67,11 @@ def _camera(args: argparse.Namespace, source, raw_calibration) -> Any:
     if raw_calibration is not None:
         return calibrated_camera(args, tiff_metadata(source.path), raw_calibration)
     calibration, notes = video_camera(
-        source, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+        source,
+        baseline=args.baseline,
+        gain=args.gain,
+        read_noise=args.read_noise,
+        quantum_efficiency=args.quantum_efficiency,
     )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
