@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.progress import progress_bar
 
 
@@ -59,6 +60,7 @@ def _save_psf_design(args: argparse.Namespace, design, calibration) -> None:
     print(f"wrote {args.design_out}: simulate the PSF with it (sensor {ny} x {nx} px)")
 
 
+@watching("out", "design_out")
 def run_calibrate(args: argparse.Namespace) -> int:
     """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
     from lfm_studio.engine.calibration import calibrate, save_calibration

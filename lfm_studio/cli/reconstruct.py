@@ -27,6 +27,7 @@ import sys
 import torch
 
 from lfm_studio.cli.input_files import require_file
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.method_options import add_method_arguments, method_options
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.cli.raw_frames import (
@@ -154,6 +155,7 @@ def _photons(args: argparse.Namespace, image, raw_calibration=None):
     return photons, floor, calibration
 
 
+@watching("out")  # a video store says more itself (cli/video.py)
 def run_reconstruct(args: argparse.Namespace) -> int:
     """Handler of ``reconstruct``: read, reconstruct every frame, write once; 0 on success."""
     from lfm_studio.engine.io import check_output, write_volume

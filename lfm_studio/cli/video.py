@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
+from lfm_studio.cli.interrupts import on_interrupt
 from lfm_studio.cli.progress import progress_bar
 
 _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
@@ -78,6 +80,20 @@ def _camera(args: argparse.Namespace, source, raw_calibration) -> Any:
     return calibration
 
 
+def _store_kept(out: str, count: int) -> str | None:
+    """What an interrupted video run kept in its store ``out`` of ``count`` frames (None: no store)."""
+    from lfm_studio.engine.batch.store import frame_report
+
+    if not Path(out).expanduser().is_dir():
+        return None
+    report = frame_report(Path(out).expanduser())
+    done = count - len(report.failed) - len(report.missing)
+    return (
+        f"{done} of {count} frames are in {out} (each finished chunk is recorded). "
+        "Fix: run the same command with --resume to compute only the others."
+    )
+
+
 def _refuse_unsupported(args: argparse.Namespace) -> None:
     for name, flag in _NOT_FOR_VIDEO.items():
         if getattr(args, name, None):
@@ -112,7 +128,10 @@ def run_video(args: argparse.Namespace) -> int:
         link = dashboard_link(client)
         if link:
             print(f"lfm-studio reconstruct: Dask dashboard: {link}", file=sys.stderr)
-        with progress_bar(f"{args.method} ({source.count} frames)") as bar:
+        with (
+            progress_bar(f"{args.method} ({source.count} frames)") as bar,
+            on_interrupt(lambda: _store_kept(args.out, source.count)),
+        ):
             result = reconstruct_video(
                 source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
                 overwrite=args.overwrite,

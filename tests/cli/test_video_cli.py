@@ -139,3 +139,26 @@ def test_a_quantum_efficiency_outside_0_1_exits_2_naming_it(files, tmp_path, cap
         "--quantum-efficiency must be a fraction 0 < QE <= 1" in err and repr(value) in err and "Fix" in err
     )
     assert not (tmp_path / "v.tif").exists()
+
+
+def test_ctrl_c_says_how_many_frames_the_store_keeps_and_to_resume(files, tmp_path, capsys, monkeypatch):
+    from lfm_studio.engine.batch import video
+
+    process = video.process_chunk
+    chunks = []
+
+    def interrupted_at_the_second_chunk(task):
+        chunks.append(task)
+        if len(chunks) == 2:
+            raise KeyboardInterrupt  # Ctrl+C while frames 2-3 are reconstructed
+        return process(task)
+
+    monkeypatch.setattr(video, "process_chunk", interrupted_at_the_second_chunk)
+    store = tmp_path / "run.ome.zarr"
+    assert _run(files, store, "--chunk-frames", "2", "--workers", "1") == 130
+    err = capsys.readouterr().err
+    assert f"interrupted; 2 of {FRAMES} frames are in {store}" in err and "no output was written" not in err
+    assert "Fix: run the same command with --resume" in err
+    monkeypatch.setattr(video, "process_chunk", process)
+    assert _run(files, store, "--chunk-frames", "2", "--workers", "1", "--resume") == 0
+    assert "4 computed now, 2 done before" in capsys.readouterr().out
