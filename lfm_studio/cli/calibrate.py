@@ -3,7 +3,7 @@
 Measures the lenslet grid (conventional LFM) or the sub-image centres (Fourier LFM), the
 dark level, defective pixels and the flat field from a radiometry frame, and writes a
 versioned JSON calibration that reconstruction accepts beside a raw frame (with ``--dark``,
-the dark frame is stored next to it as ``<out stem>.dark.npz``). A TIFF stack
+the dark frame is stored next to it as ``<out stem>.dark.<hash>.npz``, named in the JSON). A TIFF stack
 of several exposures is averaged into one frame. ``--design-out`` also writes the design to
 simulate the PSF with for ``reconstruct --calibration`` (conventional:
 :func:`~lfm_studio.engine.calibration.rectified_design`; Fourier:
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.progress import progress_bar
 
 
@@ -59,18 +60,16 @@ def _save_psf_design(args: argparse.Namespace, design, calibration) -> None:
     print(f"wrote {args.design_out}: simulate the PSF with it (sensor {ny} x {nx} px)")
 
 
+@watching("out", "design_out")
 def run_calibrate(args: argparse.Namespace) -> int:
     """Handler of ``calibrate``: 0 on success (errors propagate to ``cli.main``, which prints them)."""
     from lfm_studio.engine.calibration import calibrate, save_calibration
-    from lfm_studio.engine.calibration.calibration_io import dark_frame_path
     from lfm_studio.engine.calibration.frame_files import read_frame
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io.file_checks import check_output
 
     inputs = (args.radiometry, args.dark)
     out = check_output(args.out, overwrite=args.overwrite, inputs=inputs)
-    if args.dark is not None:  # the dark frame is saved beside the calibration
-        check_output(dark_frame_path(out), overwrite=args.overwrite, inputs=inputs, flag="--out (dark frame)")
     if args.design_out is not None:
         check_output(args.design_out, overwrite=args.overwrite, inputs=inputs, flag="--design-out")
     design = resolve_design(args.design, "--design")

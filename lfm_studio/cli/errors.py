@@ -36,7 +36,8 @@ EPILOG = f"""exit status:
        (refused even with --overwrite), or its folder is missing, read-only or full
   {OUT_OF_MEMORY}    not enough memory for the design (checked before allocating)
   {RESULT_REJECTED}    the reconstruction came out all zero, constant or NaN/Inf (not saved)
-  {INTERRUPTED}  interrupted (Ctrl+C); nothing was written
+  {INTERRUPTED}  interrupted (Ctrl+C); the message says what was kept (outputs are whole or
+       untouched, never partial) and how to continue (--resume, --overwrite)
   {BROKEN_PIPE}  the output's reader stopped early (e.g. piped into head); the rest was dropped
   1    an unexpected error (a bug: please report the traceback)
 Every refusal names the problem and a fix; no refusal leaves a partial file."""

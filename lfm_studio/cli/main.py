@@ -17,6 +17,7 @@ from lfm_studio.cli.calibrate import add_calibrate_parser
 from lfm_studio.cli.console import design_notes, leave_quietly_on_broken_pipe
 from lfm_studio.cli.errors import BROKEN_PIPE, EPILOG, INTERRUPTED, exit_code_for
 from lfm_studio.cli.info import add_info_parser
+from lfm_studio.cli.interrupts import interrupt_message
 from lfm_studio.cli.metrics import add_metrics_parser
 from lfm_studio.cli.optimize import add_optimize_parsers
 from lfm_studio.cli.reconstruct import add_reconstruct_parsers
@@ -101,8 +102,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"lfm-studio {args.command}: error: {error_text(error)}", file=sys.stderr)
         return code
-    except KeyboardInterrupt:  # outputs are written atomically: nothing partial is left
-        print(f"lfm-studio {args.command}: interrupted; no output was written.", file=sys.stderr)
+    except (
+        KeyboardInterrupt
+    ) as interrupt:  # outputs are atomic: none is partial; the message says what was kept
+        print(interrupt_message(args.command, interrupt), file=sys.stderr)
         return INTERRUPTED
 
 

@@ -26,8 +26,10 @@ import contextlib
 import sys
 import warnings
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
+from lfm_studio.cli.interrupts import on_interrupt, watching
 from lfm_studio.cli.progress import progress_bar
 
 DEFAULT_STUDY = "sqlite:///lfm_study.db"
@@ -402,7 +404,38 @@ def run_gradient(args: argparse.Namespace) -> int:
     return 0
 
 
+def _study_kept(args: argparse.Namespace) -> str | None:
+    """What an interrupted ``optimize`` kept in its study (finished trials) and how to continue;
+    None when the study holds none (or does not exist: it is not created here)."""
+    from lfm_studio.engine.optimize.study import load_study
+    from lfm_studio.engine.optimize.study_report import summary
+
+    database = _study_file(args.study)
+    if database is not None and not Path(database).expanduser().is_file():
+        return None
+    counts = summary(load_study(args.study, args.study_name))
+    finished = counts.get("complete", 0) + counts.get("infeasible", 0)
+    if not finished:
+        return None
+    how = (
+        "Fix: an end-to-end run is not resumable; run it again with another --study-name."
+        if args.gradient == "end-to-end"
+        else "Fix: run the same command with --resume to continue (no stored candidate is evaluated again)."
+    )
+    return (
+        f"the study {args.study_name!r} in {args.study} keeps its {finished} finished trial(s) "
+        f"('lfm-studio study show' lists them); --out {args.out} was not written. {how}"
+    )
+
+
 def run_optimize(args: argparse.Namespace) -> int:
+    """Handler of ``optimize``; a Ctrl+C says whether --out was written, else what the study kept."""
+    with on_interrupt(lambda: _study_kept(args)):
+        return _run_optimize(args)
+
+
+@watching("out")
+def _run_optimize(args: argparse.Namespace) -> int:
     if args.gradient is not None:
         return run_gradient(args)
     if args.objective is None:

@@ -8,7 +8,7 @@ Order of the corrections (one dark subtraction, never two):
    (:func:`lfm_studio.engine.calibration.rectify_frame`); the result is in ADU above the dark
    level per rectified pixel;
 2. the camera conversion then uses a baseline of 0 (the dark level is already gone), and the
-   gain, quantum efficiency and read noise of ``--gain/--read-noise``, else the image's
+   gain, read noise and quantum efficiency of ``--gain/--read-noise/--quantum-efficiency``, else the image's
    camera metadata, else the calibration's nominal design camera. ``--baseline`` is refused.
 
 With ``--measured`` (a bead z-scan as the PSF) and a Fourier-LFM calibration, the bead frames
@@ -118,6 +118,7 @@ def calibrated_camera(args: argparse.Namespace, metadata: dict[str, Any] | None,
         metadata,
         gain=args.gain,
         read_noise=args.read_noise,
+        quantum_efficiency=args.quantum_efficiency,
         source=f"calibration {args.calibration} (dark subtracted)",
     )
 

@@ -6,7 +6,7 @@ a camera image (``(Y, X)``, or frames ``(T, Y, X)`` reconstructed one by one int
 counts (ADU) are first turned into photons, ``max((ADU - baseline) / gain + c, 0) / QE``
 with the camera's noise floor ``c`` modelled as background
 (:func:`lfm_studio.engine.io.counts_to_photons`), from the image's camera metadata
-(``lfm-studio image`` writes it), from ``--baseline/--gain/--read-noise``, or with a
+(``lfm-studio image`` writes it), from ``--baseline/--gain/--read-noise/--quantum-efficiency``, or with a
 baseline estimated from the darkest pixels and a warning; the volume is then in photons
 per voxel, the unit of ``image --truth``. A volume that comes out all zero, constant or
 NaN/Inf is refused (exit 5) and not written. With ``--calibration`` (from ``lfm-studio
@@ -27,6 +27,7 @@ import sys
 import torch
 
 from lfm_studio.cli.input_files import require_file
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.method_options import add_method_arguments, method_options
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.cli.raw_frames import (
@@ -47,6 +48,20 @@ _READ_FLAGS = {
     "wavelength": "--wavelength-nm",
     "depths": "--depths=START:STOP:STEP (um, one depth per slice)",
 }
+
+
+def _quantum_efficiency(text: str) -> float:
+    """``--quantum-efficiency``: photo-electrons per detected photon, a fraction in (0, 1]."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not 0.0 < value <= 1.0:  # NaN fails too
+        raise argparse.ArgumentTypeError(
+            f"--quantum-efficiency must be a fraction 0 < QE <= 1 (photo-electrons per photon); got {text!r}. "
+            "Fix: give the camera's QE at the emission wavelength, e.g. --quantum-efficiency 0.8 for 80 %."
+        )
+    return value
 
 
 def _depth_list(depths_um: tuple[float, float, float] | None) -> tuple[float, ...] | None:
@@ -127,7 +142,12 @@ def _photons(args: argparse.Namespace, image, raw_calibration=None):
         calibration, notes = calibrated_camera(args, image.metadata, raw_calibration), []
     else:
         calibration, notes = resolve_calibration(
-            image.metadata, image.data, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+            image.metadata,
+            image.data,
+            baseline=args.baseline,
+            gain=args.gain,
+            read_noise=args.read_noise,
+            quantum_efficiency=args.quantum_efficiency,
         )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
@@ -135,6 +155,7 @@ def _photons(args: argparse.Namespace, image, raw_calibration=None):
     return photons, floor, calibration
 
 
+@watching("out")  # a video store says more itself (cli/video.py)
 def run_reconstruct(args: argparse.Namespace) -> int:
     """Handler of ``reconstruct``: read, reconstruct every frame, write once; 0 on success."""
     from lfm_studio.engine.io import check_output, write_volume
@@ -268,6 +289,14 @@ def add_reconstruct_parsers(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="conversion gain in ADU per photo-electron (default: the image's metadata, else 1 with a "
         "warning: the volume is then in ADU above the baseline)",
+    )
+    camera.add_argument(
+        "--quantum-efficiency",
+        type=_quantum_efficiency,
+        default=None,
+        metavar="QE",
+        help="photo-electrons per photon, 0 < QE <= 1 (default: the image's metadata, else 1: with "
+        "--gain and no metadata the volume then counts photo-electrons, low by 1/QE in photons)",
     )
     camera.add_argument(
         "--read-noise",

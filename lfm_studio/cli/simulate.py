@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from lfm_studio.cli.input_files import require_file
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.progress import progress_bar
 from lfm_studio.engine.errors import require_device
 
@@ -67,6 +68,7 @@ def _design_file(design: str) -> str | None:
     return design if Path(design).expanduser().is_file() else None
 
 
+@watching("out")
 def run_simulate(args: argparse.Namespace) -> int:
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io import check_output, write_psf_stack
@@ -126,6 +128,7 @@ def _check_image_inputs(args: argparse.Namespace) -> None:
         )
 
 
+@watching("out", "truth", "expected")
 def run_image(args: argparse.Namespace) -> int:
     from lfm_studio.engine.design import resolve_design
     from lfm_studio.engine.io import camera_metadata, read_psf_stack, read_volume, write_image, write_volume

@@ -12,6 +12,7 @@ import argparse
 import json
 
 from lfm_studio.cli.input_files import require_file
+from lfm_studio.cli.interrupts import watching
 from lfm_studio.cli.progress import progress_bar
 
 
@@ -53,6 +54,7 @@ def _model_config(text: str) -> dict[str, object]:
     return value
 
 
+@watching("out", complete="it holds the best model so far. Fix: continue training with --resume.")
 def run_train(args: argparse.Namespace) -> int:
     from lfm_studio.cli.simulate import _design_file
     from lfm_studio.engine.design import resolve_design

@@ -7,7 +7,7 @@ one-thread processes (a LocalCluster; 1: in this process) or by the cluster at
 ``--scheduler tcp://host:8786``; each finished chunk is recorded in the store, so ``--resume``
 (after a crash, Ctrl+C or failed frames) computes only the missing frames and those that failed.
 Camera counts become photons per frame as in the TIFF path (metadata or
-``--baseline/--gain/--read-noise``); raw frames with ``--calibration calib.json`` (and
+``--baseline/--gain/--read-noise/--quantum-efficiency``); raw frames with ``--calibration calib.json`` (and
 ``--lenslets``) are corrected and rectified frame by frame first, as in the TIFF path
 (:mod:`lfm_studio.cli.raw_frames`). Needs the ``scale`` extra (``pip install "lfm-studio[scale]"``).
 """
@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 from typing import Any
 
+from lfm_studio.cli.interrupts import on_interrupt
 from lfm_studio.cli.progress import progress_bar
 
 _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
@@ -67,11 +69,29 @@ def _camera(args: argparse.Namespace, source, raw_calibration) -> Any:
     if raw_calibration is not None:
         return calibrated_camera(args, tiff_metadata(source.path), raw_calibration)
     calibration, notes = video_camera(
-        source, baseline=args.baseline, gain=args.gain, read_noise=args.read_noise
+        source,
+        baseline=args.baseline,
+        gain=args.gain,
+        read_noise=args.read_noise,
+        quantum_efficiency=args.quantum_efficiency,
     )
     for note in notes:
         print(f"lfm-studio reconstruct: warning: {args.image}: {note}", file=sys.stderr)
     return calibration
+
+
+def _store_kept(out: str, count: int) -> str | None:
+    """What an interrupted video run kept in its store ``out`` of ``count`` frames (None: no store)."""
+    from lfm_studio.engine.batch.store import frame_report
+
+    if not Path(out).expanduser().is_dir():
+        return None
+    report = frame_report(Path(out).expanduser())
+    done = count - len(report.failed) - len(report.missing)
+    return (
+        f"{done} of {count} frames are in {out} (each finished chunk is recorded). "
+        "Fix: run the same command with --resume to compute only the others."
+    )
 
 
 def _refuse_unsupported(args: argparse.Namespace) -> None:
@@ -108,7 +128,10 @@ def run_video(args: argparse.Namespace) -> int:
         link = dashboard_link(client)
         if link:
             print(f"lfm-studio reconstruct: Dask dashboard: {link}", file=sys.stderr)
-        with progress_bar(f"{args.method} ({source.count} frames)") as bar:
+        with (
+            progress_bar(f"{args.method} ({source.count} frames)") as bar,
+            on_interrupt(lambda: _store_kept(args.out, source.count)),
+        ):
             result = reconstruct_video(
                 source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
                 overwrite=args.overwrite,

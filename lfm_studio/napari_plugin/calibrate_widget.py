@@ -39,7 +39,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.calibration import Calibration, calibrate, save_calibration
-from lfm_studio.engine.calibration.calibration_io import dark_frame_path
+from lfm_studio.engine.calibration.calibration_io import calibration_files
 from lfm_studio.engine.design import Design
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.calibration_reader import overlay_layer_data
@@ -214,7 +214,7 @@ class CalibrateWidget(QWidget):
         )
         if not path:
             return
-        existing = [p for p in (Path(path), dark_frame_path(path)) if p.exists()]
+        existing = calibration_files(path)  # the JSON and the dark frame it names
         overwrite = False
         if existing:
             names = ", ".join(p.name for p in existing)

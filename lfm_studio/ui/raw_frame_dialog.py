@@ -2,7 +2,9 @@
 
 The dialog asks for the raw camera TIFF and either a calibration file (``lfm-studio
 calibrate``) or a radiometry frame (plus an optional dark frame, and an optional file to save
-the new calibration to) to calibrate against the current design; "Use the calibration's
+the new calibration to, written only once the frame is in the studio; an existing file is
+replaced only after the user agreed, in the file chooser or in a question on OK) to calibrate
+against the current design; "Use the calibration's
 design" (on by default) offers the design fitted to the calibration: the rectified design of a
 conventional LFM, the fitted design of a Fourier LFM, whose PSF images the rectified frame.
 
@@ -16,6 +18,8 @@ image goes: "Reconstruct" then reconstructs the raw frame (no ground truth to sc
 
 from __future__ import annotations
 
+import dataclasses
+from pathlib import Path
 from typing import Any
 
 from qtpy.QtCore import QObject
@@ -31,9 +35,16 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from lfm_studio.engine.calibration.calibration_io import calibration_files
 from lfm_studio.ui.failure_notices import show_failure
 from lfm_studio.ui.path_form import PathFormDialog, path_of, start_folder
-from lfm_studio.ui.raw_frames import RawFrame, RawFrameRequest, load_raw_frame, raw_image_result
+from lfm_studio.ui.raw_frames import (
+    RawFrame,
+    RawFrameRequest,
+    load_raw_frame,
+    raw_image_result,
+    save_made_calibration,
+)
 from lfm_studio.ui.state import StudioState
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 
@@ -57,6 +68,7 @@ class RawFrameDialog(PathFormDialog):
         self.dark_edit.setPlaceholderText("optional: same exposure, light blocked")
         self.save_edit = QLineEdit(self)
         self.save_edit.setPlaceholderText("optional: keep the calibration for next time")
+        self.agreed_to_replace: Path | None = None  # the save file the file chooser asked about
         self.use_fitted = QCheckBox("Use the calibration's design (its PSF images the rectified frame)", self)
         self.use_fitted.setChecked(True)
         form = QFormLayout()
@@ -77,6 +89,7 @@ class RawFrameDialog(PathFormDialog):
     def _browse(self, edit: QLineEdit, title: str, filter_: str | None) -> None:
         if filter_ is None:  # the calibration to write: the dialog asks before replacing a file
             path, _ = QFileDialog.getSaveFileName(self, title, self.folder, CALIBRATION_FILTER)
+            self.agreed_to_replace = Path(path).expanduser() if path else None
         else:
             path, _ = QFileDialog.getOpenFileName(self, title, self.folder, filter_)
         self.chosen(edit, path)
@@ -112,13 +125,33 @@ class RawFrameDialog(PathFormDialog):
             raise ValueError("Raw camera frame: choose a file.")
         if self.use_file.isChecked():
             return RawFrameRequest(raw=raw, design=design, calibration=path_of(self.calibration_edit))
+        save = path_of(self.save_edit)
         return RawFrameRequest(
             raw=raw,
             design=design,
             radiometry=path_of(self.radiometry_edit),
             dark=path_of(self.dark_edit),
-            save_calibration=path_of(self.save_edit),
+            save_calibration=save,
+            overwrite_calibration=save is not None and save == self.agreed_to_replace,
         )
+
+
+def agreed_request(parent: QWidget, request: RawFrameRequest) -> RawFrameRequest | None:
+    """``request``, marked as agreed to replace its existing calibration file once the user said
+    Yes; None when the user said No (nothing is loaded). Unchanged when there is nothing to ask."""
+    save = request.save_calibration
+    existing = [] if save is None or request.overwrite_calibration else calibration_files(save)
+    if not existing:
+        return request
+    names = ", ".join(path.name for path in existing)
+    answer = QMessageBox.question(
+        parent,
+        "Replace calibration?",
+        f"{names} already exists. Replace it with the new calibration once the raw frame is open?",
+    )
+    if answer != QMessageBox.StandardButton.Yes:
+        return None
+    return dataclasses.replace(request, overwrite_calibration=True)
 
 
 class RawFrameActions(QObject):
@@ -149,7 +182,10 @@ class RawFrameActions(QObject):
         finally:
             self.dialog.deleteLater()
             self.dialog = None
-        self.load(request, use_fitted=use_fitted)
+        agreed = agreed_request(self.window, request)
+        if agreed is None:
+            return False
+        self.load(agreed, use_fitted=use_fitted)
         return True
 
     def load(self, request: RawFrameRequest, *, use_fitted: bool = True) -> None:
@@ -194,6 +230,18 @@ class RawFrameActions(QObject):
         self.state.set_image(image)
         self.state.mark_fresh("image")
         self.state.mark_stale("reconstruction")
+        self._save_calibration(frame)
+
+    def _save_calibration(self, frame: RawFrame) -> None:
+        """Save the calibration the load made, now that the frame is in the studio."""
+        try:
+            save_made_calibration(frame)
+        except (OSError, ValueError) as error:
+            self.last_failure = show_failure(
+                self.window,
+                "Calibration not saved",
+                f"the raw frame is open, but its calibration was not saved: {error}",
+            )
 
     def _on_failed(self, outcome: JobOutcome) -> None:
         error = outcome.error

@@ -3,11 +3,12 @@
 :func:`load_raw_frame` runs on a worker thread (:mod:`lfm_studio.widgets.jobs`): it reads the raw
 TIFF, loads the calibration file or makes a calibration from a radiometry (and dark) frame
 against the studio's design (``lfm_studio.engine.calibration``, with progress and cancel),
-optionally saves it, corrects and rectifies the frame, converts it to photons (baseline 0:
-the calibration subtracted the dark frame) and names the design whose PSF images it: the
-rectified design of a conventional LFM, the fitted design of a Fourier LFM. Nothing in the
-studio changes until the result is installed by :func:`raw_image_result` on the GUI thread,
-so a cancelled or failed load leaves the previous state as it was.
+corrects and rectifies the frame, converts it to photons (baseline 0: the calibration
+subtracted the dark frame) and names the design whose PSF images it: the rectified design of
+a conventional LFM, the fitted design of a Fourier LFM. Nothing in the studio changes until
+the result is installed by :func:`raw_image_result` on the GUI thread, and a calibration made
+here is saved (:func:`save_made_calibration`) only after that, so a cancelled or failed load
+leaves the previous state, and the file it would have replaced, as they were.
 """
 
 from __future__ import annotations
@@ -33,7 +34,9 @@ class RawFrameRequest:
     raw : the raw camera TIFF (one frame).
     calibration : a calibration file (``lfm-studio calibrate``), or None to make one from
         ``radiometry`` (and ``dark``) against ``design``.
-    save_calibration : where to save a calibration made here (None: not saved).
+    save_calibration : where to save a calibration made here (None: not saved), once the
+        frame is in the studio (:func:`save_made_calibration`).
+    overwrite_calibration : the user agreed to replace an existing ``save_calibration`` file.
     design : the studio's design (the nominal optics a calibration is made against).
     """
 
@@ -43,6 +46,7 @@ class RawFrameRequest:
     radiometry: Path | None = None
     dark: Path | None = None
     save_calibration: Path | None = None
+    overwrite_calibration: bool = False
 
     def __post_init__(self) -> None:
         for name in ("raw", "calibration", "radiometry", "dark", "save_calibration"):
@@ -98,7 +102,7 @@ def _raw(path: Path, pixel_size: float):
 
 
 def _calibration(ctx: Any, request: RawFrameRequest):
-    from lfm_studio.engine.calibration import calibrate, load_calibration, save_calibration
+    from lfm_studio.engine.calibration import calibrate, load_calibration
     from lfm_studio.engine.calibration.frame_files import read_frame
 
     if request.calibration is not None:
@@ -112,10 +116,25 @@ def _calibration(ctx: Any, request: RawFrameRequest):
     def progress(done: int, total: int, message: str = "") -> None:
         ctx.progress(1, _STEPS, f"calibration: {message} ({done}/{total})")
 
-    calibration = calibrate(radiometry, request.design, dark=dark, progress=progress, cancel=ctx.cancel)
-    if request.save_calibration is not None:
-        save_calibration(calibration, request.save_calibration, overwrite=True)  # the dialog asked
-    return calibration
+    return calibrate(radiometry, request.design, dark=dark, progress=progress, cancel=ctx.cancel)
+
+
+def save_made_calibration(frame: RawFrame) -> Path | None:
+    """Save the calibration made by the load of ``frame`` where its request asks; returns the path.
+
+    Called once the frame is in the studio (never from the job: a cancelled or failed load
+    must not replace a file). None when nothing is to be saved (no path, or a calibration
+    read from a file). Raises ``FileExistsError`` when the file exists and the user did not
+    agree to replace it (``overwrite_calibration``), ``OSError`` when it cannot be written.
+    """
+    from lfm_studio.engine.calibration import save_calibration
+
+    request = frame.request
+    if request.save_calibration is None or request.calibration is not None:
+        return None
+    return save_calibration(
+        frame.calibration, request.save_calibration, overwrite=request.overwrite_calibration
+    )
 
 
 def load_raw_frame(ctx: Any, request: RawFrameRequest) -> RawFrame:

@@ -61,7 +61,7 @@ def test_calibrate_writes_a_calibration_close_to_the_truth(files, tmp_path, caps
     printed = capsys.readouterr().out
     assert "lenslet pitch 15.3" in printed and f"wrote {out}" in printed
     calibration = load_calibration(out)
-    assert (tmp_path / "calib.dark.npz").is_file()  # the dark frame, beside the calibration
+    assert len(list(tmp_path.glob("calib.dark.*.npz"))) == 1  # the dark frame, beside the calibration
     assert calibration.dark_frame.shape == SHAPE
     lattice = calibration.grid.lattice
     assert lattice.pitch == pytest.approx(files["truth"].pitch, abs=0.01)
@@ -144,3 +144,32 @@ def test_a_frame_that_does_not_fit_a_fourier_design_is_refused(files, tmp_path, 
     assert "lfm-studio calibrate: error: the radiometry frame is 256 x 288 px, but" in err, err
     assert "27 sub-images" in err and "Fix: " in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_ctrl_c_says_which_outputs_were_written(files, tmp_path, capsys, monkeypatch):
+    from lfm_studio.cli import calibrate as calibrate_cli
+    from lfm_studio.engine import calibration
+
+    out, design_out = tmp_path / "calib.json", tmp_path / "rectified.json"
+
+    def interrupt(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as patch:  # during the calibration: nothing written, and it says so
+        patch.setattr(calibration, "calibrate", interrupt)
+        assert _calibrate(files, out, "--design-out", str(design_out)) == 130
+    assert "interrupted; no output was written." in capsys.readouterr().err and not out.exists()
+    with monkeypatch.context() as patch:  # between the calibration and --design-out
+        patch.setattr(calibrate_cli, "_save_psf_design", interrupt)
+        assert _calibrate(files, out, "--design-out", str(design_out)) == 130
+    err = capsys.readouterr().err
+    assert f"interrupted; {out} had been written before it, not {design_out}." in err
+    assert "Fix: run the same command again with --overwrite" in err and "no output was written" not in err
+    assert load_calibration(out).grid is not None and not design_out.exists()
+    with monkeypatch.context() as patch:  # after both were written (while the summary is printed)
+        patch.setattr(calibrate_cli, "print", interrupt, raising=False)
+        assert _calibrate(files, out, "--design-out", str(design_out), "--overwrite") == 130
+    err = capsys.readouterr().err
+    assert (
+        f"{out}, {design_out} had been written completely before it; nothing else was to be written." in err
+    )

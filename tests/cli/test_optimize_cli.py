@@ -212,3 +212,29 @@ def test_a_crop_without_views_warns_and_the_default_crop_adapts(tmp_path, capsys
     assert run("tails", "--resume", "--overwrite") == 0
     captured = capsys.readouterr()
     assert "PSF crop" not in captured.out and "--crop 256: the 256 px crop holds 0" in captured.err
+
+
+def test_ctrl_c_says_what_the_study_kept_and_how_to_continue(tmp_path, space, capsys, monkeypatch):
+    from lfm_studio.engine.optimize import Evaluator
+
+    score = Evaluator.__call__
+    calls = []
+
+    def interrupted_at_the_third(self, params):
+        calls.append(params)
+        if len(calls) == 3:
+            raise KeyboardInterrupt  # Ctrl+C while the third candidate is evaluated
+        return score(self, params)
+
+    monkeypatch.setattr(Evaluator, "__call__", interrupted_at_the_third)
+    assert _run(tmp_path, space) == 130
+    err = capsys.readouterr().err
+    assert "no output was written" not in err
+    assert "keeps its 2 finished trial(s)" in err and f"--out {tmp_path / 'best.json'} was not written" in err
+    assert "Fix: run the same command with --resume" in err
+    assert main(["study", "show", str(tmp_path / "study.db")]) == 0
+    shown = capsys.readouterr().out
+    assert "running" not in shown.lower() and "interrupted" in shown  # the killed trial is closed
+    monkeypatch.setattr(Evaluator, "__call__", score)
+    assert _run(tmp_path, space, "--resume") == 0
+    assert "complete 3, interrupted 1, infeasible 1" in capsys.readouterr().out

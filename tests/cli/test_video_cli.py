@@ -115,3 +115,50 @@ def test_bad_video_options_exit_2_naming_them(files, tmp_path, capsys, extra, na
     assert _run(files, tmp_path / "run.ome.zarr", *extra) == 2
     assert named in capsys.readouterr().err
     assert not (tmp_path / "run.ome.zarr").exists()
+
+
+def test_quantum_efficiency_scales_the_photons_in_the_tiff_and_video_paths(files, tmp_path, capsys):
+    plain, halved = tmp_path / "plain.tif", tmp_path / "qe.tif"
+    assert _run(files, plain) == 0 and _run(files, halved, "--quantum-efficiency", "0.5") == 0
+    volume, with_qe = read_volume(plain).data.numpy(), read_volume(halved).data.numpy()
+    # photons = electrons / QE, and the noise floor (the background) likewise: the volume doubles.
+    np.testing.assert_allclose(with_qe, 2 * volume, rtol=1e-4, atol=1e-4 * float(np.abs(volume).max()))
+    store = tmp_path / "qe.ome.zarr"
+    assert _run(files, store, "--quantum-efficiency", "0.5", "--workers", "1") == 0
+    video = zarr.open_group(str(store), mode="r")["0"][:]
+    np.testing.assert_allclose(video, with_qe, rtol=1e-5, atol=1e-5 * float(np.abs(with_qe).max()))
+
+
+@pytest.mark.parametrize("value", ["0", "1.5", "80", "nan", "high"])
+def test_a_quantum_efficiency_outside_0_1_exits_2_naming_it(files, tmp_path, capsys, value):
+    with pytest.raises(SystemExit) as exit_:
+        _run(files, tmp_path / "v.tif", "--quantum-efficiency", value)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert (
+        "--quantum-efficiency must be a fraction 0 < QE <= 1" in err and repr(value) in err and "Fix" in err
+    )
+    assert not (tmp_path / "v.tif").exists()
+
+
+def test_ctrl_c_says_how_many_frames_the_store_keeps_and_to_resume(files, tmp_path, capsys, monkeypatch):
+    from lfm_studio.engine.batch import video
+
+    process = video.process_chunk
+    chunks = []
+
+    def interrupted_at_the_second_chunk(task):
+        chunks.append(task)
+        if len(chunks) == 2:
+            raise KeyboardInterrupt  # Ctrl+C while frames 2-3 are reconstructed
+        return process(task)
+
+    monkeypatch.setattr(video, "process_chunk", interrupted_at_the_second_chunk)
+    store = tmp_path / "run.ome.zarr"
+    assert _run(files, store, "--chunk-frames", "2", "--workers", "1") == 130
+    err = capsys.readouterr().err
+    assert f"interrupted; 2 of {FRAMES} frames are in {store}" in err and "no output was written" not in err
+    assert "Fix: run the same command with --resume" in err
+    monkeypatch.setattr(video, "process_chunk", process)
+    assert _run(files, store, "--chunk-frames", "2", "--workers", "1", "--resume") == 0
+    assert "4 computed now, 2 done before" in capsys.readouterr().out

@@ -17,7 +17,7 @@ import torch
 from qtpy.QtWidgets import QFileDialog, QMessageBox
 
 from lfm_studio.engine.calibration import LensletLattice, load_calibration
-from lfm_studio.engine.calibration.calibration_io import dark_frame_path
+from lfm_studio.engine.calibration.calibration_io import calibration_files
 from lfm_studio.engine.calibration.synthetic import conventional_design_for, synthetic_frames
 from tests.napari.conftest import PLUGIN
 
@@ -171,4 +171,4 @@ def test_save_writes_a_calibration_that_loads_and_fills_the_reconstruct_widget(
     monkeypatch.setattr(QMessageBox, "question", lambda *a, **k: QMessageBox.StandardButton.Yes)
     widget.save_button.click()
     assert load_calibration(path).grid.lattice == widget.calibration.grid.lattice
-    assert dark_frame_path(path).exists()
+    assert [p.suffix for p in calibration_files(path)] == [".json", ".npz"]  # and its dark frame

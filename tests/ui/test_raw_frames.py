@@ -9,12 +9,14 @@ reconstructs it without a ground truth (no scores), close to the true volume.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 
 import numpy as np
 import pytest
 import tifffile
 import torch
+from qtpy.QtWidgets import QFileDialog
 
 from lfm_studio.engine.calibration import load_calibration
 from lfm_studio.engine.calibration.synthetic_fourier_scene import misaligned_fourier_scene
@@ -22,7 +24,7 @@ from lfm_studio.engine.image_quality import ncc
 from lfm_studio.engine.simulation import simulate_psf
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.raw_frame_dialog import RawFrameDialog
-from lfm_studio.ui.raw_frames import RawFrameRequest, load_raw_frame, raw_image_result
+from lfm_studio.ui.raw_frames import RawFrameRequest, load_raw_frame, raw_image_result, save_made_calibration
 from lfm_studio.ui.results import WorkflowSettings
 
 
@@ -70,6 +72,8 @@ def test_a_fourier_raw_frame_is_calibrated_and_reconstructed_without_ground_trut
     )  # fmt: skip
     frame = load_raw_frame(ctx, request)
     assert any("calibration: sub-image centres" in m for m in ctx.messages)  # the engine's own steps
+    assert not (folder / "calib.json").exists()  # saved only once the frame is in the studio
+    assert save_made_calibration(frame) == folder / "calib.json"
     assert load_calibration(folder / "calib.json").kind == "fourier"  # saved, as asked
     assert frame.psf_design.name.endswith("(calibrated)") and frame.info["photons"] is None
     assert tuple(frame.photons.shape) == tuple(truth_scene.raw.shape)  # a Fourier frame is not resampled
@@ -95,6 +99,96 @@ def test_a_cancelled_load_stops(scene):
 
     with pytest.raises(CancelledError):
         load_raw_frame(ctx, request)
+
+
+class CancelWhenRectifying(Ctx):
+    """Cancel (the status bar's button) once the calibration is made, while the frame is rectified."""
+
+    def progress(self, done: int, total: int, message: str = "") -> None:
+        super().progress(done, total, message)
+        if "rectifying" in message:
+            self.cancel.set()
+
+
+def test_a_load_cancelled_or_failing_after_the_calibration_leaves_the_saved_file(
+    scene, tmp_path, monkeypatch
+):
+    from lfm_studio.engine import calibration
+    from lfm_studio.engine.progress import CancelledError
+
+    truth_scene, paths, _ = scene
+    saved = tmp_path / "calib.json"
+    saved.write_text("the previous calibration")
+    request = RawFrameRequest(
+        raw=paths["raw"], design=truth_scene.nominal, radiometry=paths["radiometry"], dark=paths["dark"],
+        save_calibration=saved, overwrite_calibration=True,
+    )  # fmt: skip
+    ctx = CancelWhenRectifying()
+    with pytest.raises(CancelledError):
+        load_raw_frame(ctx, request)
+    assert any("calibration: " in m for m in ctx.messages)  # the calibration was made, then cancelled
+    assert saved.read_text() == "the previous calibration" and sorted(tmp_path.iterdir()) == [saved]
+
+    def broken(frame, calibration):
+        raise ValueError("rectification failed")
+
+    monkeypatch.setattr(calibration, "rectify_frame", broken)
+    with pytest.raises(ValueError, match="rectification failed"):
+        load_raw_frame(Ctx(), request)
+    assert saved.read_text() == "the previous calibration" and sorted(tmp_path.iterdir()) == [saved]
+
+
+def test_an_existing_calibration_file_is_replaced_only_when_the_user_agreed(
+    qtbot, scene, tmp_path, monkeypatch
+):
+    from qtpy.QtWidgets import QMessageBox
+
+    from lfm_studio.ui.raw_frame_dialog import agreed_request
+
+    truth_scene, paths, _ = scene
+    saved = tmp_path / "calib.json"
+    request = RawFrameRequest(
+        raw=paths["raw"], design=truth_scene.nominal, radiometry=paths["radiometry"], save_calibration=saved
+    )
+    asked: list[str] = []
+
+    def answer(button):
+        def question(parent, title, text, *args, **kwargs):
+            asked.append(text)
+            return button
+
+        return question
+
+    assert agreed_request(None, request) is request and asked == []  # nothing to replace: no question
+    saved.write_text("the previous calibration")
+    monkeypatch.setattr(QMessageBox, "question", answer(QMessageBox.StandardButton.No))
+    assert agreed_request(None, request) is None  # No: nothing is loaded
+    assert asked == [
+        "calib.json already exists. Replace it with the new calibration once the raw frame is open?"
+    ]
+    frame = load_raw_frame(Ctx(), request)
+    with pytest.raises(FileExistsError, match=r"calib\.json already exists"):
+        save_made_calibration(frame)  # never replaced without the user's agreement
+    assert saved.read_text() == "the previous calibration"
+    monkeypatch.setattr(QMessageBox, "question", answer(QMessageBox.StandardButton.Yes))
+    agreed = agreed_request(None, request)
+    assert agreed.overwrite_calibration
+    save_made_calibration(dataclasses.replace(frame, request=agreed))
+    assert load_calibration(saved).kind == "fourier"
+    # The file chooser asked already (Qt's own question): no second question.
+    dialog = RawFrameDialog()
+    qtbot.addWidget(dialog)
+    monkeypatch.setattr(QFileDialog, "getSaveFileName", lambda *a, **k: (str(saved), ""))
+    dialog.raw_edit.setText(paths["raw"])
+    dialog.make_new.setChecked(True)
+    dialog.radiometry_edit.setText(paths["radiometry"])
+    dialog._browse(dialog.save_edit, "Save calibration as", None)
+    asked.clear()
+    assert agreed_request(None, dialog.request(truth_scene.nominal)).overwrite_calibration and asked == []
+    typed = tmp_path / "other.json"
+    typed.write_text("another calibration")
+    dialog.save_edit.setText(str(typed))  # typed over the chosen name: asked
+    assert agreed_request(None, dialog.request(truth_scene.nominal)).overwrite_calibration and len(asked) == 1
 
 
 def test_requests_and_the_dialog_name_what_is_missing(qtbot, scene, tmp_path):

@@ -39,18 +39,27 @@ def video_camera(
     baseline: float | None = None,
     gain: float | None = None,
     read_noise: float | None = None,
+    quantum_efficiency: float | None = None,
     fallback: CameraCalibration | None = None,
 ) -> tuple[CameraCalibration, list[str]]:
     """The camera calibration of ``source``'s frames and the notes on what was assumed.
 
-    ``baseline``/``gain``/``read_noise`` (ADU, ADU per electron, electrons rms) win over the
-    file's metadata; without them and without metadata, ``fallback`` is used when given (noted),
-    else the baseline is estimated from the first frame (:func:`resolve_calibration`).
+    ``baseline``/``gain``/``read_noise``/``quantum_efficiency`` (ADU, ADU per electron,
+    electrons rms, photo-electrons per photon) win over the file's metadata; without them and
+    without metadata, ``fallback`` is used when given (noted), else the baseline is estimated
+    from the first frame (:func:`resolve_calibration`).
     """
     metadata = tiff_metadata(source.path)
-    given = baseline is not None or gain is not None or read_noise is not None
+    given = any(value is not None for value in (baseline, gain, read_noise, quantum_efficiency))
     if fallback is not None and not given and calibration_from_metadata(metadata) is None:
         note = f"{Path(source.path).name} carries no camera metadata; converted with {fallback.source}."
         return fallback, [note]
     first = torch.from_numpy(source.read(0, 1)[0].astype("float64"))
-    return resolve_calibration(metadata, first, baseline=baseline, gain=gain, read_noise=read_noise)
+    return resolve_calibration(
+        metadata,
+        first,
+        baseline=baseline,
+        gain=gain,
+        read_noise=read_noise,
+        quantum_efficiency=quantum_efficiency,
+    )

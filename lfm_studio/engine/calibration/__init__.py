@@ -20,6 +20,7 @@ Example::
 
 from lfm_studio.engine.calibration.calibration_io import (
     CalibrationFileError,
+    calibration_files,
     calibration_from_dict,
     calibration_to_dict,
     load_calibration,
@@ -52,6 +53,7 @@ __all__ = [
     "NoGridError",
     "SubImageFit",
     "calibrate",
+    "calibration_files",
     "calibration_from_dict",
     "calibration_to_dict",
     "correct_frame",

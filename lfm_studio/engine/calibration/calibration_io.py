@@ -4,10 +4,16 @@ A UTF-8 JSON file (``calib.json``): the format tag and version, a summary a pers
 first, the fitted lattice or sub-image registration, the per-lenslet table (indices,
 measured centres, residuals, light, outlier flags), the flat-field envelope (or the per-sub-image gains of a Fourier LFM), the defective
 pixels, and the nominal design. Positions are stored to 1e-6 px. When a dark frame was
-given, it is stored beside the JSON as ``calib.dark.npz`` (float32, compressed), named in
-the JSON with its SHA-256 so that a missing or different file is caught on loading. Both
-files are written atomically (the dark frame first); nothing is replaced unless
-``overwrite=True``.
+given, it is stored beside the JSON as ``calib.dark.<16 hex digits>.npz`` (float32,
+compressed; the digits begin its SHA-256), named in the JSON with its SHA-256 so that a
+missing or different file is caught on loading. Files written before this naming used
+``calib.dark.npz``; they load as before.
+
+Replacing a calibration (``overwrite=True``) is safe at every instant: the new dark frame
+goes to its own, content-addressed file, the JSON (which names it) replaces the old JSON
+atomically last, and only then is the old dark frame removed. An interrupt at any point
+leaves the old calibration or the new one loadable, never neither (at worst an unused
+``.npz`` stays behind).
 """
 
 from __future__ import annotations
@@ -169,10 +175,41 @@ def calibration_from_dict(
         ) from exc
 
 
-def dark_frame_path(path: str | os.PathLike[str]) -> Path:
-    """Where the dark frame of the calibration file ``path`` lives: ``calib.json`` -> ``calib.dark.npz``."""
+_HASH_DIGITS = 16
+
+
+def dark_frame_name(path: str | os.PathLike[str], sha256: str) -> str:
+    """File name of the dark frame with SHA-256 ``sha256`` for the calibration ``path``.
+
+    ``calib.json`` -> ``calib.dark.<first 16 hex digits>.npz``: a new dark frame never
+    overwrites the one the existing JSON names.
+    """
+    return f"{Path(path).stem}.dark.{sha256[:_HASH_DIGITS]}.npz"
+
+
+def _recorded_dark(target: Path) -> Path | None:
+    """The dark-frame file the existing calibration ``target`` names, or None (no file,
+    unreadable, no dark frame, or a name outside ``target``'s folder)."""
+    try:
+        entry = json.loads(target.read_text(encoding="utf-8")).get("dark_frame")
+        name = str(entry["file"])
+    except (OSError, UnicodeDecodeError, ValueError, AttributeError, TypeError, KeyError):
+        return None
+    if Path(name).name != name or not name.startswith(f"{target.stem}.dark") or not name.endswith(".npz"):
+        return None  # never touch a file this calibration does not own
+    return target.with_name(name)
+
+
+def calibration_files(path: str | os.PathLike[str]) -> list[Path]:
+    """The existing files of the calibration ``path``: the JSON and the dark frame it names.
+
+    Empty when ``path`` does not exist; what to name before asking to replace a calibration.
+    """
     target = Path(path).expanduser()
-    return target.with_name(f"{target.stem}.dark.npz")
+    if not target.exists():
+        return []
+    dark = _recorded_dark(target)
+    return [target] + ([dark] if dark is not None and dark.exists() else [])
 
 
 def _npz_bytes(frame: torch.Tensor) -> bytes:
@@ -181,30 +218,41 @@ def _npz_bytes(frame: torch.Tensor) -> bytes:
     return buffer.getvalue()
 
 
+def _write_dark(target: Path, payload: bytes) -> dict[str, str]:
+    """Write the dark frame ``payload`` (npz bytes) beside ``target`` under its content-addressed
+    name; returns the JSON's ``dark_frame`` entry. A file of that name holds the same bytes
+    (same SHA-256), so replacing it is harmless."""
+    digest = hashlib.sha256(payload).hexdigest()
+    sidecar = target.with_name(dark_frame_name(target, digest))
+    atomic_write(sidecar, lambda fh: fh.write(payload), overwrite=True)
+    return {"file": sidecar.name, "sha256": digest}
+
+
 def save_calibration(
     calibration: Calibration, path: str | os.PathLike[str], *, overwrite: bool = False
 ) -> Path:
     """Write ``calibration`` to ``path`` (JSON, plus the dark frame beside it) atomically.
 
-    Raises ``FileExistsError`` before writing anything when ``path`` (or its dark-frame
-    file) exists and ``overwrite`` is False.
+    Raises ``FileExistsError`` before writing anything when ``path`` exists and
+    ``overwrite`` is False. With ``overwrite``, the old calibration stays loadable until
+    the new JSON replaces it (module docstring); its dark frame is removed afterwards.
     """
     target = Path(path).expanduser()
+    if target.exists() and not overwrite:
+        raise FileExistsError(
+            errno.EEXIST,
+            f"{target} already exists. Fix: pass overwrite=True (--overwrite) or choose another name",
+            str(target),
+        )
     doc = calibration_to_dict(calibration)
-    payload = None if calibration.dark_frame is None else _npz_bytes(calibration.dark_frame)
-    sidecar = dark_frame_path(target)
-    for existing in (target, sidecar) if payload is not None else (target,):
-        if existing.exists() and not overwrite:
-            raise FileExistsError(
-                errno.EEXIST,
-                f"{existing} already exists. Fix: pass overwrite=True (--overwrite) or choose another name",
-                str(existing),
-            )
-    if payload is not None:
-        doc["dark_frame"] = {"file": sidecar.name, "sha256": hashlib.sha256(payload).hexdigest()}
-        atomic_write(sidecar, lambda fh: fh.write(payload), overwrite=overwrite)
+    old_dark = _recorded_dark(target)
+    if calibration.dark_frame is not None:
+        doc["dark_frame"] = _write_dark(target, _npz_bytes(calibration.dark_frame))
     text = json.dumps(doc, indent=1) + "\n"
-    return atomic_write(target, lambda fh: fh.write(text.encode("utf-8")), overwrite=overwrite)
+    atomic_write(target, lambda fh: fh.write(text.encode("utf-8")), overwrite=overwrite)
+    if old_dark is not None and old_dark.name != doc.get("dark_frame", {}).get("file"):
+        old_dark.unlink(missing_ok=True)  # the new JSON no longer names it
+    return target
 
 
 def _load_dark(entry: Any, folder: Path, origin: str) -> torch.Tensor:
@@ -214,12 +262,12 @@ def _load_dark(entry: Any, folder: Path, origin: str) -> torch.Tensor:
     except OSError as exc:
         raise CalibrationFileError(
             f"{origin} needs its dark frame {sidecar}, which cannot be read ({exc.strerror}). "
-            "Fix: keep the .dark.npz file next to the calibration .json, or calibrate again."
+            "Fix: keep the .npz file the .json names next to it (copy both), or calibrate again."
         ) from exc
     if hashlib.sha256(payload).hexdigest() != entry["sha256"]:
         raise CalibrationFileError(
             f"dark frame {sidecar} is not the one {origin} was written with (SHA-256 differs). "
-            "Fix: restore the matching .dark.npz, or calibrate again."
+            "Fix: restore the matching .npz file, or calibrate again."
         )
     with np.load(io.BytesIO(payload)) as data:
         return torch.from_numpy(data["dark"].copy())

@@ -23,16 +23,20 @@ def dark_subtracted_camera(
     *,
     gain: float | None = None,
     read_noise: float | None = None,
+    quantum_efficiency: float | None = None,
     source: str = "calibration (dark subtracted)",
 ) -> CameraCalibration:
-    """Baseline 0; ``gain`` (ADU per electron) and ``read_noise`` (electrons rms) if given, else the
-    frame's ``metadata`` camera, else the calibration's design camera; QE from the same source."""
+    """Baseline 0; ``gain`` (ADU per electron), ``read_noise`` (electrons rms) and
+    ``quantum_efficiency`` (photo-electrons per photon) if given, else the frame's ``metadata``
+    camera, else the calibration's design camera."""
     recorded = calibration_from_metadata(metadata)
     camera = recorded if recorded is not None else nominal_design(calibration).camera
     return CameraCalibration(
         baseline_adu=0.0,
         gain_adu_per_e=float(camera.gain_adu_per_e if gain is None else gain),
-        quantum_efficiency=float(camera.quantum_efficiency),
+        quantum_efficiency=float(
+            camera.quantum_efficiency if quantum_efficiency is None else quantum_efficiency
+        ),
         source=source,
         read_noise_e=float(camera.read_noise_e if read_noise is None else read_noise),
     )

@@ -205,21 +205,29 @@ def resolve_calibration(
     baseline: float | None = None,
     gain: float | None = None,
     read_noise: float | None = None,
+    quantum_efficiency: float | None = None,
 ) -> tuple[CameraCalibration, list[str]]:
     """The calibration to use for ``frames`` and the warnings to show.
 
-    ``baseline``/``gain``/``read_noise`` (ADU, ADU per electron, electrons rms) given by the
-    user win over the metadata; without both, a missing baseline is estimated and a missing
-    gain is 1 (the volume is then in ADU above the baseline, not photons), each with a
-    warning; a missing read noise is the metadata's, else 0 (the ADC rounding still counts).
+    ``baseline``/``gain``/``read_noise``/``quantum_efficiency`` (ADU, ADU per electron,
+    electrons rms, photo-electrons per photon in (0, 1]) given by the user win over the
+    metadata; without both, a missing baseline is estimated and a missing gain is 1 (the
+    volume is then in ADU above the baseline, not photons), each with a warning; a missing
+    read noise is the metadata's, else 0 (the ADC rounding still counts); a missing quantum
+    efficiency is the metadata's, else 1 (the volume then counts photo-electrons).
     """
     recorded = calibration_from_metadata(metadata)
     if recorded is not None and read_noise is not None:
         recorded = replace(recorded, read_noise_e=float(read_noise))
+    if recorded is not None and quantum_efficiency is not None:
+        recorded = replace(recorded, quantum_efficiency=float(quantum_efficiency))
     if baseline is None and gain is None and recorded is not None:
         return recorded, []
     notes: list[str] = []
-    qe = recorded.quantum_efficiency if recorded is not None else 1.0
+    if recorded is not None:
+        qe = recorded.quantum_efficiency  # the user's, when given (replaced above)
+    else:
+        qe = 1.0 if quantum_efficiency is None else quantum_efficiency
     if read_noise is None:
         read_noise = recorded.read_noise_e if recorded is not None else 0.0
     if baseline is None:
@@ -243,7 +251,7 @@ def resolve_calibration(
             )
     source = "estimated" if notes else "--baseline/--gain"
     calibration = CameraCalibration(
-        float(baseline), float(gain), qe, source=source, gain_known=gain_known, read_noise_e=float(read_noise),
+        float(baseline), float(gain), float(qe), source=source, gain_known=gain_known, read_noise_e=float(read_noise),
         quantized=recorded.quantized if recorded is not None else True,  # a noise-free image stays unrounded
     )  # fmt: skip
     return calibration, notes

@@ -283,6 +283,13 @@ def _close_interrupted(study: Any) -> None:
             study.tell(trial.number, state=_state("FAIL"), skip_if_finished=True)
 
 
+def _fail_unfinished(study: Any, trials: Sequence[Any]) -> None:
+    """Mark this run's ``trials`` that have no result as FAIL (interrupted): after a Ctrl+C the
+    study does not list them as running, and ``resume`` evaluates their points again."""
+    for trial in trials:
+        study.tell(trial.number, state=_state("FAIL"), skip_if_finished=True)
+
+
 def _state(name: str) -> Any:
     return getattr(require_optuna().trial.TrialState, name)
 
@@ -336,9 +343,33 @@ def run_study(
         proposed in batches of the client's worker count.
     callbacks : ``callback(study, trial, record)`` after each stored trial (``record`` None when reused).
     progress, cancel : as everywhere in the engine (cancel stops between batches).
+
+    A ``KeyboardInterrupt`` (Ctrl+C) marks the trials being evaluated as failed (interrupted)
+    before it propagates; the finished trials stay stored.
     """
     study = open_study(evaluator, storage, study_name=study_name, sampler=sampler, resume=resume)
     _close_interrupted(study)
+    asked: list[Any] = []  # the trials of the batch being evaluated
+    try:
+        _run_trials(study, evaluator, sampler, n_trials, client, callbacks, progress, cancel, asked)
+    except KeyboardInterrupt:
+        _fail_unfinished(study, asked)
+        raise
+    return study
+
+
+def _run_trials(
+    study: Any,
+    evaluator: Evaluator,
+    sampler: str,
+    n_trials: int | None,
+    client: Any,
+    callbacks: Sequence[TrialCallback],
+    progress: ProgressCallback | None,
+    cancel: CancelToken,
+    asked: list[Any],
+) -> None:
+    """The loop of :func:`run_study`; ``asked`` holds the batch being evaluated."""
     dists = distributions(evaluator.space)
     names = [o.name for o in evaluator.objectives]
     if sampler == "grid":
@@ -370,7 +401,10 @@ def run_study(
             asks = len(pending)
         else:
             asks = min(batch_size, total - done)
-        trials = [study.ask(dists) for _ in range(asks)]
+        asked.clear()
+        for _ in range(asks):  # one at a time: an interrupt between asks still finds the earlier ones
+            asked.append(study.ask(dists))
+        trials = list(asked)
         todo = []
         for trial in trials:
             key = point_key(trial.params)
@@ -388,7 +422,6 @@ def run_study(
             _tell(study, trial, record, names)
             for callback in callbacks:
                 callback(study, study.get_trials(deepcopy=False)[trial.number], record)
-    return study
 
 
 def _evaluate(evaluator: Evaluator, params: dict[str, Any]) -> EvaluationRecord:

@@ -50,6 +50,19 @@ def test_the_users_values_win_over_the_metadata(with_metadata):
     )
 
 
+def test_a_given_quantum_efficiency_wins_over_the_metadata_and_the_fallback(with_metadata, bare):
+    camera, _ = video_camera(with_metadata, quantum_efficiency=0.5, fallback=DESIGN_CAMERA)
+    assert (camera.baseline_adu, camera.quantum_efficiency) == (90.0, 0.5)  # the rest: the metadata's
+    camera, notes = video_camera(
+        bare, baseline=100.0, gain=2.0, quantum_efficiency=0.5, fallback=DESIGN_CAMERA
+    )
+    assert notes == [] and (camera.baseline_adu, camera.gain_adu_per_e, camera.quantum_efficiency) == (
+        100.0,
+        2.0,
+        0.5,
+    )
+
+
 def test_without_metadata_the_fallback_is_used_and_named(bare):
     camera, notes = video_camera(bare, fallback=DESIGN_CAMERA)
     assert camera == DESIGN_CAMERA

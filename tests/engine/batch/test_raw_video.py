@@ -21,7 +21,7 @@ import zarr
 
 from lfm_studio.engine.batch import reconstruct_video
 from lfm_studio.engine.batch.raw_frames import _CACHE, cached_rectifier, raw_frame_spec
-from lfm_studio.engine.calibration import calibrate, rectify_frame, save_calibration
+from lfm_studio.engine.calibration import calibrate, calibration_files, rectify_frame, save_calibration
 from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
 from lfm_studio.engine.calibration.synthetic_scene import BASELINE_ADU, misaligned_bead_scene
 from lfm_studio.engine.image_quality import ncc
@@ -95,8 +95,8 @@ def test_the_run_records_the_calibration_and_a_resume_with_another_is_refused(ra
     assert record["path"] == str(raw_video["calib"].resolve()) and len(record["sha256"]) == 64
     other = tmp_path / "copy" / "calib.json"
     other.parent.mkdir()
-    shutil.copy(raw_video["calib"], other)
-    shutil.copy(raw_video["calib"].with_suffix(".dark.npz"), other.with_suffix(".dark.npz"))
+    for file in calibration_files(raw_video["calib"]):  # the JSON and its dark frame
+        shutil.copy(file, other.parent)
     with pytest.raises(ValueError, match="calibration"):
         reconstruct_video(
             raw_video["frames"], raw_video["design"], method=METHOD, iterations=ITERATIONS, output=out,
@@ -106,8 +106,8 @@ def test_the_run_records_the_calibration_and_a_resume_with_another_is_refused(ra
 
 def test_a_worker_refuses_a_calibration_changed_since_the_run_started(raw_video, tmp_path):
     calib = tmp_path / "calib.json"
-    shutil.copy(raw_video["calib"], calib)
-    shutil.copy(raw_video["calib"].with_suffix(".dark.npz"), calib.with_suffix(".dark.npz"))
+    for file in calibration_files(raw_video["calib"]):  # the JSON and its dark frame
+        shutil.copy(file, tmp_path)
     spec, _ = raw_frame_spec(calib)
     _CACHE.clear()  # as in a fresh worker process
     calib.write_text(calib.read_text().replace("\n", " \n", 1))

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import math
+import os
 import re
 
 import pytest
@@ -13,6 +16,7 @@ from lfm_studio.engine.calibration import (
     CalibrationFileError,
     LensletLattice,
     calibrate,
+    calibration_files,
     fitted_design,
     load_calibration,
     rectify_frame,
@@ -59,25 +63,92 @@ def test_round_trip_keeps_every_measurement(tmp_path, calibrated):
     assert load_calibration(old).version == 1
 
 
+def _dark_files(folder):
+    return sorted(p.name for p in folder.glob("calib.dark*.npz"))
+
+
 def test_no_overwrite_without_asking(tmp_path, calibrated):
     _, _, calibration = calibrated
     path = tmp_path / "calib.json"
     path.write_text("keep me")
     with pytest.raises(FileExistsError, match="already exists"):
         save_calibration(calibration, path)
-    assert path.read_text() == "keep me"
+    assert path.read_text() == "keep me" and _dark_files(tmp_path) == []
     path.unlink()
-    dark = tmp_path / "calib.dark.npz"
-    dark.write_text("keep me too")  # the dark-frame file is protected as well
-    with pytest.raises(FileExistsError, match=r"calib\.dark\.npz already exists"):
-        save_calibration(calibration, path)
-    assert not path.exists() and dark.read_text() == "keep me too"
+    stray = tmp_path / "calib.dark.npz"
+    stray.write_text("keep me too")  # a file no calibration names is never touched
+    save_calibration(calibration, path)
+    assert stray.read_text() == "keep me too"
+    stray.unlink()
     save_calibration(calibration, path, overwrite=True)
     assert load_calibration(path).kind == "conventional"
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "calib.dark.npz",
-        "calib.json",
-    ]  # no temporary files
+    (dark,) = _dark_files(tmp_path)
+    assert re.fullmatch(r"calib\.dark\.[0-9a-f]{16}\.npz", dark)  # content-addressed
+    assert [p.name for p in calibration_files(path)] == ["calib.json", dark]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [dark, "calib.json"]  # no temporary files
+
+
+def _other_dark(calibration):
+    return dataclasses.replace(calibration, dark_frame=calibration.dark_frame + 1.0)
+
+
+def test_replacing_a_calibration_removes_the_old_dark_frame_and_reads_old_files(tmp_path, calibrated):
+    _, _, calibration = calibrated
+    path = save_calibration(calibration, tmp_path / "calib.json")
+    (first,) = _dark_files(tmp_path)
+    save_calibration(_other_dark(calibration), path, overwrite=True)
+    (second,) = _dark_files(tmp_path)
+    assert second != first
+    assert torch.equal(load_calibration(path).dark_frame, calibration.dark_frame.float() + 1.0)
+    save_calibration(dataclasses.replace(calibration, dark_frame=None), path, overwrite=True)
+    assert _dark_files(tmp_path) == [] and load_calibration(path).dark_frame is None
+    # A file of an earlier version names its dark frame calib.dark.npz: it loads, and is replaced cleanly.
+    save_calibration(calibration, path, overwrite=True)
+    (current,) = _dark_files(tmp_path)
+    (tmp_path / current).rename(tmp_path / "calib.dark.npz")
+    doc = json.loads(path.read_text())
+    path.write_text(json.dumps({**doc, "dark_frame": {**doc["dark_frame"], "file": "calib.dark.npz"}}))
+    assert torch.equal(load_calibration(path).dark_frame, calibration.dark_frame.float())
+    save_calibration(_other_dark(calibration), path, overwrite=True)
+    assert _dark_files(tmp_path) == [second]
+
+
+class _Interrupt:
+    """Replaces ``os.replace`` and ``os.unlink``: counts the file-system changes and raises
+    KeyboardInterrupt (as a Ctrl+C would) before change number ``at``."""
+
+    def __init__(self, monkeypatch, at):
+        self.count, self.at = 0, at
+        for name in ("replace", "unlink"):
+            original = getattr(os, name)
+            monkeypatch.setattr(os, name, self._wrap(original))
+
+    def _wrap(self, original):
+        def changed(*args, **kwargs):
+            if self.count == self.at:
+                self.count += 1
+                raise KeyboardInterrupt
+            self.count += 1
+            return original(*args, **kwargs)
+
+        return changed
+
+
+@pytest.mark.parametrize("at", range(4))
+def test_an_interrupt_at_any_step_of_a_replacement_leaves_the_old_or_the_new_calibration(
+    tmp_path, calibrated, monkeypatch, at
+):
+    _, _, calibration = calibrated
+    path = save_calibration(calibration, tmp_path / "calib.json")
+    new = _other_dark(calibration)
+    with monkeypatch.context() as patch:
+        interrupt = _Interrupt(patch, at)
+        with contextlib.suppress(KeyboardInterrupt):
+            save_calibration(new, path, overwrite=True)
+    loaded = load_calibration(path).dark_frame  # never "SHA-256 differs" nor a missing file
+    assert torch.equal(loaded, calibration.dark_frame.float()) or torch.equal(loaded, new.dark_frame.float())
+    if interrupt.count <= at:  # the save finished before the interrupt: the new one, and no leftover
+        assert torch.equal(loaded, new.dark_frame.float()) and len(_dark_files(tmp_path)) == 1
 
 
 def test_unreadable_files_name_the_problem(tmp_path, calibrated):
@@ -92,11 +163,12 @@ def test_unreadable_files_name_the_problem(tmp_path, calibrated):
     other.write_text(json.dumps({"schema_version": 1}))
     with pytest.raises(CalibrationFileError, match="not an lfm_studio calibration"):
         load_calibration(other)
-    (tmp_path / "calib.dark.npz").write_bytes(b"not the dark frame")
-    with pytest.raises(CalibrationFileError, match=r"calib.dark.npz is not the one .*SHA-256"):
+    (dark,) = _dark_files(tmp_path)
+    (tmp_path / dark).write_bytes(b"not the dark frame")
+    with pytest.raises(CalibrationFileError, match=rf"{re.escape(dark)} is not the one .*SHA-256"):
         load_calibration(path)
-    (tmp_path / "calib.dark.npz").unlink()
-    with pytest.raises(CalibrationFileError, match=r"needs its dark frame .*calib.dark.npz.*Fix"):
+    (tmp_path / dark).unlink()
+    with pytest.raises(CalibrationFileError, match=rf"needs its dark frame .*{re.escape(dark)}.*Fix"):
         load_calibration(path)
     broken = tmp_path / "broken.json"
     broken.write_text(json.dumps({k: v for k, v in doc.items() if k != "lattice"} | {"lenslets": None}))

@@ -60,6 +60,8 @@ def test_dark_subtracted_frames_convert_with_baseline_zero(calibrated):
     recorded = dark_subtracted_camera(calibration, metadata)
     assert (recorded.baseline_adu, recorded.gain_adu_per_e, recorded.quantum_efficiency) == (0.0, 2.0, 0.5)
     assert dark_subtracted_camera(calibration, metadata, gain=4.0, read_noise=0.0).gain_adu_per_e == 4.0
+    assert dark_subtracted_camera(calibration, metadata, quantum_efficiency=0.7).quantum_efficiency == 0.7
+    assert dark_subtracted_camera(calibration, quantum_efficiency=0.7).quantum_efficiency == 0.7
     # A dark frame corrected by its own calibration holds no light: its photons are the noise floor
     # alone (mean within 1 e-), whereas subtracting the dark level again clips it all to about 0.
     dark = rectify_frame(frames.dark, calibration)

@@ -153,3 +153,17 @@ def test_a_designs_camera_is_undone_as_the_metadata_of_its_simulated_image_says(
     )
     assert [getattr(ours, f) for f in fields] == [getattr(recorded, f) for f in fields]
     assert (ours.baseline_adu, ours.gain_adu_per_e, ours.read_noise_e) == (100.0, 2.0, 1.5)
+
+
+def test_a_given_quantum_efficiency_wins_over_the_metadata_and_the_default():
+    meta = {"units": "ADU", "camera": camera_metadata(CAMERA, photons=1e6, seed=1)}
+    calibration, notes = resolve_calibration(
+        {}, torch.zeros(4, 4), baseline=50.0, gain=0.5, quantum_efficiency=0.8
+    )
+    assert notes == [] and calibration.quantum_efficiency == 0.8
+    calibration, _ = resolve_calibration(meta, torch.zeros(4, 4), quantum_efficiency=0.6)
+    assert calibration.quantum_efficiency == 0.6 and calibration.source == "image metadata"
+    calibration, _ = resolve_calibration(meta, torch.zeros(4, 4), baseline=90.0, quantum_efficiency=0.6)
+    assert calibration.quantum_efficiency == 0.6 and calibration.baseline_adu == 90.0
+    with pytest.raises(ValueError, match=r"quantum_efficiency must be in \(0, 1\]; got 1.5.*Fix"):
+        resolve_calibration({}, torch.zeros(4, 4), baseline=50.0, gain=0.5, quantum_efficiency=1.5)

@@ -34,6 +34,7 @@ class Counting:
     )
     calls: int = 0
     stop_at: int | None = None
+    stop_with: type[BaseException] = field(default_factory=lambda: Killed)
 
     name: str = "effective_numerical_aperture"
     unit: str = ""
@@ -42,7 +43,7 @@ class Counting:
     def __call__(self, candidate) -> float:
         self.calls += 1
         if self.stop_at is not None and self.calls == self.stop_at:
-            raise Killed("process killed while evaluating")
+            raise self.stop_with("process killed while evaluating")
         return self.inner(candidate)
 
 
@@ -136,6 +137,22 @@ def test_killed_while_evaluating_then_resumed(uninterrupted, flfm, tmp_path):
     assert _result(resumed) == _result(reference)
     assert summary(resumed)["interrupted"] == 1  # kept for the record, without a result
     assert objective.calls == 5  # 2 before, the interrupted one again, 2 more
+
+
+def test_ctrl_c_while_evaluating_marks_the_trial_interrupted_not_running(uninterrupted, flfm, tmp_path):
+    reference, _ = uninterrupted
+    objective = Counting(stop_at=3, stop_with=KeyboardInterrupt)  # Ctrl+C in the 3rd evaluation
+    evaluator = Evaluator(flfm, SPACE, [objective])
+    url = f"sqlite:///{tmp_path / 'i.db'}"
+    with pytest.raises(KeyboardInterrupt):
+        run_study(evaluator, url)
+    stored = load_study(url)
+    assert [t.state.name for t in stored.get_trials()].count("RUNNING") == 0  # `study show`: not running
+    assert summary(stored)["interrupted"] == 1  # the only one without a result; the others are kept
+    assert len(_result(stored)) == len(stored.get_trials()) - 1
+    objective.stop_at = None
+    resumed = run_study(evaluator, url, resume=True)
+    assert _result(resumed) == _result(reference) and objective.calls == 5  # the interrupted point again
 
 
 def test_existing_study_needs_resume_and_the_same_search(uninterrupted, flfm, tmp_path):
