@@ -528,9 +528,9 @@ def run_algorithm2_layout(
         study = None  # noqa: F841  (the storage closes before its folder goes)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    counts = f"{result.evaluated} layouts scored, {result.infeasible} infeasible"
+    counts = result.counts_text(study=False)
     details = {"score": result.score, "lenslets": len(result.blocks), "history": list(result.history),
-               "evaluated": result.evaluated, "infeasible": result.infeasible}  # fmt: skip
+               "evaluated": result.evaluated, "scored": result.scored, "infeasible": result.infeasible}  # fmt: skip
     if result.design is None:
         return RunResult(rows, None, f"no layout was feasible ({counts}).", details)
     key = layout_key(result.blocks)
