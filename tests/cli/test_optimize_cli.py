@@ -121,6 +121,21 @@ def test_task_objective_through_the_cli(tmp_path, capsys):
     assert "complete 1, infeasible 1" in out and "sub_image_overlap" in out  # 3.0 mm: sub-images overlap
     assert "task_ncc" in out and "best design (trial 0)" in out
     assert load_design(tmp_path / "best.json").relay.field_stop_diameter_mm == 2.66
+    # walk4 #2: a resume with other task options is refused before any work, naming each
+    code = main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "task_ncc,task_f1",
+            "--study", str(tmp_path / "task.db"), "--out", str(tmp_path / "best.json"), "--crop", "128",
+            "--depths", "-10:10:10", "--iterations", "2", "--task-seeds", "5,6", "--photons", "1e4",
+            "--resume", "--overwrite",
+        ]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert (
+        code == 2
+        and "task_ncc iterations: stored 5, now 2" in err
+        and "task_ncc seeds: stored [1000], now [5, 6]" in err
+    )
 
 
 def _algorithm2(tmp_path, *extra):

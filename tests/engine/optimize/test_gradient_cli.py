@@ -78,6 +78,12 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     assert code == 0, out
     assert "resumed: 3 stored steps" in out and "step   4  axial_crb" in out
     assert "the design written is the best point" in out
+    # walk4 #2: resuming with other photons would mix two settings' CRBs in one study
+    code = _optimize(
+        files, "--gradient", "psf", "--steps", "6", "--photons", "1e5", "--resume", "--overwrite",
+        "--catalogue", "10,16.8,20,26",
+    )  # fmt: skip
+    assert code == 2 and "axial_crb photons: stored 1000.0, now 100000.0" in capsys.readouterr().err
 
 
 def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, capsys):
