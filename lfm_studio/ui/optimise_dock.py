@@ -91,6 +91,7 @@ from lfm_studio.ui.optimise_model import (
     psf_preview,
     reason_tip,
     reasons_tip,
+    resume_note,
     run_algorithm2_layout,
     run_gradient,
     run_optimisation,
@@ -252,6 +253,7 @@ class OptimiseDock(QWidget):
         # the row the engine picked (Algorithm 2's best layout, a gradient run's final design)
         self.chosen: int | None = None
         self.summary = ""
+        self._note = ""  # a note on the run's study (a resume whose options could not be checked)
         # a run started whose first row has not arrived: the rows shown stay until it does
         self._pending: tuple[AnyRequest, dict[str, tuple[str, str]], dict[str, str]] | None = None
         self._labels: dict[str, str] = {}  # the run table's column label of each freed path
@@ -789,6 +791,7 @@ class OptimiseDock(QWidget):
             return
         labels = column_labels(self.state.design)  # the labels of the design the run starts from
         self._pending = (request, info, labels)  # the rows shown stay until this run delivers its first one
+        self._note = resume_note(request)  # read before the run, which then stores the same study
         self.message.setText(f"Running {METHODS[request.method]}…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
@@ -855,10 +858,12 @@ class OptimiseDock(QWidget):
                 self.message.setText(
                     f"Done: {count} candidates, none feasible (reasons in the last column). "
                     "Fix: widen or move the ranges, or change the design."
+                    + (f" Note: {self._note}" if self._note else "")
                 )
             else:
                 self.message.setText(
                     f"Done: {count} candidates, best: candidate {best.number} (double-click a row to load it)."
+                    + (f" Note: {self._note}" if self._note else "")
                 )
         elif outcome.state == "cancelled":
             if untouched:

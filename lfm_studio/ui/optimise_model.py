@@ -53,7 +53,15 @@ from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHE
 from lfm_studio.engine.optimize.gradient_params import bind_space
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, MLAPlane
 from lfm_studio.engine.optimize.objectives import CRB_BACKGROUND, CRB_PHOTONS, sign
-from lfm_studio.engine.optimize.study import DEFAULT_STUDY_NAME, load_study, record_of, run_study, stored_crop
+from lfm_studio.engine.optimize.study import (
+    DEFAULT_STUDY_NAME,
+    load_study,
+    record_of,
+    run_study,
+    stored_crop,
+    stored_without_options,
+    unchecked_text,
+)
 from lfm_studio.engine.optimize.task_score import TASK_PHOTONS
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
@@ -292,6 +300,15 @@ def best_row(rows: Sequence[CandidateRow], name: str, direction: str) -> Candida
         return None
     s = sign(direction)
     return min(feasible, key=lambda r: s * r.values[name])  # type: ignore[index]
+
+
+def resume_note(request: Any) -> str:
+    """The note for a grid request that resumes a study stored without objective options (their
+    check was skipped: :class:`~lfm_studio.engine.optimize.study.StudyOptionsUncheckedWarning`), else ""."""
+    if not (isinstance(request, OptimiseRequest) and request.resume and request.study):
+        return ""
+    path = str(Path(request.study).expanduser())
+    return unchecked_text(DEFAULT_STUDY_NAME) if stored_without_options(path, DEFAULT_STUDY_NAME) else ""
 
 
 def run_optimisation(

@@ -215,14 +215,7 @@ def _check_options(study: Any, stored: Any, now: Mapping[str, Mapping[str, Any]]
     """Refuse a resume whose objective options differ from the stored ones, naming each (both
     values); warn when the study predates stored options (:class:`StudyOptionsUncheckedWarning`)."""
     if stored is None:
-        warnings.warn(
-            StudyOptionsUncheckedWarning(
-                f"study {study.study_name!r} was stored without its objective options (photons, iterations, "
-                "seeds...), so this resume could not check that its candidates are scored as before. Fix: "
-                "resume only with the options of the first run, or start a new --study-name / database."
-            ),
-            stacklevel=3,
-        )
+        warnings.warn(StudyOptionsUncheckedWarning(unchecked_text(study.study_name)), stacklevel=3)
         return
     differs = option_differences(stored, now)
     if differs:
@@ -231,6 +224,25 @@ def _check_options(study: Any, stored: Any, now: Mapping[str, Mapping[str, Any]]
             "it with these would rank scores of two settings together. Fix: resume with the stored options, "
             "or start a new --study-name / database."
         )
+
+
+def unchecked_text(study_name: str) -> str:
+    """What a resume of a study stored without objective options says (:class:`StudyOptionsUncheckedWarning`)."""
+    return (
+        f"study {study_name!r} was stored without its objective options (photons, iterations, seeds...), so "
+        "this resume could not check that its candidates are scored as before. Fix: resume only with the "
+        "options of the first run, or start a new --study-name / database."
+    )
+
+
+def stored_without_options(storage: str, study_name: str | None = None) -> bool:
+    """True when a stored study predates stored objective options (a resume cannot check them);
+    False for a study that has them, or none stored yet (the run reports that)."""
+    try:
+        attrs = load_study(storage, study_name).user_attrs
+    except (FileNotFoundError, ValueError, KeyError):
+        return False
+    return OPTIONS not in attrs
 
 
 def option_differences(stored: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
