@@ -192,17 +192,27 @@ def study_attrs(evaluator: Evaluator, sampler: str) -> dict[str, Any]:
     )
 
 
+COMPARED: dict[str, tuple[str, str]] = {
+    "space": ("another space", "this one"),
+    "objectives": ("other objectives", "these"),
+    "base_design": ("another base design", "this one"),
+    "settings": ("other settings", "these"),
+    "seed": ("another seed", "this one"),
+}
+"""The study attributes a resume must repeat: key -> (how the refusal names another one, "this one" / "these")."""
+
+
 def _check_same(study: Any, attrs: dict[str, Any]) -> None:
     stored = study.user_attrs
-    for key in ("space", "objectives", "base_design", "settings", "seed"):
+    for key, (other, this) in COMPARED.items():
         if key in stored and json.dumps(stored[key], sort_keys=True) != json.dumps(
             attrs[key], sort_keys=True
         ):
             differs = _differences(stored[key], attrs[key])
             raise StudyMismatchError(
-                f"study {study.study_name!r} was made with another {key.replace('_', ' ')}{differs}; resuming it "
-                f"with this one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as "
-                "before, or a new --study-name / database."
+                f"study {study.study_name!r} was made with {other}{differs}; resuming it with {this} would mix "
+                f"candidates of two searches. Fix: give the same {key.replace('_', ' ')} as before, or a new "
+                "--study-name / database."
             )
     _check_options(study, stored.get(OPTIONS), attrs.get(OPTIONS) or {})
 

@@ -255,3 +255,10 @@ def test_an_existing_study_is_an_output_refusal(flfm, tmp_path):
     with pytest.raises(StudyExistsError, match="already exists") as caught:
         run_study(Evaluator(flfm, ONE_POINT, [Photons()]), url)
     assert isinstance(caught.value, OutputError)
+
+
+def test_a_resume_with_other_objectives_names_them_in_plain_words(flfm, tmp_path):
+    url = f"sqlite:///{tmp_path / 'o.db'}"
+    run_study(Evaluator(flfm, ONE_POINT, [Photons()]), url, n_trials=1)
+    with pytest.raises(StudyMismatchError, match=r"was made with other objectives; resuming it with these"):
+        run_study(Evaluator(flfm, ONE_POINT, [Counting()]), url, resume=True)
