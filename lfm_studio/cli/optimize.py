@@ -66,6 +66,7 @@ def _objectives(args: argparse.Namespace) -> list:
         "method": args.method,
         "iterations": args.iterations,
         "photons": args.photons,
+        "background": args.background,
         "seeds": args.task_seeds,
     }
     names = [n.strip() for n in args.objective.split(",") if n.strip()]
@@ -73,7 +74,35 @@ def _objectives(args: argparse.Namespace) -> list:
         raise ValueError(
             "--objective names no objective. Fix: e.g. --objective task_ncc (see docs/optimize.md)."
         )
-    return [objective_named(name, options) for name in names]
+    built = [objective_named(name, options) for name in names]
+    refuse_unused(args, built)
+    return built
+
+
+UNUSED_CHECKED: dict[str, str] = {"photons": "--photons", "background": "--background"}
+"""Objective options whose flag is refused when no objective of the run takes it (default None: not given)."""
+
+
+def refuse_unused(args: argparse.Namespace, objectives: list) -> None:
+    """Refuse ``--photons`` / ``--background`` given for objectives none of which takes it (they
+    would be silently ignored), naming the option, its value and the objectives that take it."""
+    from lfm_studio.engine.optimize.objectives import score_options
+
+    for key, flag in UNUSED_CHECKED.items():
+        value = getattr(args, key)
+        if value is not None and not any(key in score_options(o) for o in objectives):
+            names = ", ".join(o.name for o in objectives)
+            raise ValueError(
+                f"{flag} {value:g} does not apply to {names}: no objective of this run takes {key} "
+                f"({OPTION_USERS[key]}). Fix: drop {flag}, or add an objective that takes it."
+            )
+
+
+OPTION_USERS: dict[str, str] = {
+    "photons": "axial_crb: photons per emitter; task_* objectives and --gradient end-to-end: photons per image",
+    "background": "axial_crb only: photons per pixel",
+}
+"""Which objectives take each checked option, and in what unit (the refusal's explanation)."""
 
 
 def _constraints(args: argparse.Namespace, design) -> tuple:
@@ -230,10 +259,7 @@ def run_algorithm2(args: argparse.Namespace) -> int:
             sizes=args.sizes, study_name=args.study_name, resume=args.resume, settings=_settings(args, design),
             seed=args.seed, progress=progress,
         )  # fmt: skip
-    print(
-        f"{len(study.trials)} layouts stored: {result.evaluated} scored now, {result.reused} from the study, "
-        f"{result.infeasible} infeasible"
-    )
+    print(f"{len(study.trials)} layouts stored; this run considered {result.counts_text()}")
     if result.design is None:
         raise ValueError(
             "no layout was feasible, nothing to write (see 'lfm-studio study show' for the reasons). "
@@ -296,6 +322,8 @@ def run_gradient(args: argparse.Namespace) -> int:
     from lfm_studio.engine.io import check_output
     from lfm_studio.engine.learned.data import TrainingDataSpec
     from lfm_studio.engine.optimize import FocalLengthCatalogue, load_space, optimize_end_to_end, optimize_psf
+    from lfm_studio.engine.optimize.gradient import psf_objective
+    from lfm_studio.engine.optimize.task_score import TASK_PHOTONS
 
     if args.algorithm2:
         raise ValueError("--gradient and --algorithm2 are two different searches. Fix: pick one.")
@@ -329,6 +357,7 @@ def run_gradient(args: argparse.Namespace) -> int:
             if args.gradient == "psf":
                 objective = args.objective or "axial_crb"
                 options = {"photons": args.photons, "background": args.background}
+                refuse_unused(args, [psf_objective(objective, options)])
                 result = optimize_psf(
                     design, space, objective, options=options, progress=progress, resume=args.resume,
                     final="last" if args.keep_last else "best", **common,
@@ -340,8 +369,14 @@ def run_gradient(args: argparse.Namespace) -> int:
                         "--gradient end-to-end optimises the task loss; --objective does not apply. Fix: drop it."
                     )
                 objective, unit = "task_loss", ""
+                if args.background is not None:
+                    raise ValueError(
+                        f"--background {args.background:g} does not apply to --gradient end-to-end "
+                        f"({OPTION_USERS['background']}). Fix: drop --background."
+                    )
+                photons = TASK_PHOTONS if args.photons is None else args.photons
                 data = TrainingDataSpec(
-                    phantoms=args.phantom, objects=(4, 10), photons=(args.photons,), seed=args.seed
+                    phantoms=args.phantom, objects=(4, 10), photons=(photons,), seed=args.seed
                 )
                 result = optimize_end_to_end(
                     design, space, reconstruction=args.reconstruction, freeze_optics=args.freeze_optics,
@@ -598,7 +633,13 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
         "--method", default="rl", help="reconstruction method (rl, rl-accelerated, wiener, tikhonov)"
     )
     task.add_argument("--iterations", type=int, default=20)
-    task.add_argument("--photons", type=float, default=1e5, help="expected photons per image")
+    task.add_argument(
+        "--photons",
+        type=float,
+        default=None,
+        help="photons: for axial_crb detected per emitter (default 1000), for task_* objectives and "
+        "--gradient end-to-end expected per image (default 1e5)",
+    )
     task.add_argument("--task-seeds", type=_seeds, default=(1000, 1001), help="held-out phantom seeds")
     alg2 = opt.add_argument_group("Algorithm 2 (MLA layout search; cells of --min-lenslet-um)")
     alg2.add_argument("--algorithm2", action="store_true", help="run Algorithm 2 instead of a space search")
@@ -632,7 +673,12 @@ def add_optimize_parsers(sub: argparse._SubParsersAction) -> None:
     grad.add_argument(
         "--no-float64-check", action="store_true", help="skip the float32-float64 start-gradient check"
     )
-    grad.add_argument("--background", type=float, default=1.0, help="axial_crb background, photons per pixel")
+    grad.add_argument(
+        "--background",
+        type=float,
+        default=None,
+        help="axial_crb background, photons per pixel (default 1; any search method); refused for other objectives",
+    )
     grad.add_argument("--reconstruction", choices=("unrolled-rl", "rl"), default="unrolled-rl")
     grad.add_argument(
         "--freeze-optics", action="store_true", help="end-to-end: train the reconstruction only"

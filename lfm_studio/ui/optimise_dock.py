@@ -61,6 +61,8 @@ from lfm_studio.engine.optimize.crop import auto_crop
 from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS
 from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES
+from lfm_studio.engine.optimize.objectives import CRB_BACKGROUND, CRB_PHOTONS
+from lfm_studio.engine.optimize.task_score import TASK_PHOTONS
 from lfm_studio.ui.edits import with_design_warnings
 from lfm_studio.ui.optimise_model import (
     CLI_CROP,
@@ -89,6 +91,7 @@ from lfm_studio.ui.optimise_model import (
     psf_preview,
     reason_tip,
     reasons_tip,
+    resume_note,
     run_algorithm2_layout,
     run_gradient,
     run_optimisation,
@@ -168,6 +171,20 @@ def _field(
     return field
 
 
+def _crb_fields() -> tuple[NumericField, NumericField]:
+    """axial_crb's photons (per emitter) and background (photons per pixel) fields, at the CLI's defaults."""
+    photons = _field(
+        "Photons", 1.0, 1e15, CRB_PHOTONS, log_step=True,
+        tip=f"axial_crb: photons detected per emitter (Poisson noise). CLI --photons (default {CRB_PHOTONS:g}; "
+        "the task scores' photons, per image, are not set here).",
+    )  # fmt: skip
+    background = _field(
+        "Background", 0.0, 1e12, CRB_BACKGROUND, unit="ph/px", step=1.0,
+        tip=f"Background of axial_crb, photons per pixel. CLI --background (default {CRB_BACKGROUND:g}).",
+    )  # fmt: skip
+    return photons, background
+
+
 def _combo(items: tuple[str, ...] | list[str], current: str, tip: str) -> QComboBox:
     combo = QComboBox()
     combo.addItems(list(items))
@@ -236,6 +253,7 @@ class OptimiseDock(QWidget):
         # the row the engine picked (Algorithm 2's best layout, a gradient run's final design)
         self.chosen: int | None = None
         self.summary = ""
+        self._note = ""  # a note on the run's study (a resume whose options could not be checked)
         # a run started whose first row has not arrived: the rows shown stay until it does
         self._pending: tuple[AnyRequest, dict[str, tuple[str, str]], dict[str, str]] | None = None
         self._labels: dict[str, str] = {}  # the run table's column label of each freed path
@@ -338,6 +356,7 @@ class OptimiseDock(QWidget):
         _form_line(form, "Study file", (self.study_path, 1), browse, self.resume)
         column.addWidget(self.grid_box)
         column.addWidget(self._build_algorithm2_box())
+        column.addWidget(self._build_crb_box())
         column.addWidget(self._build_gradient_box())
         column.addWidget(self._build_psf_box())
         column.addWidget(self._build_end_to_end_box())
@@ -405,6 +424,13 @@ class OptimiseDock(QWidget):
         form.addRow("PSF crop", self.a2_crop)
         return self.algorithm2_box
 
+    def _build_crb_box(self) -> QWidget:
+        """axial_crb's photons and background for grid search and Algorithm 2 (the PSF gradient has its own)."""
+        self.crb_box, form = _form_box()
+        self.c_photons, self.c_background = _crb_fields()
+        _form_line(form, "axial_crb photons, background", (self.c_photons, 1), (self.c_background, 1))
+        return self.crb_box
+
     def _build_gradient_box(self) -> QWidget:
         self.gradient_box, form = _form_box()
         self.g_steps = _field(
@@ -455,14 +481,7 @@ class OptimiseDock(QWidget):
             "The final design is the point after the last update, not the best point evaluated. CLI --keep-last.",
         )
         _form_line(form, "Objective", (self.g_objective, 1), self.g_keep_last)
-        self.g_photons = _field(
-            "Photons", 1.0, 1e15, 1e5, log_step=True,
-            tip="Expected photons per image for axial_crb (Poisson noise). CLI --photons (default 1e5).",
-        )  # fmt: skip
-        self.g_background = _field(
-            "Background", 0.0, 1e12, 1.0, unit="ph/px", step=1.0,
-            tip="Background of axial_crb, photons per pixel. CLI --background (default 1).",
-        )  # fmt: skip
+        self.g_photons, self.g_background = _crb_fields()
         _form_line(form, "Photons, background", (self.g_photons, 1), (self.g_background, 1))
         return self.psf_box
 
@@ -505,8 +524,8 @@ class OptimiseDock(QWidget):
         )  # fmt: skip
         _form_line(form, "Batch", (self.e_batch, 1), "held out", (self.e_held_out, 1))
         self.e_photons = _field(
-            "Photons", 1.0, 1e15, 1e5, log_step=True,
-            tip="Expected photons per image of the phantoms (Poisson noise). CLI --photons (default 1e5).",
+            "Photons", 1.0, 1e15, TASK_PHOTONS, log_step=True,
+            tip=f"Expected photons per image of the phantoms (Poisson noise). CLI --photons (default {TASK_PHOTONS:g}).",
         )  # fmt: skip
         form.addRow("Photons", self.e_photons)
         return self.e2e_box
@@ -681,9 +700,9 @@ class OptimiseDock(QWidget):
         """The number fields of ``method``'s options (default: the method chosen)."""
         method = method or self.method_key()
         if method == "grid":
-            return [self.budget]
+            return [self.budget, self.c_photons, self.c_background]
         if method == "algorithm2":
-            return [self.a2_min_lenslet, self.a2_crop]
+            return [self.a2_min_lenslet, self.a2_crop, self.c_photons, self.c_background]
         fields = [self.g_steps, self.g_lr, self.g_crop]
         if method == "gradient-psf":
             return [*fields, self.g_photons, self.g_background]
@@ -720,7 +739,8 @@ class OptimiseDock(QWidget):
         request = OptimiseRequest(
             tuple(free), tuple(self.checked_objectives()), sampler=self.sampler.currentText(),
             budget=self.budget.value(), study=study, resume=self.resume.isChecked(),
-            crop=auto_crop(self.state.design),
+            crop=auto_crop(self.state.design), crb_photons=float(self.c_photons.value()),
+            crb_background=float(self.c_background.value()),
         )  # fmt: skip
         request.space()  # bounds and points checked now, with the parameter's name
         return request
@@ -730,7 +750,8 @@ class OptimiseDock(QWidget):
         request = Algorithm2Request(
             objective=self.a2_objective.currentText(), min_lenslet_um=float(self.a2_min_lenslet.value()),
             symmetry=self.a2_symmetry.currentText(), sizes=parse_sizes(self.a2_sizes.text()),
-            crop=crop or None,
+            crop=crop or None, crb_photons=float(self.c_photons.value()),
+            crb_background=float(self.c_background.value()),
         )  # fmt: skip
         request.check(self.state.design)
         return request
@@ -770,6 +791,7 @@ class OptimiseDock(QWidget):
             return
         labels = column_labels(self.state.design)  # the labels of the design the run starts from
         self._pending = (request, info, labels)  # the rows shown stay until this run delivers its first one
+        self._note = resume_note(request)  # read before the run, which then stores the same study
         self.message.setText(f"Running {METHODS[request.method]}…")
         self.run_button.setEnabled(False)
         self.cancel_button.setEnabled(True)
@@ -836,10 +858,12 @@ class OptimiseDock(QWidget):
                 self.message.setText(
                     f"Done: {count} candidates, none feasible (reasons in the last column). "
                     "Fix: widen or move the ranges, or change the design."
+                    + (f" Note: {self._note}" if self._note else "")
                 )
             else:
                 self.message.setText(
                     f"Done: {count} candidates, best: candidate {best.number} (double-click a row to load it)."
+                    + (f" Note: {self._note}" if self._note else "")
                 )
         elif outcome.state == "cancelled":
             if untouched:
@@ -1067,6 +1091,7 @@ class OptimiseDock(QWidget):
         gradient = method.startswith("gradient")
         self.grid_box.setVisible(method == "grid")
         self.algorithm2_box.setVisible(method == "algorithm2")
+        self.crb_box.setVisible(method in ("grid", "algorithm2"))
         self.gradient_box.setVisible(gradient)
         self.psf_box.setVisible(method == "gradient-psf")
         self.e2e_box.setVisible(method == "gradient-end-to-end")

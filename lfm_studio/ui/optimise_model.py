@@ -52,8 +52,17 @@ from lfm_studio.engine.optimize.end_to_end import RECONSTRUCTIONS, optimize_end_
 from lfm_studio.engine.optimize.gradient import OPTIMIZERS, PSF_OBJECTIVES, SCHEDULES, psf_objective, quietly
 from lfm_studio.engine.optimize.gradient_params import bind_space
 from lfm_studio.engine.optimize.mla_cells import SYMMETRIES, MLAPlane
-from lfm_studio.engine.optimize.objectives import sign
-from lfm_studio.engine.optimize.study import DEFAULT_STUDY_NAME, load_study, record_of, run_study, stored_crop
+from lfm_studio.engine.optimize.objectives import CRB_BACKGROUND, CRB_PHOTONS, sign
+from lfm_studio.engine.optimize.study import (
+    DEFAULT_STUDY_NAME,
+    load_study,
+    record_of,
+    run_study,
+    stored_crop,
+    stored_without_options,
+    unchecked_text,
+)
+from lfm_studio.engine.optimize.task_score import TASK_PHOTONS
 from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.simulation import simulate_psf
@@ -162,6 +171,8 @@ class OptimiseRequest:
     resume : continue the study stored in ``study``.
     crop : camera pixels kept about the axis for objectives that need a PSF.
     objective_options : options for :func:`objective_named` (task settings).
+    crb_photons, crb_background : ``axial_crb``'s photons per emitter and background, photons per
+        pixel (:data:`CRB_OBJECTIVES` only: the task scores' photons are per image).
     """
 
     parameters: tuple[FreeParameter, ...]
@@ -172,8 +183,11 @@ class OptimiseRequest:
     resume: bool = False
     crop: int | None = DEFAULT_CROP
     objective_options: dict[str, Any] = field(default_factory=dict)
+    crb_photons: float = CRB_PHOTONS
+    crb_background: float = CRB_BACKGROUND
 
     def __post_init__(self) -> None:
+        _crb_ok(self.crb_photons, self.crb_background)
         if not self.parameters:
             raise ValueError("no parameter is freed. Fix: tick at least one parameter to optimise.")
         if not self.objectives:
@@ -288,6 +302,15 @@ def best_row(rows: Sequence[CandidateRow], name: str, direction: str) -> Candida
     return min(feasible, key=lambda r: s * r.values[name])  # type: ignore[index]
 
 
+def resume_note(request: Any) -> str:
+    """The note for a grid request that resumes a study stored without objective options (their
+    check was skipped: :class:`~lfm_studio.engine.optimize.study.StudyOptionsUncheckedWarning`), else ""."""
+    if not (isinstance(request, OptimiseRequest) and request.resume and request.study):
+        return ""
+    path = str(Path(request.study).expanduser())
+    return unchecked_text(DEFAULT_STUDY_NAME) if stored_without_options(path, DEFAULT_STUDY_NAME) else ""
+
+
 def run_optimisation(
     base: Design,
     request: OptimiseRequest,
@@ -297,7 +320,10 @@ def run_optimisation(
     cancel: CancelToken = None,
 ) -> list[CandidateRow]:
     """Run ``request`` from ``base``; returns every stored candidate (resumed ones too) in trial order."""
-    objectives = [objective_named(n, request.objective_options) for n in request.objectives]
+    objectives = [
+        build_objective(n, request.objective_options, request.crb_photons, request.crb_background)
+        for n in request.objectives
+    ]
     stored, crop = (
         stored_crop(str(Path(request.study).expanduser()), DEFAULT_STUDY_NAME)
         if request.resume and request.study
@@ -378,6 +404,30 @@ def _positive(value: Any, name: str, unit: str = "") -> None:
         raise ValueError(f"{name} must be a positive number{' of ' + unit if unit else ''}; got {value!r}.")
 
 
+CRB_OBJECTIVES: tuple[str, ...] = ("axial_crb",)
+"""Objectives whose photons count per emitter (the dock's CRB photons and background reach only them)."""
+
+
+def build_objective(name: str, options: dict[str, Any], photons: float, background: float) -> Any:
+    """The objective ``name`` with ``options``; an objective of :data:`CRB_OBJECTIVES` also gets
+    ``photons`` (per emitter) and ``background`` (photons per pixel), the task scores keep theirs
+    (per image), as ``lfm-studio optimize`` gives each objective its engine default."""
+    if name in CRB_OBJECTIVES:
+        options = {**options, "photons": photons, "background": background}
+    return objective_named(name, options)
+
+
+def _crb_ok(photons: float | None, background: float) -> None:
+    """Photons (None: the objective's default) > 0 and a background >= 0 photons per pixel."""
+    if photons is not None:
+        _positive(photons, "Photons")
+    if not (
+        isinstance(background, int | float) and not isinstance(background, bool) and math.isfinite(background)
+        and background >= 0
+    ):  # fmt: skip
+        raise ValueError(f"Background must be a number >= 0 photons per pixel; got {background!r}.")
+
+
 def _crop_ok(crop: int | None) -> None:
     if crop is not None:
         _whole(crop, "PSF crop (px)")
@@ -427,6 +477,7 @@ class Algorithm2Request:
     symmetry : one of :data:`~lfm_studio.engine.optimize.mla_cells.SYMMETRIES`.
     sizes : block sizes tried, in cells (None: 1 .. M - 1).
     crop : camera pixels simulated about the axis for PSF objectives (None: the whole sensor).
+    crb_photons, crb_background : as :class:`OptimiseRequest`.
     """
 
     method: ClassVar[str] = "algorithm2"
@@ -436,8 +487,11 @@ class Algorithm2Request:
     sizes: tuple[int, ...] | None = None
     crop: int | None = CLI_CROP
     seed: int = 0
+    crb_photons: float = CRB_PHOTONS
+    crb_background: float = CRB_BACKGROUND
 
     def __post_init__(self) -> None:
+        _crb_ok(self.crb_photons, self.crb_background)
         if self.objective not in objective_names():
             raise ValueError(
                 f"Objective {self.objective!r} is not a registered objective. Fix: pick one of the list."
@@ -507,7 +561,7 @@ def run_algorithm2_layout(
     cancel: CancelToken = None,
 ) -> RunResult:
     """Run Algorithm 2 on ``base``'s MLA (a temporary study, deleted afterwards); each layout goes to ``on_row``."""
-    objective = objective_named(request.objective)
+    objective = build_objective(request.objective, {}, request.crb_photons, request.crb_background)
     rows: list[CandidateRow] = []
     layouts: dict[int, str] = {}
 
@@ -528,9 +582,9 @@ def run_algorithm2_layout(
         study = None  # noqa: F841  (the storage closes before its folder goes)
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
-    counts = f"{result.evaluated} layouts scored, {result.infeasible} infeasible"
+    counts = result.counts_text(study=False)
     details = {"score": result.score, "lenslets": len(result.blocks), "history": list(result.history),
-               "evaluated": result.evaluated, "infeasible": result.infeasible}  # fmt: skip
+               "evaluated": result.evaluated, "scored": result.scored, "infeasible": result.infeasible}  # fmt: skip
     if result.design is None:
         return RunResult(rows, None, f"no layout was feasible ({counts}).", details)
     key = layout_key(result.blocks)
@@ -561,6 +615,8 @@ class GradientRequest:
     mode : "psf" (PSF engineering, :func:`~lfm_studio.engine.optimize.optimize_psf`) or "end-to-end"
         (optics and an unrolled-RL reconstruction on the task loss).
     parameters : the freed values; low / high are the bounds (``points`` is not used).
+    photons : per emitter for ``axial_crb`` (PSF mode), per image end to end; None: the default
+        (:data:`CRB_PHOTONS`, :data:`TASK_PHOTONS`), as ``--photons``.
     The rest as the CLI flags of the same names (docs/optimize.md).
     """
 
@@ -573,8 +629,8 @@ class GradientRequest:
     schedule: str = "constant"
     crop: int | None = CLI_CROP
     check_float64: bool = True
-    photons: float = 1e5
-    background: float = 1.0
+    photons: float | None = None
+    background: float = CRB_BACKGROUND
     keep_last: bool = False
     reconstruction: str = "unrolled-rl"
     freeze_optics: bool = False
@@ -604,13 +660,7 @@ class GradientRequest:
         if self.schedule not in SCHEDULES:
             raise ValueError(f"Schedule must be one of {SCHEDULES}; got {self.schedule!r}.")
         _crop_ok(self.crop)
-        _positive(self.photons, "Photons")
-        if not (
-            isinstance(self.background, int | float)
-            and math.isfinite(self.background)
-            and self.background >= 0
-        ):
-            raise ValueError(f"Background must be a number >= 0 photons per pixel; got {self.background!r}.")
+        _crb_ok(self.photons, self.background)
         if self.mode == "end-to-end":
             if self.reconstruction not in RECONSTRUCTIONS:
                 raise ValueError(
@@ -778,7 +828,7 @@ def _run_gradient(
         name, unit = "task_loss", ""
         data = TrainingDataSpec(
             phantoms=request.phantom,  # type: ignore[arg-type]
-            objects=(4, 10), photons=(request.photons,), seed=request.seed,
+            objects=(4, 10), photons=(TASK_PHOTONS if request.photons is None else request.photons,), seed=request.seed,
         )  # fmt: skip
         result = optimize_end_to_end(
             base, space, reconstruction=request.reconstruction, freeze_optics=request.freeze_optics,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 
@@ -51,7 +52,7 @@ def test_optimize_writes_the_best_design_and_refuses_to_overwrite(tmp_path, spac
     assert (tmp_path / "best.json").read_bytes() == before
     assert _run(tmp_path, space) == 3  # still refused: the output check comes first
     capsys.readouterr()
-    assert _run(tmp_path, space, "--overwrite") == 2  # the study exists: --resume needed
+    assert _run(tmp_path, space, "--overwrite") == 3  # the study exists (output refused): --resume needed
     assert "--resume" in capsys.readouterr().err
     assert _run(tmp_path, space, "--resume", "--overwrite") == 0  # nothing left to evaluate
     assert load_design(tmp_path / "best.json").mla.lenslets[0].aperture_diameter_um == 600.0
@@ -120,6 +121,21 @@ def test_task_objective_through_the_cli(tmp_path, capsys):
     assert "complete 1, infeasible 1" in out and "sub_image_overlap" in out  # 3.0 mm: sub-images overlap
     assert "task_ncc" in out and "best design (trial 0)" in out
     assert load_design(tmp_path / "best.json").relay.field_stop_diameter_mm == 2.66
+    # walk4 #2: a resume with other task options is refused before any work, naming each
+    code = main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "task_ncc,task_f1",
+            "--study", str(tmp_path / "task.db"), "--out", str(tmp_path / "best.json"), "--crop", "128",
+            "--depths", "-10:10:10", "--iterations", "2", "--task-seeds", "5,6", "--photons", "1e4",
+            "--resume", "--overwrite",
+        ]
+    )  # fmt: skip
+    err = capsys.readouterr().err
+    assert (
+        code == 2
+        and "task_ncc iterations: stored 5, now 2" in err
+        and "task_ncc seeds: stored [1000], now [5, 6]" in err
+    )
 
 
 def _algorithm2(tmp_path, *extra):
@@ -144,6 +160,8 @@ def test_algorithm2_through_the_cli_stores_every_layout_and_resumes(tmp_path, ca
     assert "0 from the study" in out and "wrote" in out
     study = load_study(str(tmp_path / "a2.db"))
     complete = [t for t in study.trials if t.state.name == "COMPLETE"]
+    failed = len(study.trials) - len(complete)  # the counts add up to the layouts stored (walk4 #7)
+    assert f"{len(study.trials)} layouts: {len(complete)} scored now, {failed} infeasible" in out
     initial = next(t for t in complete if t.params["base"] == "initial")
     best = load_design(tmp_path / "a2.json")
     apertures = {lens.aperture_diameter_um for lens in best.mla.lenslets}
@@ -153,7 +171,11 @@ def test_algorithm2_through_the_cli_stores_every_layout_and_resumes(tmp_path, ca
     stored = len(study.trials)
     assert _algorithm2(tmp_path, "--resume", "--overwrite") == 0
     out = capsys.readouterr().out
-    assert f"{stored} layouts stored: 0 scored now, {len(complete)} from the study" in out
+    found = re.search(r"(\d+) layouts: 0 scored now, (\d+) infeasible, (\d+) from the study", out)
+    # refused layouts are refused again by the layout checks (nothing built); the rest come from the study
+    assert (
+        found and int(found[1]) == stored == int(found[2]) + int(found[3]) and int(found[3]) >= len(complete)
+    )
     assert load_design(tmp_path / "a2.json").mla.count == best.mla.count
 
 
@@ -238,3 +260,63 @@ def test_ctrl_c_says_what_the_study_kept_and_how_to_continue(tmp_path, space, ca
     monkeypatch.setattr(Evaluator, "__call__", score)
     assert _run(tmp_path, space, "--resume") == 0
     assert "complete 3, interrupted 1, infeasible 1" in capsys.readouterr().out
+
+
+def _crb(tmp_path, name, *extra):
+    """axial_crb of one FLFM point (lenslet aperture 600 um) on a 128 px crop and 3 depths."""
+    space = tmp_path / "one.json"
+    space.write_text(
+        json.dumps({"parameters": [{"path": "mla.lenslets[*].aperture_diameter_um", "choices": [600]}]})
+    )
+    return main(
+        [
+            "optimize", "flfm_guo2019", "--space", str(space), "--objective", "axial_crb", "--crop", "128",
+            "--depths", "-10:10:10", "--study", f"sqlite:///{tmp_path / name}.db",
+            "--out", str(tmp_path / f"{name}.json"), *extra,
+        ]
+    )  # fmt: skip
+
+
+def _stored(tmp_path, name):
+    from lfm_studio.engine.optimize.study import load_study
+
+    study = load_study(str(tmp_path / f"{name}.db"))
+    return study.user_attrs["objective_options"]["axial_crb"], study.trials[0].values[0]
+
+
+def test_axial_crb_defaults_to_the_engine_photons_and_applies_background(tmp_path, capsys):
+    """walk4 #3: the CLI scored axial_crb at 1e5 photons (the dock at 1000) and ignored --background."""
+    from lfm_studio.engine.optimize.objectives import CRB_BACKGROUND, CRB_PHOTONS
+
+    assert _crb(tmp_path, "plain") == 0
+    assert _crb(tmp_path, "dim", "--background", "50") == 0
+    plain, dim = _stored(tmp_path, "plain"), _stored(tmp_path, "dim")
+    assert plain[0] == {"photons": CRB_PHOTONS, "background": CRB_BACKGROUND}
+    assert dim[0] == {"photons": CRB_PHOTONS, "background": 50.0}
+    assert dim[1] > plain[1]  # more background, a worse bound
+
+
+def test_a_resume_with_other_photons_is_refused(tmp_path, capsys):
+    """walk4 #2: the resumed trials were scored at other photons and ranked with the stored ones."""
+    assert _crb(tmp_path, "s", "--photons", "1e5") == 0
+    capsys.readouterr()
+    assert _crb(tmp_path, "s", "--resume", "--overwrite", "--photons", "1000") == 2
+    err = capsys.readouterr().err
+    assert (
+        "axial_crb photons: stored 100000.0, now 1000.0" in err
+        and "Fix: resume with the stored options" in err
+    )
+    assert _crb(tmp_path, "s", "--resume", "--overwrite", "--photons", "1e5") == 0
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--background", "50"], "--background 50 does not apply to effective_numerical_aperture"),
+        (["--photons", "1000"], "--photons 1000 does not apply to effective_numerical_aperture"),
+    ],
+)
+def test_an_option_no_objective_takes_is_refused(tmp_path, space, capsys, args, message):
+    assert _run(tmp_path, space, *args) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "best.json").exists()

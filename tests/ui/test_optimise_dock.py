@@ -307,3 +307,29 @@ def test_a_design_change_moves_an_unticked_range_but_keeps_a_ticked_one(window):
     assert low <= now <= high  # the stale range around the old value is gone
     assert cells(RELAY)[1:] == [60.0, 90.0]  # ticked: the user's range stays, even if the value left it
     assert dock.parameters.item(dock.parameter_row(RELAY), 0).checkState() == Qt.CheckState.Checked
+
+
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.optimize.study.StudyOptionsUncheckedWarning")
+def test_resuming_a_study_stored_without_objective_options_says_they_were_not_checked(
+    qtbot, window, tmp_path
+):
+    """A study from before objective options were stored still resumes; the message says the check was skipped."""
+    import sqlite3
+
+    dock = window.optimise
+    path = tmp_path / "old.db"
+    dock.study_path.setText(str(path))
+    dock.free(RELAY, 80.0, 110.0, 4)
+    dock.set_objectives(["lateral_resolution"])
+    dock.budget.setValue(2)
+    dock.run_button.click()
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "done", timeout=TIMEOUT_MS)
+    assert "could not check" not in dock.message.text()
+    with sqlite3.connect(path) as db:  # as a study stored before the options were
+        db.execute("DELETE FROM study_user_attributes WHERE key = 'objective_options'")
+    dock.resume.setChecked(True)
+    dock.budget.setValue(3)
+    dock.run_button.click()  # the engine also warns, in the worker thread
+    qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "done", timeout=TIMEOUT_MS)
+    assert len(dock.rows) == 3
+    assert "Note: study 'lfm_study' was stored without its objective options" in dock.message.text()

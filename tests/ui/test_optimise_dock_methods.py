@@ -26,9 +26,16 @@ from lfm_studio.engine.optimize import objectives as objectives_module
 from lfm_studio.engine.optimize.candidate import EvaluationSettings
 from lfm_studio.engine.optimize.constraints import REASONS
 from lfm_studio.engine.optimize.crop import auto_crop
-from lfm_studio.engine.optimize.objectives import ClosedForm
+from lfm_studio.engine.optimize.objectives import CRB_PHOTONS, ClosedForm, score_options
+from lfm_studio.engine.optimize.task_score import TASK_PHOTONS
 from lfm_studio.ui.optimise_dock import JOB_NAME
-from lfm_studio.ui.optimise_model import METHODS, FreeParameter, GradientRequest, run_gradient
+from lfm_studio.ui.optimise_model import (
+    METHODS,
+    FreeParameter,
+    GradientRequest,
+    build_objective,
+    run_gradient,
+)
 from tests.ui.standins import small_fourier_design
 
 pytest.importorskip("optuna")
@@ -85,12 +92,12 @@ def test_each_method_shows_only_its_own_options(window):
     assert dock.method_key() == "grid" and [dock.method.itemData(i) for i in range(4)] == list(METHODS)
     boxes = {
         "grid": dock.grid_box, "algorithm2": dock.algorithm2_box, "gradient": dock.gradient_box,
-        "gradient-psf": dock.psf_box, "gradient-end-to-end": dock.e2e_box,
+        "gradient-psf": dock.psf_box, "gradient-end-to-end": dock.e2e_box, "crb": dock.crb_box,
     }  # fmt: skip
     for method in METHODS:
         dock.set_method(method)
         shown = {k for k, box in boxes.items() if not box.isHidden()}
-        expected = {method} | ({"gradient"} if method.startswith("gradient") else set())
+        expected = {method} | ({"gradient"} if method.startswith("gradient") else {"crb"})
         assert shown == expected, method
         assert dock.parameters.isHidden() == (method == "algorithm2")
         assert dock.parameters.isColumnHidden(5) == method.startswith("gradient")  # no grid points
@@ -102,7 +109,12 @@ def test_each_method_shows_only_its_own_options(window):
     assert (dock.e_lr.value(), dock.e_iterations.value(), dock.e_batch.value(), dock.e_held_out.value()) == (
         0.01, 4, 2, 4,
     )  # fmt: skip
-    assert dock.g_photons.value() == dock.e_photons.value() == 1e5 and dock.g_background.value() == 1.0
+    # axial_crb at the CLI's default photons per emitter, the task loss at its photons per image (walk4 #3)
+    assert dock.g_photons.value() == dock.c_photons.value() == CRB_PHOTONS == 1000.0
+    assert (
+        dock.e_photons.value() == TASK_PHOTONS
+        and dock.g_background.value() == dock.c_background.value() == 1.0
+    )
     assert dock.a2_symmetry.currentText() == "none" and dock.a2_sizes.text() == ""
     assert "µm" in dock.a2_min_lenslet.toolTip() and "--min-lenslet-um" in dock.a2_min_lenslet.toolTip()
     for widget in (dock.g_lr, dock.g_steps, dock.g_schedule, dock.e_batch, dock.a2_symmetry, dock.a2_sizes):
@@ -215,7 +227,7 @@ def test_gradient_psf_engineering_lowers_the_objective_and_loads_the_final_desig
             steps=3,
             lr=0.1,
             settings=EvaluationSettings(crop=256),
-            options={"photons": 1e5, "background": 1.0},  # the CLI's (and the dock's) defaults
+            options={"photons": CRB_PHOTONS, "background": 1.0},  # the CLI's (and the dock's) defaults
         )
     )
     assert values == pytest.approx([h.value for h in reference.history], rel=1e-6)
@@ -419,3 +431,30 @@ def test_a_resumed_grid_study_keeps_its_stored_crop(tmp_path):
     again = OptimiseRequest(free, ("number_of_views",), budget=2, study=path, resume=True, crop=512)
     assert len(run_optimisation(design, again)) == 2
     assert load_study(path).user_attrs["settings"]["crop"] == 128
+
+
+def test_grid_and_algorithm2_take_axial_crbs_photons_and_background(window):
+    """walk4 #3: the dock scored axial_crb at 1000 photons without a field, the CLI at 1e5."""
+    dock = window.optimise
+    dock.c_photons.setText("2000")
+    dock.c_background.setText("5")
+    dock.set_method("algorithm2")
+    dock.a2_objective.setCurrentText("axial_crb")
+    request = dock.build_request()
+    assert (request.crb_photons, request.crb_background) == (2000.0, 5.0)
+    built = build_objective(request.objective, {}, request.crb_photons, request.crb_background)
+    assert score_options(built) == {"photons": 2000.0, "background": 5.0}
+    # a task score keeps its own photons per image
+    assert score_options(build_objective("task_ncc", {}, 2000.0, 5.0))["photons"] == TASK_PHOTONS
+
+
+def test_a_resumed_grid_study_refuses_other_crb_photons(tmp_path):
+    from lfm_studio.ui.optimise_model import OptimiseRequest, run_optimisation
+
+    design = small_fourier_design()
+    free = (FreeParameter(DISTANCE, 16.0, 17.0, 2),)
+    path = str(tmp_path / "crb.db")
+    run_optimisation(design, OptimiseRequest(free, ("axial_crb",), budget=1, study=path, crb_photons=1e5))
+    again = OptimiseRequest(free, ("axial_crb",), budget=2, study=path, resume=True, crb_photons=1000.0)
+    with pytest.raises(ValueError, match=r"axial_crb photons: stored 100000.0, now 1000.0"):
+        run_optimisation(design, again)

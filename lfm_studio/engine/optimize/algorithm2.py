@@ -117,8 +117,11 @@ class Algorithm2Result:
 
     ``score`` is the best score (``-inf`` / ``inf`` for maximize / minimize when no
     layout was feasible; ``design`` is then None); ``history`` lists the accepted scores.
-    ``evaluated`` counts layouts scored in this run, ``reused`` those whose score came
-    from ``lookup``.
+    Every layout considered is counted once in ``scored`` (a score from this run), ``infeasible``
+    (refused in this run: by the layout checks, the design checks, a constraint or the
+    objective) or ``reused`` (its result, score or refusal, taken from ``lookup``): the three add
+    up to :attr:`considered`. ``evaluated`` counts the layouts built and passed to the score in
+    this run: the scored ones and those the score then refused (also in ``infeasible``).
     """
 
     blocks: tuple[Block, ...]
@@ -128,6 +131,20 @@ class Algorithm2Result:
     infeasible: int
     history: tuple[float, ...] = field(default=())
     reused: int = 0
+    scored: int = 0
+
+    @property
+    def considered(self) -> int:
+        """Layouts considered in this run: ``scored + infeasible + reused``."""
+        return self.scored + self.infeasible + self.reused
+
+    def counts_text(self, study: bool = True) -> str:
+        """The counts in words, e.g. ``"26 layouts: 1 scored now, 25 infeasible (5 refused after
+        building), 0 from the study"`` (``study=False``: without the last part, for a run without one)."""
+        after = self.evaluated - self.scored
+        built = f" ({after} refused after building)" if after else ""
+        reused = f", {self.reused} from the study" if study else ""
+        return f"{self.considered} layouts: {self.scored} scored now, {self.infeasible} infeasible{built}{reused}"
 
 
 def _evaluate(
@@ -238,7 +255,7 @@ def algorithm2(
     order = _sizes(sizes, m)
     total = sum((m - d + 1) ** 2 for d in order)
     seen: set[tuple[Block, ...]] = set()
-    counters = {"index": 0, "evaluated": 0, "infeasible": 0, "reused": 0}
+    counters = {"index": 0, "evaluated": 0, "infeasible": 0, "reused": 0, "scored": 0}
 
     def consider(blocks: tuple[Block, ...], params: dict, reason: str, best: float) -> float | None:
         """Score ``blocks`` (unless refused or already seen) and report it; the score or None."""
@@ -256,8 +273,8 @@ def algorithm2(
             else:
                 candidate, value, reason, notes = _evaluate(plane, design, blocks, score)
                 counters["evaluated"] += 1
-        if reason:
-            counters["infeasible"] += 1
+        if stored is None:
+            counters["infeasible" if reason else "scored"] += 1
         accepted = value is not None and sign * value > best
         if record is not None:
             record(
@@ -309,4 +326,5 @@ def algorithm2(
         counters["infeasible"],
         tuple(history),
         counters["reused"],
+        counters["scored"],
     )

@@ -47,6 +47,7 @@ from lfm_studio.engine.optimize.study import (
     DEFAULT_STUDY_NAME,
     RECORD,
     objective_attrs,
+    objective_options,
     open_stored,
     record_of,
     require_optuna,
@@ -170,8 +171,9 @@ def run_algorithm2_study(
         }
     }
     attrs = study_description(
-        design, space, [objective_attrs(objective)], settings.to_dict(), "algorithm2", seed
-    )
+        design, space, [objective_attrs(objective)], settings.to_dict(), "algorithm2", seed,
+        objective_options([objective]),
+    )  # fmt: skip
     study = open_stored(attrs, [objective.direction], storage, study_name=study_name, resume=resume)
     stored_steps: set[int] = set()
     by_layout: dict[str, tuple[float | None, str]] = {}

@@ -56,7 +56,7 @@ from lfm_studio.engine.optimize.constraints import (
 )
 from lfm_studio.engine.optimize.gradient_params import SpaceBinding, bind_space
 from lfm_studio.engine.optimize.gradient_study import GradientStudy
-from lfm_studio.engine.optimize.objectives import PSFLoss, objective_named, sign
+from lfm_studio.engine.optimize.objectives import PSFLoss, objective_named, score_options, sign
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 
 OPTIMIZERS: tuple[str, ...] = ("adam", "lbfgs")
@@ -559,15 +559,17 @@ def open_recorder(
     options: Mapping[str, Any],
     seed: int,
     resume: bool = False,
+    objective_options: Mapping[str, Any] | None = None,
 ) -> GradientStudy | None:
     """The study a gradient run records into (None without a ``study`` database): sampler
-    ``gradient-<options["optimizer"]>``, settings :func:`study_settings` of ``run_settings`` and ``options``."""
+    ``gradient-<options["optimizer"]>``, settings :func:`study_settings` of ``run_settings`` and ``options``;
+    ``objective_options``: the objective's score options (compared on resume)."""
     if study is None:
         return None
     return GradientStudy(
         study, design=design, space=space, objective=objective,
         settings=study_settings(run_settings, **options), sampler=f"gradient-{options['optimizer']}",
-        seed=seed, study_name=study_name, resume=resume,
+        seed=seed, study_name=study_name, resume=resume, options=objective_options,
     )  # fmt: skip
 
 
@@ -741,6 +743,7 @@ def optimize_psf(
         objective={"name": built.name, "unit": built.unit, "direction": built.direction},
         run_settings=replace(base, dtype=dtype),
         options={"optimizer": optimizer, "lr": lr, "schedule": schedule, "steps": steps}, seed=seed, resume=resume,
+        objective_options=score_options(built),
     )  # fmt: skip
     stored: list[StepRecord] = []
     if recorder is not None and resume:

@@ -66,8 +66,18 @@ class GradientStudy:
         seed: int,
         study_name: str = DEFAULT_STUDY_NAME,
         resume: bool = False,
+        options: Mapping[str, Any] | None = None,
     ) -> None:
-        attrs = study_description(design, space.to_dict(), [objective], settings, sampler, seed)
+        """``options``: the objective's score options (:func:`.objectives.score_options`), compared on resume."""
+        attrs = study_description(
+            design,
+            space.to_dict(),
+            [objective],
+            settings,
+            sampler,
+            seed,
+            {objective["name"]: dict(options or {})},
+        )
         self.study = open_stored(
             attrs,
             [objective["direction"]],

@@ -20,8 +20,9 @@ The thesis: J. Sun, "Computational Framework for Light-Field Microscopy Simulati
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, is_dataclass
 from typing import Any, Literal, Protocol
 
 import torch
@@ -163,6 +164,12 @@ class PSFLoss:
     unit: str = ""
     direction: Direction = "minimize"
 
+    def score_options(self) -> dict[str, Any]:
+        """The loss's settings (the fields of a dataclass loss, e.g. ``photons``, ``background``)."""
+        if not is_dataclass(self.loss):
+            return {}
+        return {f.name: getattr(self.loss, f.name) for f in fields(self.loss)}
+
     def __call__(self, candidate: Candidate) -> float:
         with candidate.timed("psf_loss_s"):
             return float(torch.as_tensor(self.loss(candidate.stack)).detach())
@@ -179,6 +186,21 @@ class WeightedSum:
 
     def __call__(self, candidate: Candidate) -> float:
         return sum(w * sign(obj.direction) * obj(candidate) for obj, w in self.terms)
+
+    def score_options(self) -> dict[str, Any]:
+        """Each term's name, weight and options (:func:`score_options`)."""
+        return {"terms": [{"name": o.name, "weight": w, "options": score_options(o)} for o, w in self.terms]}
+
+
+def score_options(objective: Any) -> dict[str, Any]:
+    """The options that change ``objective``'s values (photons, iterations, seeds...), JSON-ready.
+
+    A study stores them and refuses a resume whose objectives were built with other options
+    (:mod:`.study`): their scores could not be ranked together. An objective declares them with a
+    ``score_options()`` method; one without it (a closed form) has none.
+    """
+    own = getattr(objective, "score_options", None)
+    return json.loads(json.dumps(own() if callable(own) else {}))
 
 
 ObjectiveFactory = Callable[[Mapping[str, Any]], Objective]
@@ -254,6 +276,16 @@ def _mean_over_positions(stack: Any, loss: Callable[[torch.Tensor], torch.Tensor
     return torch.stack([loss(psf) for psf in stack_intensities(stack)]).mean()
 
 
+CRB_PHOTONS = 1000.0
+"""Default photons detected per emitter for ``axial_crb`` (CLI ``--photons``, the studio's Optimise dock):
+a bright fluorophore or a small bead detected through a high-NA objective in one camera frame
+(single-molecule work sees 10^2-10^4). It is per emitter, not per image: the task scores'
+default (:data:`.task_score.TASK_PHOTONS`, 1e5 per image) spreads over many emitters."""
+
+CRB_BACKGROUND = 1.0
+"""Default background of ``axial_crb``, photons per pixel (Poisson)."""
+
+
 @dataclass(frozen=True)
 class AxialCRBLoss:
     """Mean over depths (and source positions) of the axial Cramer-Rao bound (:func:`.psf_losses.axial_crb`), um.
@@ -261,8 +293,8 @@ class AxialCRBLoss:
     ``photons`` detected per emitter, ``background`` photons per pixel (Poisson).
     """
 
-    photons: float = 1000.0
-    background: float = 1.0
+    photons: float = CRB_PHOTONS
+    background: float = CRB_BACKGROUND
 
     def __call__(self, stack: Any) -> torch.Tensor:
         depths = torch.as_tensor(stack.depths, dtype=torch.float64)
@@ -298,11 +330,17 @@ class MTFSupportLoss:
         )
 
 
+def _option(options: Mapping[str, Any], key: str, default: float) -> float:
+    """``options[key]`` as a float, ``default`` when it is missing or None (not given)."""
+    value = options.get(key)
+    return default if value is None else float(value)
+
+
 def _psf_loss_factory(name: str) -> ObjectiveFactory:
     def build(options: Mapping[str, Any]) -> Objective:
         if name == "axial_crb":
-            photons = float(options.get("photons", 1000.0))
-            background = float(options.get("background", 1.0))
+            photons = _option(options, "photons", CRB_PHOTONS)
+            background = _option(options, "background", CRB_BACKGROUND)
             return PSFLoss(name, AxialCRBLoss(photons, background), "um", "minimize")
         if name == "depth_dissimilarity":
             return PSFLoss(name, DepthDissimilarityLoss(), "", "minimize")
@@ -313,7 +351,8 @@ def _psf_loss_factory(name: str) -> ObjectiveFactory:
 
 PSF_LOSS_OBJECTIVES: dict[str, str] = {
     "axial_crb": "axial Cramer-Rao bound of a point emitter, mean over depths, Poisson noise at "
-    "options photons (default 1000) and background (default 1 photon/pixel) (um, minimize)",
+    f"options photons per emitter (default {CRB_PHOTONS:g}) and background (default {CRB_BACKGROUND:g} "
+    "photon/pixel) (um, minimize)",
     "depth_dissimilarity": "mean normalised cross-correlation of the PSF slices of every depth pair "
     "(unitless in [0, 1], minimize)",
     "mtf_support": "fraction of the band up to Nyquist where the MTF exceeds 0.1, mean over depths "

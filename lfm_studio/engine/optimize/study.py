@@ -5,9 +5,12 @@ and stores every candidate as an Optuna trial: parameters, objective values, and
 user attribute ``record`` (one database commit) the seconds per stage, the candidate's
 design JSON, the seed, design warnings, per-lenslet cache use, and for an infeasible
 point its reason (the trial is then ``FAIL`` with ``record["infeasible_reason"]``). The study itself stores the base design, the space, the
-objectives (name, unit, direction), the simulation settings and the sampler.
+objectives (name, unit, direction), their options (``objective_options``: photons, iterations,
+seeds...; what changes a score), the simulation settings and the sampler.
 
-Resuming (``resume=True``) continues where a killed run stopped and never evaluates a
+Resuming (``resume=True``) is refused when any of these differ (each differing objective option
+is named with both values); a study stored before objective options were recorded resumes with a
+:class:`StudyOptionsUncheckedWarning`. It continues where a killed run stopped and never evaluates a
 stored candidate again: the grid sampler enqueues only grid points without a stored
 result, in grid order; for the other samplers a proposed point that is already stored
 gets the stored values copied (``record["reused_from"]``) instead of an evaluation.
@@ -26,6 +29,7 @@ Dask worker keeps its own per-lenslet cache (the evaluator is scattered once).
 from __future__ import annotations
 
 import json
+import warnings
 from collections.abc import Callable, Mapping, Sequence
 from itertools import islice
 from pathlib import Path
@@ -34,7 +38,9 @@ from typing import TYPE_CHECKING, Any
 from lfm_studio.engine.design import Design
 from lfm_studio.engine.design.design_io import design_to_json
 from lfm_studio.engine.design.space import DesignSpace, Parameter, point_key
+from lfm_studio.engine.io.file_checks import OutputError
 from lfm_studio.engine.optimize.evaluate import EvaluationRecord, Evaluator
+from lfm_studio.engine.optimize.objectives import score_options
 from lfm_studio.engine.progress import CancelToken, ProgressCallback, checkpoint
 
 if TYPE_CHECKING:
@@ -48,7 +54,15 @@ TrialCallback = Callable[["optuna.Study", "optuna.trial.FrozenTrial", Evaluation
 
 
 class StudyMismatchError(ValueError):
-    """A stored study was made for another space, objectives or base design."""
+    """A stored study was made for another space, objectives, objective options or base design."""
+
+
+class StudyExistsError(OutputError):
+    """The study name is taken and the run was not asked to resume it (the CLI exits 3, output refused)."""
+
+
+class StudyOptionsUncheckedWarning(UserWarning):
+    """A resumed study was stored before objective options were recorded: they could not be compared."""
 
 
 def require_optuna() -> Any:
@@ -134,6 +148,12 @@ def objective_attrs(objective: Any) -> dict[str, str]:
     return {"name": objective.name, "unit": objective.unit, "direction": objective.direction}
 
 
+def objective_options(objectives: Sequence[Any]) -> dict[str, dict[str, Any]]:
+    """``{name: options}`` of the objectives (:func:`.objectives.score_options`): what a study stores
+    under ``objective_options`` and a resume must repeat."""
+    return {o.name: score_options(o) for o in objectives}
+
+
 def study_description(
     base: Design,
     space: Mapping[str, Any],
@@ -141,15 +161,18 @@ def study_description(
     settings: Mapping[str, Any],
     sampler: str,
     seed: int,
+    options: Mapping[str, Mapping[str, Any]] | None = None,
 ) -> dict[str, Any]:
     """The study attributes every search stores once (a resumed run must match them,
     :func:`open_stored`): the base design's JSON, the space (``DesignSpace.to_dict`` or another
-    search's description), the objectives (:func:`objective_attrs`), the settings, the sampler name
+    search's description), the objectives (:func:`objective_attrs`), the objective options
+    (:func:`objective_options`; None: the objectives take none), the settings, the sampler name
     and the seed."""
     return {
         "base_design": design_to_json(base),
         "space": dict(space),
         "objectives": [dict(o) for o in objectives],
+        "objective_options": {k: dict(v) for k, v in (options or {}).items()},
         "settings": dict(settings),
         "sampler": sampler,
         "seed": seed,
@@ -165,21 +188,82 @@ def study_attrs(evaluator: Evaluator, sampler: str) -> dict[str, Any]:
         evaluator.settings.to_dict(),
         sampler,
         evaluator.seed,
+        objective_options(evaluator.objectives),
     )
+
+
+COMPARED: dict[str, tuple[str, str]] = {
+    "space": ("another space", "this one"),
+    "objectives": ("other objectives", "these"),
+    "base_design": ("another base design", "this one"),
+    "settings": ("other settings", "these"),
+    "seed": ("another seed", "this one"),
+}
+"""The study attributes a resume must repeat: key -> (how the refusal names another one, "this one" / "these")."""
 
 
 def _check_same(study: Any, attrs: dict[str, Any]) -> None:
     stored = study.user_attrs
-    for key in ("space", "objectives", "base_design", "settings", "seed"):
+    for key, (other, this) in COMPARED.items():
         if key in stored and json.dumps(stored[key], sort_keys=True) != json.dumps(
             attrs[key], sort_keys=True
         ):
             differs = _differences(stored[key], attrs[key])
             raise StudyMismatchError(
-                f"study {study.study_name!r} was made with another {key.replace('_', ' ')}{differs}; resuming it "
-                f"with this one would mix candidates of two searches. Fix: give the same {key.replace('_', ' ')} as "
-                "before, or a new --study-name / database."
+                f"study {study.study_name!r} was made with {other}{differs}; resuming it with {this} would mix "
+                f"candidates of two searches. Fix: give the same {key.replace('_', ' ')} as before, or a new "
+                "--study-name / database."
             )
+    _check_options(study, stored.get(OPTIONS), attrs.get(OPTIONS) or {})
+
+
+OPTIONS = "objective_options"
+"""The study attribute holding :func:`objective_options` (absent in studies stored before it)."""
+
+
+def _check_options(study: Any, stored: Any, now: Mapping[str, Mapping[str, Any]]) -> None:
+    """Refuse a resume whose objective options differ from the stored ones, naming each (both
+    values); warn when the study predates stored options (:class:`StudyOptionsUncheckedWarning`)."""
+    if stored is None:
+        warnings.warn(StudyOptionsUncheckedWarning(unchecked_text(study.study_name)), stacklevel=3)
+        return
+    differs = option_differences(stored, now)
+    if differs:
+        raise StudyMismatchError(
+            f"study {study.study_name!r} was scored with other objective options ({'; '.join(differs)}); resuming "
+            "it with these would rank scores of two settings together. Fix: resume with the stored options, "
+            "or start a new --study-name / database."
+        )
+
+
+def unchecked_text(study_name: str) -> str:
+    """What a resume of a study stored without objective options says (:class:`StudyOptionsUncheckedWarning`)."""
+    return (
+        f"study {study_name!r} was stored without its objective options (photons, iterations, seeds...), so "
+        "this resume could not check that its candidates are scored as before. Fix: resume only with the "
+        "options of the first run, or start a new --study-name / database."
+    )
+
+
+def stored_without_options(storage: str, study_name: str | None = None) -> bool:
+    """True when a stored study predates stored objective options (a resume cannot check them);
+    False for a study that has them, or none stored yet (the run reports that)."""
+    try:
+        attrs = load_study(storage, study_name).user_attrs
+    except (FileNotFoundError, ValueError, KeyError):
+        return False
+    return OPTIONS not in attrs
+
+
+def option_differences(stored: Mapping[str, Any], now: Mapping[str, Any]) -> list[str]:
+    """``"OBJECTIVE OPTION: stored X, now Y"`` for every option that differs (missing: ``None``)."""
+    out = []
+    for name in sorted({*stored, *now}):
+        old, new = stored.get(name) or {}, now.get(name) or {}
+        for key in sorted({*old, *new}):
+            if json.dumps(old.get(key), sort_keys=True) != json.dumps(new.get(key), sort_keys=True):
+                out.append(f"{name} {key}: stored {old.get(key)!r}, now {new.get(key)!r}")
+    return out
 
 
 def _differences(stored: Any, now: Any) -> str:
@@ -238,14 +322,15 @@ def open_stored(
 ) -> Any:
     """Create a study described by ``attrs`` (:func:`study_description` keys), or (``resume=True``) load
     it after checking that its stored ``attrs`` match (:class:`StudyMismatchError` otherwise). An
-    existing study without ``resume`` is refused with a ``ValueError`` ending in ``Fix: <exists_fix>``."""
+    existing study without ``resume`` is refused with a :class:`StudyExistsError` (a ``ValueError``) ending
+    in ``Fix: <exists_fix>``."""
     optuna = require_optuna()
     url = storage_url(storage)
     rdb = make_storage(storage)
     names = optuna.study.get_all_study_names(storage=rdb)
     exists = study_name in names
     if exists and not resume:
-        raise ValueError(f"study {study_name!r} already exists in {url}. Fix: {exists_fix}")
+        raise StudyExistsError(f"study {study_name!r} already exists in {url}. Fix: {exists_fix}")
     study = optuna.create_study(
         storage=rdb,
         study_name=study_name,

@@ -56,6 +56,10 @@ PERFECT_SCORES: dict[str, float] = {"ncc": 1.0, "f1": 1.0, "localisation": 0.0}
 
 HELD_OUT_SEEDS: tuple[int, ...] = (1000, 1001)
 
+TASK_PHOTONS = 1e5
+"""Default expected photons reaching the camera per image of a held-out phantom (all its objects
+together; compare :data:`.objectives.CRB_PHOTONS`, per emitter)."""
+
 FLOOR_MARGIN = 0.05
 """Default :attr:`TaskScore.margin`: a score must get 5 % of the way from the all-zero floor to a
 perfect score (``task_ncc`` above 0.05) to count as beating the floor."""
@@ -128,7 +132,7 @@ class TaskScore:
     phantom: str = "beads"
     method: str = "rl"
     iterations: int = 20
-    photons: float = 1e5
+    photons: float = TASK_PHOTONS
     seeds: tuple[int, ...] = HELD_OUT_SEEDS
     count: int | None = None
     tolerance: float = 2.0
@@ -162,6 +166,13 @@ class TaskScore:
     @property
     def direction(self) -> Direction:
         return TASK_METRICS[self.metric][1]
+
+    def score_options(self) -> dict[str, Any]:
+        """What changes the score (stored with a study; ``margin`` only changes the floor warning)."""
+        return {
+            "phantom": self.phantom, "method": self.method, "iterations": self.iterations,
+            "photons": self.photons, "seeds": list(self.seeds), "count": self.count, "tolerance": self.tolerance,
+        }  # fmt: skip
 
     def trial(self, candidate: Candidate, seed: int) -> tuple[torch.Tensor, torch.Tensor, Any]:
         """``(truth, reconstruction, object indices)`` for one seed (shared by the task metrics)."""
@@ -243,9 +254,10 @@ def _object_indices(truth: torch.Tensor) -> torch.Tensor:
 
 
 def task_score_from(options: dict[str, Any], metric: str) -> TaskScore:
-    """A :class:`TaskScore` for ``metric`` with the run's task ``options`` (keys of :class:`TaskScore`)."""
+    """A :class:`TaskScore` for ``metric`` with the run's task ``options`` (keys of :class:`TaskScore`;
+    a None value takes the default)."""
     known = {"phantom", "method", "iterations", "photons", "seeds", "count", "tolerance", "margin"}
-    return TaskScore(metric=metric, **{k: v for k, v in options.items() if k in known})
+    return TaskScore(metric=metric, **{k: v for k, v in options.items() if k in known and v is not None})
 
 
 def _task_factory(metric: str) -> ObjectiveFactory:

@@ -130,7 +130,7 @@ def test_a_resumed_study_keeps_its_stored_crop_and_a_mismatch_names_it(xlfm, tmp
     )
     assert stored_crop(storage) == (True, 256)
     automatic = Evaluator(xlfm, space, views, constraints=())  # crop 512
-    with pytest.raises(StudyMismatchError, match=r"another settings \(crop: stored 256, now 512\)"):
+    with pytest.raises(StudyMismatchError, match=r"other settings \(crop: stored 256, now 512\)"):
         run_study(automatic, storage, n_trials=1, resume=True)
     kept = Evaluator(
         xlfm, space, views, settings=EvaluationSettings(crop=stored_crop(storage)[1]), constraints=()

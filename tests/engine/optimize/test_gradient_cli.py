@@ -68,7 +68,7 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     shown = capsys.readouterr().out
     assert "complete 4" in shown and "axial_crb [um] (min)" in shown  # 3 steps and the last point
     (files / "best.json").unlink()
-    assert _optimize(files, "--gradient", "psf", "--steps", "1") == 2  # the study exists
+    assert _optimize(files, "--gradient", "psf", "--steps", "1") == 3  # the study exists (output refused)
     assert "already exists" in capsys.readouterr().err
     code = _optimize(
         files, "--gradient", "psf", "--objective", "axial_crb", "--steps", "5", "--lr", "0.05",
@@ -78,6 +78,12 @@ def test_gradient_psf_writes_the_design_and_the_study_lists_every_step(files, ca
     assert code == 0, out
     assert "resumed: 3 stored steps" in out and "step   4  axial_crb" in out
     assert "the design written is the best point" in out
+    # walk4 #2: resuming with other photons would mix two settings' CRBs in one study
+    code = _optimize(
+        files, "--gradient", "psf", "--steps", "6", "--photons", "1e5", "--resume", "--overwrite",
+        "--catalogue", "10,16.8,20,26",
+    )  # fmt: skip
+    assert code == 2 and "axial_crb photons: stored 1000.0, now 100000.0" in capsys.readouterr().err
 
 
 def test_gradient_end_to_end_refuses_an_objective_and_both_sides_frozen(files, capsys):
@@ -115,3 +121,17 @@ def test_gradient_end_to_end_reports_the_training_loss_where_it_was_measured(fil
     description = load_design(files / "best.json").description
     assert f"held-out task loss {held_start:.6g} -> {written:.6g} at the final design" in description
     assert f"{last:.6g}" not in description
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--gradient", "end-to-end", "--background", "5"], "--background 5 does not apply to --gradient end-to-end"),
+        (["--gradient", "psf", "--objective", "mtf_support", "--background", "5"], "--background 5 does not apply to mtf_support"),
+    ],
+)  # fmt: skip
+def test_gradient_refuses_a_background_its_objective_does_not_take(files, capsys, extra, message):
+    """walk4 #3: --background was silently ignored where no objective takes it."""
+    assert _optimize(files, "--steps", "1", *extra) == 2
+    assert message in capsys.readouterr().err
+    assert not (files / "best.json").exists()

@@ -92,3 +92,18 @@ def test_psf_loss_hook_and_measured_requirements():
     assert measured.name == "measured_requirements_penalty"
     assert measured(candidate) >= 0.0
     assert len(seen) == 1 and "psf_s" in candidate.timing  # the stack was computed once
+
+
+def test_score_options_name_what_changes_a_score():
+    """Stored with a study (a resume must repeat them): photons/background of axial_crb, the task settings."""
+    from lfm_studio.engine.optimize import objective_named
+    from lfm_studio.engine.optimize.objectives import CRB_PHOTONS, score_options
+
+    assert score_options(objective_named("axial_crb")) == {"photons": CRB_PHOTONS, "background": 1.0}
+    assert score_options(objective_named("axial_crb", {"photons": None, "background": 50})) == {
+        "photons": 1000.0,
+        "background": 50.0,
+    }
+    task = score_options(objective_named("task_ncc", {"iterations": 2, "seeds": (5, 6), "photons": None}))
+    assert task["iterations"] == 2 and task["seeds"] == [5, 6] and task["photons"] == 1e5
+    assert score_options(objective_named("lateral_resolution")) == {}

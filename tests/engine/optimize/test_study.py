@@ -214,3 +214,68 @@ def test_dask_client_gives_the_in_process_result(uninterrupted, flfm, tmp_path):
             Evaluator(flfm, SPACE, [Counting()]), f"sqlite:///{tmp_path / 'd.db'}", client=client
         )
     assert _result(study) == _result(reference)
+
+
+@dataclass(frozen=True)
+class Photons:
+    """A cheap objective with a score option: the closed-form NA times ``photons``."""
+
+    photons: float = 1000.0
+    name: str = "scaled_na"
+    unit: str = ""
+    direction: str = "maximize"
+
+    def score_options(self) -> dict:
+        return {"photons": self.photons}
+
+    def __call__(self, candidate) -> float:
+        return self.photons * ClosedForm("effective_numerical_aperture", "maximize", "")(candidate)
+
+
+ONE_POINT = DesignSpace((Parameter("mla.lenslets[*].aperture_diameter_um", choices=(500.0, 550.0)),))
+
+
+def test_a_resume_with_other_objective_options_is_refused_naming_each(flfm, tmp_path):
+    """walk4 #2: a resume with another --photons mixed two settings' scores in one ranking."""
+    url = f"sqlite:///{tmp_path / 'p.db'}"
+    run_study(Evaluator(flfm, ONE_POINT, [Photons(1e5)]), url, n_trials=1)
+    assert load_study(url).user_attrs["objective_options"] == {"scaled_na": {"photons": 1e5}}
+    with pytest.raises(
+        StudyMismatchError,
+        match=r"other objective options \(scaled_na photons: stored 100000.0, now 1000.0\).*Fix",
+    ):
+        run_study(Evaluator(flfm, ONE_POINT, [Photons(1000.0)]), url, resume=True)
+    assert len(load_study(url).get_trials()) == 1  # nothing scored with the other options
+    resumed = run_study(Evaluator(flfm, ONE_POINT, [Photons(1e5)]), url, resume=True)
+    assert len(resumed.get_trials()) == 2
+
+
+def test_a_study_stored_without_options_resumes_with_a_warning(flfm, tmp_path):
+    from lfm_studio.engine.optimize.study import StudyOptionsUncheckedWarning, open_stored, study_attrs
+
+    url = f"sqlite:///{tmp_path / 'old.db'}"
+    evaluator = Evaluator(flfm, ONE_POINT, [Photons(1e5)])
+    old = study_attrs(evaluator, "grid")
+    del old["objective_options"]  # as stored before the options were recorded
+    open_stored(old, ["maximize"], url)
+    with pytest.warns(StudyOptionsUncheckedWarning, match="could not check"):
+        study = run_study(evaluator, url, resume=True)
+    assert len(study.get_trials()) == 2
+
+
+def test_an_existing_study_is_an_output_refusal(flfm, tmp_path):
+    from lfm_studio.engine.io.file_checks import OutputError
+    from lfm_studio.engine.optimize.study import StudyExistsError
+
+    url = f"sqlite:///{tmp_path / 'e.db'}"
+    run_study(Evaluator(flfm, ONE_POINT, [Photons()]), url, n_trials=1)
+    with pytest.raises(StudyExistsError, match="already exists") as caught:
+        run_study(Evaluator(flfm, ONE_POINT, [Photons()]), url)
+    assert isinstance(caught.value, OutputError)
+
+
+def test_a_resume_with_other_objectives_names_them_in_plain_words(flfm, tmp_path):
+    url = f"sqlite:///{tmp_path / 'o.db'}"
+    run_study(Evaluator(flfm, ONE_POINT, [Photons()]), url, n_trials=1)
+    with pytest.raises(StudyMismatchError, match=r"was made with other objectives; resuming it with these"):
+        run_study(Evaluator(flfm, ONE_POINT, [Counting()]), url, resume=True)
