@@ -31,10 +31,11 @@ MEANING = {"nan": None, "inf": None, "-1": -1.0, "0": 0.0, "1e308": 1e308, "": N
 LOCALES = ("C", "de_DE")
 # Parameter panel 14 fields (two of them pairs) = 16; workflow 4 + the registry's method options
 # (rtol, tv_weight, snr, refine); MLA editor 5 + 2 + 2.
-EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 13  # parameter panel (incl. the two volume-grid settings), workflow,
-# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (grid budget; Algorithm 2:
-# minimum lenslet, crop; gradient: steps, learning rate, crop, photons, background; end to end: learning
-# rate, iterations, batch, held-out, photons)
+EXPECTED_FIELDS = 18 + 4 + 4 + 9 + 4 + 15  # parameter panel (incl. the two volume-grid settings), workflow,
+# MLA editor, Train dock (minutes, max steps, seed, optics jitter), Optimise dock (grid budget; axial_crb
+# photons and background for grid search and Algorithm 2; Algorithm 2: minimum lenslet, crop; gradient:
+# steps, learning rate, crop, photons, background; end to end: learning rate, iterations, batch,
+# held-out, photons)
 # Fields that do not apply to the default (Fourier) design, or to the default method (accelerated RL),
 # are shown disabled and cannot be typed into.
 DISABLED_ON_FOURIER = {"accuracy.voxels_per_lenslet", "snr", "refine"}
