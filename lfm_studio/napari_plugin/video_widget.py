@@ -11,8 +11,9 @@ said in a warning) and, for raw frames of a real microscope, their calibration f
 corrected and rectified first; filled from the calibration overlay opened last).
 
 The run is a :class:`~lfm_studio.napari_plugin.background.BackgroundTask`: the progress bar counts
-frames, Cancel stops between chunks and leaves a store that Resume finishes. An existing store is
-continued only with Resume and replaced only after the user agrees. When the run ends the store
+frames, Cancel stops between chunks and leaves a store that Resume finishes (Resume computes the
+frames without a record and those recorded as failed). An existing store is continued only with
+Resume and replaced only after the user agrees. When the run ends the store
 is opened lazily as one multiscale layer (the plugin's OME-Zarr reader), and failed frames are
 listed in a warning; a failed or cancelled run adds no layer.
 """
@@ -127,7 +128,7 @@ class VideoWidget(QWidget):
         self.calibration = QLineEdit()
         self.calibration.setPlaceholderText("raw frames only: their calibration .json")
         self.options = MethodOptions()
-        self.resume = QCheckBox("Resume an interrupted run into this store (only missing frames)")
+        self.resume = QCheckBox("Resume a run into this store (only missing or failed frames)")
         self.counts = QCheckBox("Frames are camera counts (ADU)")
         self.counts.setChecked(True)
         self.workers = QSpinBox()

@@ -156,3 +156,13 @@ def test_without_the_scale_extra_the_widget_says_how_to_install_it(widget, notes
     monkeypatch.setattr(extras, "SCALE_MODULES", ("lfm_studio_no_such_module",))
     assert not dock.start() and not dock.busy
     assert 'pip install "lfm-studio[scale]"' in notes.errors()[-1]
+
+
+def test_the_resume_label_and_docs_say_failed_frames_are_computed_again(widget):
+    from pathlib import Path
+
+    _, dock = widget
+    assert "only missing or failed frames" in dock.resume.text()  # the studio's wording (video_dialog.py)
+    docs = (Path(__file__).parents[2] / "docs" / "napari_plugin.md").read_text()
+    resume = docs[docs.index("*Resume* (") :].split(")", 1)[0]
+    assert "failed" in resume and "only the missing frames" not in docs
