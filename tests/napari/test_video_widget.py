@@ -158,6 +158,47 @@ def test_without_the_scale_extra_the_widget_says_how_to_install_it(widget, notes
     assert 'pip install "lfm-studio[scale]"' in notes.errors()[-1]
 
 
+def _write_frames(files, path, *, nan_frame: int | None = None):
+    """The recording as float32 TIFF at ``path``; a NaN pixel in ``nan_frame`` makes that frame fail."""
+    frames = tifffile.imread(files["frames"]).astype(np.float32)
+    if nan_frame is not None:
+        frames[nan_frame, 60, 60] = np.nan  # no camera writes NaN: the engine records the frame as failed
+    tifffile.imwrite(path, frames, photometric="minisblack")
+    return path
+
+
+def _run_with_a_failed_frame(dock, files, qtbot, tmp_path):
+    """A finished run whose frame 3 failed (a NaN pixel); returns the frames file and the store."""
+    frames = _write_frames(files, tmp_path / "frames.tif", nan_frame=3)
+    dock.frames.setText(str(frames))
+    dock.counts.setChecked(False)  # photons: no baseline estimated (the NaN frame cannot change it)
+    store = tmp_path / "run.ome.zarr"
+    dock.output.setText(str(store))
+    assert dock.start()
+    _wait(qtbot, dock)
+    return frames, store
+
+
+def test_failed_frames_are_said_first_in_the_warning_and_in_the_status_line(
+    widget, files, qtbot, notes, tmp_path
+):
+    _, dock = widget
+    _, store = _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    warning = notes.warnings()[-1]  # a notification shows the start of its message
+    assert warning.startswith(f"1 of {FRAMES} frames failed: frame 3: ValueError: ") and "NaN" in warning
+    assert f"Store {store}: {FRAMES - 1} of {FRAMES} frames reconstructed (5 now, 0 before)." in warning
+    status = dock.controls.status.text()
+    assert status == f"done with problems: 1 of {FRAMES} frames failed (3). {video_widget.RESUME_FIX}"
+    assert dock.controls.bar.value() == dock.controls.bar.maximum()  # the run did end
+
+
+def test_no_to_replacing_the_store_clears_the_failed_frames_status(widget, files, qtbot, notes, tmp_path):
+    _, dock = widget
+    _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    assert dock.start(overwrite=False) is False  # exists, Resume not ticked, not agreed: nothing runs
+    assert dock.controls.status.text() == "not run: run.ome.zarr kept"
+
+
 def test_the_resume_label_and_docs_say_failed_frames_are_computed_again(widget):
     from pathlib import Path
 
