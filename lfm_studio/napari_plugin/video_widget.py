@@ -14,8 +14,9 @@ The run is a :class:`~lfm_studio.napari_plugin.background.BackgroundTask`: the p
 frames, Cancel stops between chunks and leaves a store that Resume finishes (Resume computes the
 frames without a record and those recorded as failed). An existing store is continued only with
 Resume and replaced only after the user agrees. When the run ends the store is opened lazily as
-one multiscale layer (the plugin's OME-Zarr reader); failed frames are counted first in a warning
-and in the status line. A failed or cancelled run adds no layer.
+one multiscale layer (the plugin's OME-Zarr reader) in place of the layers already showing that
+store; failed frames are counted first in a warning and in the status line. A failed or cancelled
+run adds no layer.
 """
 
 from __future__ import annotations
@@ -317,17 +318,33 @@ class VideoWidget(QWidget):
             self._show(result)
 
     def _show(self, result: Any) -> None:
-        """The store as a layer, and what the run did (failed frames first)."""
-        from lfm_studio.napari_plugin.zarr_reader import ome_zarr_layers
-
-        for data, meta, kind in ome_zarr_layers(result.path, warn=False):  # failures are said below
-            self.viewer.add_layer(Layer.create(data, meta, kind))
+        """The store as the one layer of its path, and what the run did (failed frames first)."""
+        self._replace_store_layers(result.path)
         failures = _failures_text(result)
         if failures is None:
             report_info(_counts_text(result))
             return
         report_warning(f"{failures} {_counts_text(result)}")
         self.controls.set_status(_failures_status(result))
+
+    def _replace_store_layers(self, store: str | Path) -> None:
+        """Open ``store`` lazily in place of the layers already showing it (other layers are kept)."""
+        from lfm_studio.napari_plugin.zarr_reader import ome_zarr_layers
+
+        layers = self.viewer.layers
+        new = [Layer.create(data, meta, kind) for data, meta, kind in ome_zarr_layers(store, warn=False)]
+        old = [layer for layer in layers if _shows_store(layer, store)]
+        index = layers.index(old[0]) if old else len(layers)
+        for layer in old:
+            layers.remove(layer)
+        for offset, layer in enumerate(new):
+            layers.insert(index + offset, layer)
+
+
+def _shows_store(layer: Layer, store: str | Path) -> bool:
+    """Whether ``layer`` was opened from the OME-Zarr store ``store`` (its metadata "source")."""
+    source = layer.metadata.get("source") if isinstance(layer.metadata, dict) else None
+    return isinstance(source, str) and Path(source).resolve() == Path(store).resolve()
 
 
 def _failures_text(result: Any) -> str | None:

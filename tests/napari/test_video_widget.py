@@ -167,6 +167,10 @@ def _write_frames(files, path, *, nan_frame: int | None = None):
     return path
 
 
+def _store_layers(viewer, store) -> list:
+    return [layer for layer in viewer.layers if layer.metadata.get("source") == str(store)]
+
+
 def _run_with_a_failed_frame(dock, files, qtbot, tmp_path):
     """A finished run whose frame 3 failed (a NaN pixel); returns the frames file and the store."""
     frames = _write_frames(files, tmp_path / "frames.tif", nan_frame=3)
@@ -197,6 +201,27 @@ def test_no_to_replacing_the_store_clears_the_failed_frames_status(widget, files
     _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
     assert dock.start(overwrite=False) is False  # exists, Resume not ticked, not agreed: nothing runs
     assert dock.controls.status.text() == "not run: run.ome.zarr kept"
+
+
+def test_a_resume_replaces_the_stale_layer_of_its_store_and_keeps_other_layers(
+    widget, files, qtbot, notes, tmp_path
+):
+    viewer, dock = widget
+    mine = viewer.add_image(np.zeros((4, 4)), name="mine")
+    frames, store = _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    (stale,) = _store_layers(viewer, store)
+    assert "(1 failed)" in stale.name
+    _write_frames(files, frames)  # repaired
+    dock.resume.setChecked(True)
+    assert dock.start()
+    _wait(qtbot, dock)
+    assert 3 in dock.last_result.computed and dock.last_result.failed == {}
+    (layer,) = _store_layers(viewer, store)  # one layer for the store, in place of the stale one
+    assert "failed" not in layer.name and stale not in viewer.layers
+    assert list(viewer.layers) == [mine, layer]  # the user's own layer is kept, in its place
+    assert np.asarray(layer.data[0][3]).max() > 0  # frame 3 now holds a reconstruction, not zeros
+    assert f"{FRAMES} of {FRAMES} frames reconstructed" in notes.infos()[-1]
+    assert dock.controls.status.text().startswith("done in")
 
 
 def test_the_resume_label_and_docs_say_failed_frames_are_computed_again(widget):
