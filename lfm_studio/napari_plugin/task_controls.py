@@ -54,6 +54,10 @@ class TaskControls(QWidget):
         self.bar.setRange(0, 0)  # busy until the first progress report
         self.status.setText(message)
 
+    def set_status(self, text: str) -> None:
+        """Replace the status line, e.g. with the owner's verdict after its task ended."""
+        self.status.setText(text)
+
     def _on_run(self) -> None:
         if self._task is None:
             self.runClicked.emit()

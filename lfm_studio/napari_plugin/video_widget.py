@@ -11,10 +11,12 @@ said in a warning) and, for raw frames of a real microscope, their calibration f
 corrected and rectified first; filled from the calibration overlay opened last).
 
 The run is a :class:`~lfm_studio.napari_plugin.background.BackgroundTask`: the progress bar counts
-frames, Cancel stops between chunks and leaves a store that Resume finishes. An existing store is
-continued only with Resume and replaced only after the user agrees. When the run ends the store
-is opened lazily as one multiscale layer (the plugin's OME-Zarr reader), and failed frames are
-listed in a warning; a failed or cancelled run adds no layer.
+frames, Cancel stops between chunks and leaves a store that Resume finishes (Resume computes the
+frames without a record and those recorded as failed). An existing store is continued only with
+Resume and replaced only after the user agrees. When the run ends the store is opened lazily as
+one multiscale layer (the plugin's OME-Zarr reader) in place of the layers already showing that
+store; failed frames are counted first in a warning and in the status line. A failed or cancelled
+run adds no layer.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ from lfm_studio.napari_plugin.task_controls import TaskControls
 from lfm_studio.widgets.method_options import MethodOptions
 
 MAX_WORKERS = 256
+RESUME_FIX = "Tick Resume and run again to compute them."
 
 
 @dataclass(frozen=True)
@@ -127,7 +130,7 @@ class VideoWidget(QWidget):
         self.calibration = QLineEdit()
         self.calibration.setPlaceholderText("raw frames only: their calibration .json")
         self.options = MethodOptions()
-        self.resume = QCheckBox("Resume an interrupted run into this store (only missing frames)")
+        self.resume = QCheckBox("Resume a run into this store (only missing or failed frames)")
         self.counts = QCheckBox("Frames are camera counts (ADU)")
         self.counts.setChecked(True)
         self.workers = QSpinBox()
@@ -217,12 +220,13 @@ class VideoWidget(QWidget):
             agreed = self._ask_replace(job.output) if overwrite is None else overwrite
             if not agreed:
                 report_info(f"{job.output} kept: tick Resume to continue its run, or choose another store.")
+                self.controls.set_status(f"not run: {job.output.name} kept")
                 return False
             job = VideoJob(**{**job.__dict__, "overwrite": True})
         self._job = job
         task = BackgroundTask(lambda progress, cancel: run_video_job(job, progress, cancel), self)
-        task.ended.connect(self._on_ended)
         self.controls.attach(task, f"reconstructing {job.frames.name} into {job.output.name}")
+        task.ended.connect(self._on_ended)  # after the controls' slot: the verdict on failed frames stays
         self._task = task
         task.start()
         return True
@@ -314,25 +318,64 @@ class VideoWidget(QWidget):
             self._show(result)
 
     def _show(self, result: Any) -> None:
+        """The store as the one layer of its path, and what the run did (failed frames first)."""
+        self._replace_store_layers(result.path)
+        failures = _failures_text(result)
+        if failures is None:
+            report_info(_counts_text(result))
+            return
+        report_warning(f"{failures} {_counts_text(result)}")
+        self.controls.set_status(_failures_status(result))
+
+    def _replace_store_layers(self, store: str | Path) -> None:
+        """Open ``store`` lazily in place of the layers already showing it (other layers are kept)."""
         from lfm_studio.napari_plugin.zarr_reader import ome_zarr_layers
 
-        for data, meta, kind in ome_zarr_layers(result.path, warn=False):  # failures are listed below
-            self.viewer.add_layer(Layer.create(data, meta, kind))
-        done = len(result.computed) + len(result.skipped)  # lost chunks and failed frames are in neither
-        message = (
-            f"{result.path}: {done} of {result.frame_count} frames reconstructed "
-            f"({len(result.computed)} now, {len(result.skipped)} before)."
-        )
-        retried = result.retried_note()
-        if retried:
-            message += f" {retried}"
-        if result.failed or result.unfinished:
-            listed = "; ".join(f"frame {t}: {error}" for t, error in result.failed.items())
-            lost = (
-                f" Chunks {list(result.unfinished)} were lost with their worker: Resume finishes them."
-                if result.unfinished
-                else ""
-            )
-            report_warning(f"{message} {len(result.failed)} failed ({listed}).{lost}")
-        else:
-            report_info(message)
+        layers = self.viewer.layers
+        new = [Layer.create(data, meta, kind) for data, meta, kind in ome_zarr_layers(store, warn=False)]
+        old = [layer for layer in layers if _shows_store(layer, store)]
+        index = layers.index(old[0]) if old else len(layers)
+        for layer in old:
+            layers.remove(layer)
+        for offset, layer in enumerate(new):
+            layers.insert(index + offset, layer)
+
+
+def _shows_store(layer: Layer, store: str | Path) -> bool:
+    """Whether ``layer`` was opened from the OME-Zarr store ``store`` (its metadata "source")."""
+    source = layer.metadata.get("source") if isinstance(layer.metadata, dict) else None
+    return isinstance(source, str) and Path(source).resolve() == Path(store).resolve()
+
+
+def _failures_text(result: Any) -> str | None:
+    """The failed frames (with their errors) and lost chunks of ``result``; None when there are none."""
+    parts = []
+    if result.failed:
+        listed = "; ".join(f"frame {t}: {error.rstrip('.')}" for t, error in sorted(result.failed.items()))
+        parts.append(f"{len(result.failed)} of {result.frame_count} frames failed: {listed}.")
+    if result.unfinished:
+        parts.append(f"Chunks {list(result.unfinished)} were lost with their worker.")
+    return " ".join([*parts, RESUME_FIX]) if parts else None
+
+
+def _failures_status(result: Any, most: int = 8) -> str:
+    """The status line of a run with failed frames or lost chunks (counts and frame numbers only)."""
+    parts = []
+    if result.failed:
+        frames = sorted(result.failed)
+        listed = ", ".join(str(t) for t in frames[:most]) + (" ..." if len(frames) > most else "")
+        parts.append(f"{len(frames)} of {result.frame_count} frames failed ({listed})")
+    if result.unfinished:
+        parts.append(f"{len(result.unfinished)} chunk(s) lost")
+    return f"done with problems: {'; '.join(parts)}. {RESUME_FIX}"
+
+
+def _counts_text(result: Any) -> str:
+    """The store and how many frames it holds reconstructed (now and before), with earlier failures retried."""
+    done = len(result.computed) + len(result.skipped)  # lost chunks and failed frames are in neither
+    message = (
+        f"Store {result.path}: {done} of {result.frame_count} frames reconstructed "
+        f"({len(result.computed)} now, {len(result.skipped)} before)."
+    )
+    retried = result.retried_note()
+    return f"{message} {retried}" if retried else message

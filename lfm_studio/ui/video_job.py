@@ -54,7 +54,7 @@ class VideoRequest:
     output : the OME-Zarr store to write (``*.ome.zarr``).
     design : the studio's design (each worker builds the projector from it).
     settings : the workflow panel's settings (method, its options, iterations).
-    resume : continue an existing store of the same run (only missing frames are computed).
+    resume : continue an existing store of the same run (only missing or failed frames are computed).
     overwrite : replace an existing store (the dialog asked).
     chunk_frames : frames per task and per status record.
     workers : worker processes of a local Dask cluster (None or 1: in this process).

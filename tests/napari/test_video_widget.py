@@ -156,3 +156,79 @@ def test_without_the_scale_extra_the_widget_says_how_to_install_it(widget, notes
     monkeypatch.setattr(extras, "SCALE_MODULES", ("lfm_studio_no_such_module",))
     assert not dock.start() and not dock.busy
     assert 'pip install "lfm-studio[scale]"' in notes.errors()[-1]
+
+
+def _write_frames(files, path, *, nan_frame: int | None = None):
+    """The recording as float32 TIFF at ``path``; a NaN pixel in ``nan_frame`` makes that frame fail."""
+    frames = tifffile.imread(files["frames"]).astype(np.float32)
+    if nan_frame is not None:
+        frames[nan_frame, 60, 60] = np.nan  # no camera writes NaN: the engine records the frame as failed
+    tifffile.imwrite(path, frames, photometric="minisblack")
+    return path
+
+
+def _store_layers(viewer, store) -> list:
+    return [layer for layer in viewer.layers if layer.metadata.get("source") == str(store)]
+
+
+def _run_with_a_failed_frame(dock, files, qtbot, tmp_path):
+    """A finished run whose frame 3 failed (a NaN pixel); returns the frames file and the store."""
+    frames = _write_frames(files, tmp_path / "frames.tif", nan_frame=3)
+    dock.frames.setText(str(frames))
+    dock.counts.setChecked(False)  # photons: no baseline estimated (the NaN frame cannot change it)
+    store = tmp_path / "run.ome.zarr"
+    dock.output.setText(str(store))
+    assert dock.start()
+    _wait(qtbot, dock)
+    return frames, store
+
+
+def test_failed_frames_are_said_first_in_the_warning_and_in_the_status_line(
+    widget, files, qtbot, notes, tmp_path
+):
+    _, dock = widget
+    _, store = _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    warning = notes.warnings()[-1]  # a notification shows the start of its message
+    assert warning.startswith(f"1 of {FRAMES} frames failed: frame 3: ValueError: ") and "NaN" in warning
+    assert f"Store {store}: {FRAMES - 1} of {FRAMES} frames reconstructed (5 now, 0 before)." in warning
+    status = dock.controls.status.text()
+    assert status == f"done with problems: 1 of {FRAMES} frames failed (3). {video_widget.RESUME_FIX}"
+    assert dock.controls.bar.value() == dock.controls.bar.maximum()  # the run did end
+
+
+def test_no_to_replacing_the_store_clears_the_failed_frames_status(widget, files, qtbot, notes, tmp_path):
+    _, dock = widget
+    _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    assert dock.start(overwrite=False) is False  # exists, Resume not ticked, not agreed: nothing runs
+    assert dock.controls.status.text() == "not run: run.ome.zarr kept"
+
+
+def test_a_resume_replaces_the_stale_layer_of_its_store_and_keeps_other_layers(
+    widget, files, qtbot, notes, tmp_path
+):
+    viewer, dock = widget
+    mine = viewer.add_image(np.zeros((4, 4)), name="mine")
+    frames, store = _run_with_a_failed_frame(dock, files, qtbot, tmp_path)
+    (stale,) = _store_layers(viewer, store)
+    assert "(1 failed)" in stale.name
+    _write_frames(files, frames)  # repaired
+    dock.resume.setChecked(True)
+    assert dock.start()
+    _wait(qtbot, dock)
+    assert 3 in dock.last_result.computed and dock.last_result.failed == {}
+    (layer,) = _store_layers(viewer, store)  # one layer for the store, in place of the stale one
+    assert "failed" not in layer.name and stale not in viewer.layers
+    assert list(viewer.layers) == [mine, layer]  # the user's own layer is kept, in its place
+    assert np.asarray(layer.data[0][3]).max() > 0  # frame 3 now holds a reconstruction, not zeros
+    assert f"{FRAMES} of {FRAMES} frames reconstructed" in notes.infos()[-1]
+    assert dock.controls.status.text().startswith("done in")
+
+
+def test_the_resume_label_and_docs_say_failed_frames_are_computed_again(widget):
+    from pathlib import Path
+
+    _, dock = widget
+    assert "only missing or failed frames" in dock.resume.text()  # the studio's wording (video_dialog.py)
+    docs = (Path(__file__).parents[2] / "docs" / "napari_plugin.md").read_text()
+    resume = docs[docs.index("*Resume* (") :].split(")", 1)[0]
+    assert "failed" in resume and "only the missing frames" not in docs
