@@ -379,6 +379,42 @@ def _stored_int(stored: dict[str, JSONValue], key: str) -> int:
     return int(value)
 
 
+RUN_ITEMS = {
+    "frames": "the frames (frames= / --image)",
+    "projector": "the design or PSF (design_or_psf= / --psf)",
+    "options": "the method options (method=, options= / --method, --iterations, ...)",
+    "chunk_frames": "chunk_frames= / --chunk-frames",
+    "camera": "the camera conversion (camera= / --baseline, --gain, ...)",
+    "calibration": "the calibration (calibration=, lenslets= / --calibration, --lenslets)",
+}
+"""A run record's items in the user's words (Python keyword / command-line option)."""
+
+
+def _shown(value: JSONValue) -> str | None:
+    """``value`` as JSON when it is short enough for a message, else None."""
+    text = json.dumps(value)
+    return text if len(text) <= 40 else None
+
+
+def _difference(key: str, stored: JSONValue, now: JSONValue) -> str:
+    """How run item ``key`` differs between the store (``stored``) and this run (``now``): named in
+    the user's words, with each differing field's two values when they are short."""
+    label = RUN_ITEMS.get(key, key)
+    if isinstance(stored, dict) and isinstance(now, dict):
+        fields = sorted(name for name in {*stored, *now} if stored.get(name) != now.get(name))
+        pairs = [(name, stored.get(name), now.get(name)) for name in fields]
+    else:
+        pairs = [(key, stored, now)]
+    details = []
+    for name, old, new in pairs:
+        shown_old, shown_new = _shown(old), _shown(new)
+        if shown_old is None or shown_new is None:
+            details.append(f"{name} changed")
+        else:
+            details.append(f"{name} {shown_old} in the store, {shown_new} now")
+    return f"{label} differs ({', '.join(details)})"
+
+
 def open_store(path: str | os.PathLike, *, run: dict[str, JSONValue]) -> VideoStore:
     """The existing store at ``path``, refused when its run record differs from ``run`` (another
     video, design, method or chunking: resuming would mix two reconstructions)."""
@@ -392,13 +428,19 @@ def open_store(path: str | os.PathLike, *, run: dict[str, JSONValue]) -> VideoSt
     except (FileNotFoundError, KeyError, ValueError) as error:
         raise ValueError(
             f"{target} is not an lfm_studio video store ({error}). Fix: choose another output, or pass "
-            "overwrite=True (--overwrite) to replace it."
+            "overwrite=True / --overwrite to replace it."
         ) from error
-    different = sorted(key for key in run if stored_run.get(key) != json.loads(json.dumps(run[key])))
+    now = {key: json.loads(json.dumps(value)) for key, value in run.items()}
+    different = [
+        _difference(key, stored_run.get(key), now[key])
+        for key in sorted(now)
+        if stored_run.get(key) != now[key]
+    ]
     if different:
         raise ValueError(
-            f"{target} was written by a different run ({', '.join(different)} differ); resuming would mix "
-            "two reconstructions. Fix: use the same inputs and options, another output, or overwrite=True."
+            f"{target} was written by a different run: {'; '.join(different)}. Resuming would mix two "
+            "reconstructions. Fix: use the same inputs and options as that run, another output, or "
+            "overwrite=True / --overwrite to replace it."
         )
     return VideoStore(
         str(target),
