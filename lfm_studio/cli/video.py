@@ -31,6 +31,13 @@ _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and wh
 }
 
 
+SHAPE_FIX = (
+    "raw frames of a real microscope need --calibration calib.json (from `lfm-studio calibrate`); "
+    "other frames need the PSF simulated for this camera (--psf from `lfm-studio simulate DESIGN`)."
+)
+"""The CLI's fix for frames that are not the pixels the PSF images (no ``--calibration`` given)."""
+
+
 def is_video_output(out: Any) -> bool:
     """True when ``--out`` names an OME-Zarr store (``*.zarr``: the rule reconstruct_video enforces)."""
     from lfm_studio.engine.io.file_checks import names_zarr_store
@@ -140,7 +147,7 @@ def run_video(args: argparse.Namespace) -> int:
                 source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
                 overwrite=args.overwrite,
                 client=client, chunk_frames=args.chunk_frames, frame_interval_s=args.frame_interval_s,
-                camera=camera, field_of_view=fov, dtype=args.dtype, calibration=args.calibration,
+                camera=camera, field_of_view=fov, dtype=args.dtype, calibration=args.calibration, shape_fix=SHAPE_FIX,
                 lenslets=lenslets,
                 progress=lambda done, total, message: bar(done, total, message),
             )  # fmt: skip

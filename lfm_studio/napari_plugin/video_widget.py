@@ -77,6 +77,14 @@ class VideoJob:
     calibration: Path | None = None
 
 
+SHAPE_FIX = (
+    "raw frames of a real microscope need their calibration: choose it in the “Calibration (raw frames)” "
+    "field (a file from Calibrate or `lfm-studio calibrate`); other frames need the PSF simulated for "
+    "this camera in the “PSF stack” field."
+)
+"""The dock's fix for frames that are not the pixels the PSF images (the engine's shape refusal)."""
+
+
 def run_video_job(job: VideoJob, progress: Any, cancel: Any) -> Any:
     """The worker-thread body: the camera conversion (noted), then ``reconstruct_video``; returns
     ``(result, notes)``."""
@@ -91,7 +99,7 @@ def run_video_job(job: VideoJob, progress: Any, cancel: Any) -> Any:
         source, job.psf, method=job.method, options=job.options, output=job.output, resume=job.resume,
         overwrite=job.overwrite, workers=job.workers, camera=camera, calibration=job.calibration,
         progress=lambda done, total, message: progress(done, total, f"{done}/{total} frames ({message})"),
-        cancel=cancel,
+        cancel=cancel, shape_fix=SHAPE_FIX,
     )  # fmt: skip
     return result, notes
 

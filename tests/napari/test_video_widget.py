@@ -156,3 +156,14 @@ def test_without_the_scale_extra_the_widget_says_how_to_install_it(widget, notes
     monkeypatch.setattr(extras, "SCALE_MODULES", ("lfm_studio_no_such_module",))
     assert not dock.start() and not dock.busy
     assert 'pip install "lfm-studio[scale]"' in notes.errors()[-1]
+
+
+def test_frames_of_another_shape_are_told_the_docks_fields(files, tmp_path):
+    small = tmp_path / "small.tif"
+    tifffile.imwrite(small, np.zeros((2, 64, 64), np.uint16), photometric="minisblack")
+    job = video_widget.VideoJob(small, files["psf"], tmp_path / "run.ome.zarr", "rl", {"iterations": 1})
+    with pytest.raises(ValueError) as refused:
+        video_widget.run_video_job(job, lambda *args: None, None)
+    text = str(refused.value)
+    assert "(64, 64) pixels" in text and "“Calibration (raw frames)” field" in text and "crop=" not in text
+    assert not (tmp_path / "run.ome.zarr").exists()

@@ -56,7 +56,10 @@ DEFAULT_CHUNK_FRAMES = 4
 UM = 1e-6
 LENSLETS_OPTION = "lenslets=({ny}, {nx}) (`--lenslets {ny} {nx}` on the command line)"
 """How a shape refusal of raw frames names the matching lenslet block (:func:`check_rectified_shape`)."""
-FRAME_SHAPE_FIX = "use the design/PSF of this camera (or crop= matching the frames)."
+FRAME_SHAPE_FIX = (
+    "use the design/PSF of this camera (or crop= matching the frames); raw frames of a real "
+    "microscope need calibration='calib.json' (from `lfm-studio calibrate`)."
+)
 """What to do about frames of another shape (the end of :func:`check_frame_shape`'s refusal)."""
 
 
@@ -154,16 +157,21 @@ def _raw_frames(
     return spec, rectifier, camera
 
 
-def check_rectified_shape(spec: RawFrameSpec, rectifier: FrameRectifier, sensor: tuple[int, ...]) -> None:
+def check_rectified_shape(
+    spec: RawFrameSpec, rectifier: FrameRectifier, sensor: tuple[int, ...], fix: str | None = None
+) -> None:
     """Refuse raw frames whose rectified ``(Y, X)`` pixels are not ``sensor``, the pixels the
-    projector images: a ``ValueError`` naming both shapes and the fix (the PSF of the rectified
-    design, or the lenslet block that matches this PSF)."""
+    projector images: a ``ValueError`` naming both shapes and ``Fix: <fix>`` (None: the PSF of the
+    rectified design, or the lenslet block that matches this PSF, :data:`LENSLETS_OPTION`)."""
     shape = tuple(rectifier.output_shape)
     if shape == tuple(sensor):
         return
+    worded = (
+        rectified_shape_fix(rectifier.calibration, sensor, LENSLETS_OPTION) if fix is None else f"Fix: {fix}"
+    )
     raise ValueError(
         f"raw frames rectified with {spec.path} are {shape} pixels but the projector images "
-        f"{tuple(sensor)} pixels. {rectified_shape_fix(rectifier.calibration, sensor, LENSLETS_OPTION)}"
+        f"{tuple(sensor)} pixels. {worded}"
     )
 
 
@@ -314,6 +322,7 @@ def reconstruct_video(
     shape_fix: str = FRAME_SHAPE_FIX,
     calibration: str | os.PathLike | None = None,
     lenslets: tuple[int, int] | None = None,
+    rectified_fix: str | None = None,
     **method_options: OptionValue,
 ) -> VideoResult:
     """Reconstruct every frame ``(T, Y, X)`` of ``frames`` into the OME-Zarr store ``output``.
@@ -352,6 +361,9 @@ def reconstruct_video(
         centre (None: the calibration's lit block), as
         :func:`~lfm_studio.engine.calibration.rectify_frame` does, before the camera conversion
         (``camera`` None: the frames' metadata, else the calibration's design camera, baseline 0).
+    rectified_fix : the fix named when raw frames rectified with ``calibration`` are not the pixels
+        the projector images (:func:`check_rectified_shape`; None: the PSF of the rectified design or
+        the matching ``lenslets``, as the CLI and Python say it; a front end says it in its own words).
 
     The result's ``computed`` and ``skipped`` list the frames reconstructed (now, before);
     a frame that failed is only in ``failed``; ``retried`` lists the earlier failures tried again.
@@ -367,7 +379,7 @@ def reconstruct_video(
 
     def check_shape(sensor: tuple[int, ...]) -> None:
         if raw is not None and rectifier is not None:
-            check_rectified_shape(raw, rectifier, sensor)
+            check_rectified_shape(raw, rectifier, sensor, rectified_fix)
         else:
             check_frame_shape(source, sensor, shape_fix)
 
