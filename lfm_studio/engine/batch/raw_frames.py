@@ -46,6 +46,12 @@ class RawFrameSpec:
         lenslets: JSONValue = None if self.block is None else [int(self.block[1]), int(self.block[3])]
         return {"path": self.path, "sha256": self.sha256, "lenslets": lenslets, "block": block}
 
+    def legacy_describe(self) -> dict[str, JSONValue]:
+        """The record of stores written before the effective block was kept: the ``lenslets``
+        asked for (None for the calibration's block) and no ``block``; such a store still resumes."""
+        lenslets: JSONValue = None if self.lenslets is None else [int(v) for v in self.lenslets]
+        return {"path": self.path, "sha256": self.sha256, "lenslets": lenslets}
+
 
 CACHE_SIZE = 2  # calibrations kept per process (one run needs one)
 _CACHE: OrderedDict[RawFrameSpec, FrameRectifier] = OrderedDict()

@@ -279,16 +279,33 @@ def _first_few(frames: list[int], most: int = 8) -> str:
     )
 
 
+def _open_for_resume(
+    target: Path, run: dict[str, JSONValue], legacy_run: dict[str, JSONValue] | None
+) -> VideoStore:
+    """The store at ``target`` to resume: its run record is ``run``, or ``legacy_run`` (the same run
+    as an older version recorded it); refused naming what differs from ``run`` otherwise."""
+    try:
+        return open_store(target, run=run)
+    except ValueError as error:
+        if legacy_run is None:
+            raise
+        try:
+            return open_store(target, run=legacy_run)
+        except ValueError:
+            raise error from None
+
+
 def _prepare_store(output: str | os.PathLike, source: FrameSource, *, resume: bool, overwrite: bool,
                    run: dict[str, JSONValue],
                    attributes: dict[str, JSONValue], shape: tuple[int, int, int, int],
                    scale: tuple[float, float, float, float], origin: tuple[float, float, float, float],
-                   levels: int, chunk_frames: int) -> tuple[VideoStore, Path | None]:  # fmt: skip
+                   levels: int, chunk_frames: int,
+                   legacy_run: dict[str, JSONValue] | None = None) -> tuple[VideoStore, Path | None]:  # fmt: skip
     """The store to write and, for an overwrite of an existing store, the path it replaces when
     the run ends (the store returned is then a hidden sibling; the old one stays until then)."""
     target = Path(output).expanduser()
     if target.exists() and resume and not overwrite:
-        store = open_store(target, run=run)
+        store = _open_for_resume(target, run, legacy_run)
         check_frames_unchanged(store, source)
         return store, None
     replaces = target.absolute() if overwrite and target.exists() else None
@@ -411,9 +428,10 @@ def reconstruct_video(
         "chunk_frames": chunk_frames,
         "units": "photons per voxel" if camera is None else camera.volume_units,
     }
+    legacy_run = None if raw is None else {**run, "calibration": raw.legacy_describe()}
     store, replaces = _prepare_store(
         output, source, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
-        scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
+        scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames, legacy_run=legacy_run,
     )  # fmt: skip
     fill = _StoreFill(store, source, spec, reconstruction, camera, raw, progress, cancel)
     if replaces is None:

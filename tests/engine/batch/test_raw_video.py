@@ -11,6 +11,7 @@ volume's 0), and every misuse is refused naming the parameter.
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -179,4 +180,17 @@ def test_a_resume_with_the_calibrations_own_block_given_explicitly_continues(raw
         block
     )  # effective, not None
     result = _run(raw_video, out, chunk_frames=2, lenslets=(block[1], block[3]))
+    assert result.skipped == (0, 1) and result.computed == (2,)
+
+
+def test_a_store_recorded_before_the_effective_block_was_kept_still_resumes(raw_video, tmp_path):
+    out = tmp_path / "raw.ome.zarr"
+    _run(raw_video, out, chunk_frames=2)
+    (out / "lfm_studio_status" / "chunk_000001.json").unlink()
+    document = json.loads((out / "zarr.json").read_text())
+    record = document["attributes"]["lfm_studio"]["run"]["calibration"]
+    del record["block"]
+    record["lenslets"] = None  # as the earlier version recorded a run without lenslets=
+    (out / "zarr.json").write_text(json.dumps(document))
+    result = _run(raw_video, out, chunk_frames=2)
     assert result.skipped == (0, 1) and result.computed == (2,)
