@@ -23,6 +23,15 @@ NOTHING_WRITTEN = "no output was written."
 RERUN_OVERWRITE = "Fix: run the same command again with --overwrite to write them all from one run."
 
 
+def previous_store_unchanged(path: str | os.PathLike[str]) -> str:
+    """What an interrupted ``--overwrite`` run of an existing store kept: the previous store, as it
+    was (the replacement is built aside and dropped on an interrupt)."""
+    return (
+        f"the previous store {path} is unchanged (the replacement run was discarded). "
+        "Fix: run the same command again to replace it."
+    )
+
+
 class Interrupted(KeyboardInterrupt):
     """A Ctrl+C with ``kept``: what the command kept and how to continue (one sentence or two)."""
 

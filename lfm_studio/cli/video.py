@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from lfm_studio.cli.interrupts import on_interrupt
+from lfm_studio.cli.interrupts import on_interrupt, previous_store_unchanged
 from lfm_studio.cli.progress import progress_bar
 
 _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and why
@@ -29,6 +29,13 @@ _NOT_FOR_VIDEO = {  # options of the TIFF path a video run does not take, and wh
     "wavelength_nm": "--wavelength-nm (a video's PSF stack must carry its metadata)",
     "depths": "--depths (a video's PSF stack must carry its metadata)",
 }
+
+
+SHAPE_FIX = (
+    "raw frames of a real microscope need --calibration calib.json (from `lfm-studio calibrate`); "
+    "other frames need the PSF simulated for this camera (--psf from `lfm-studio simulate DESIGN`)."
+)
+"""The CLI's fix for frames that are not the pixels the PSF images (no ``--calibration`` given)."""
 
 
 def is_video_output(out: Any) -> bool:
@@ -80,10 +87,13 @@ def _camera(args: argparse.Namespace, source, raw_calibration) -> Any:
     return calibration
 
 
-def _store_kept(out: str, count: int) -> str | None:
-    """What an interrupted video run kept in its store ``out`` of ``count`` frames (None: no store)."""
+def _store_kept(out: str, count: int, *, replacing: bool = False) -> str | None:
+    """What an interrupted video run kept in its store ``out`` of ``count`` frames (None: no store;
+    ``replacing``: an ``--overwrite`` of an existing store, which the engine leaves unchanged)."""
     from lfm_studio.engine.batch.store import frame_report
 
+    if replacing:
+        return previous_store_unchanged(out)
     if not Path(out).expanduser().is_dir():
         return None
     report = frame_report(Path(out).expanduser())
@@ -124,19 +134,20 @@ def run_video(args: argparse.Namespace) -> int:
     camera = _camera(args, source, raw_calibration)
     lenslets = None if args.lenslets is None else tuple(args.lenslets)
     fov = None if args.field_of_view_um is None else args.field_of_view_um * 1e-6
+    replacing = bool(args.overwrite) and Path(args.out).expanduser().exists()
     with client_for(None, args.workers, args.scheduler) as client:
         link = dashboard_link(client)
         if link:
             print(f"lfm-studio reconstruct: Dask dashboard: {link}", file=sys.stderr)
         with (
             progress_bar(f"{args.method} ({source.count} frames)") as bar,
-            on_interrupt(lambda: _store_kept(args.out, source.count)),
+            on_interrupt(lambda: _store_kept(args.out, source.count, replacing=replacing)),
         ):
             result = reconstruct_video(
                 source, args.psf, method=method.name, options=options, output=args.out, resume=args.resume,
                 overwrite=args.overwrite,
                 client=client, chunk_frames=args.chunk_frames, frame_interval_s=args.frame_interval_s,
-                camera=camera, field_of_view=fov, dtype=args.dtype, calibration=args.calibration,
+                camera=camera, field_of_view=fov, dtype=args.dtype, calibration=args.calibration, shape_fix=SHAPE_FIX,
                 lenslets=lenslets,
                 progress=lambda done, total, message: bar(done, total, message),
             )  # fmt: skip

@@ -80,6 +80,14 @@ class VideoJob:
     calibration: Path | None = None
 
 
+SHAPE_FIX = (
+    "raw frames of a real microscope need their calibration: choose it in the “Calibration (raw frames)” "
+    "field (a file from Calibrate or `lfm-studio calibrate`); other frames need the PSF simulated for "
+    "this camera in the “PSF stack” field."
+)
+"""The dock's fix for frames that are not the pixels the PSF images (the engine's shape refusal)."""
+
+
 def run_video_job(job: VideoJob, progress: Any, cancel: Any) -> Any:
     """The worker-thread body: the camera conversion (noted), then ``reconstruct_video``; returns
     ``(result, notes)``."""
@@ -94,9 +102,17 @@ def run_video_job(job: VideoJob, progress: Any, cancel: Any) -> Any:
         source, job.psf, method=job.method, options=job.options, output=job.output, resume=job.resume,
         overwrite=job.overwrite, workers=job.workers, camera=camera, calibration=job.calibration,
         progress=lambda done, total, message: progress(done, total, f"{done}/{total} frames ({message})"),
-        cancel=cancel,
+        cancel=cancel, shape_fix=SHAPE_FIX,
     )  # fmt: skip
     return result, notes
+
+
+def _what_was_kept(job: VideoJob | None) -> str:
+    """What a cancelled or failed run left: a replacement leaves the previous store unchanged (the
+    engine builds the new one aside), a first or resumed run the chunks it finished."""
+    if job is not None and job.overwrite:
+        return f"the previous store {job.output.name} is unchanged (the replacement was discarded)."
+    return "the store keeps the finished chunks (tick Resume to finish)."
 
 
 def _store_path(text: str) -> Path:
@@ -305,11 +321,9 @@ class VideoWidget(QWidget):
     def _on_ended(self, outcome: Outcome) -> None:
         job, self._task, self._job = self._job, None, None
         if outcome.state == "cancelled":
-            report_info(
-                "Video reconstruction cancelled; the store keeps the finished chunks (tick Resume to finish)."
-            )
+            report_info(f"Video reconstruction cancelled; {_what_was_kept(job)}")
         elif outcome.state == "failed":
-            report_error(f"Video reconstruction failed: {outcome.message}")
+            report_error(f"Video reconstruction failed: {outcome.message} ({_what_was_kept(job)})")
         elif outcome.state == "done" and job is not None:
             result, notes = outcome.value
             self.last_result = result

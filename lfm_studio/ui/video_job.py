@@ -179,6 +179,13 @@ def frame_shape_fix(design: Design) -> str:
     )
 
 
+RECTIFIED_FIX = (
+    "open the rectified design (File > Open… rectified.json, written by Calibrate / "
+    "lfm-studio calibrate --design-out)."
+)
+"""The studio's fix for raw frames whose rectified shape is not the open design's sensor."""
+
+
 def _last_volume(result: Any) -> tuple[int | None, torch.Tensor | None]:
     import numpy as np
     import zarr
@@ -227,7 +234,7 @@ def reconstruct_video_job(ctx: Any, request: VideoRequest) -> VideoRun:
         source, design, method=method, options=options, output=request.output, resume=request.resume,
         overwrite=request.overwrite, workers=request.workers, chunk_frames=request.chunk_frames,
         camera=camera, progress=progress, cancel=ctx.cancel, shape_fix=frame_shape_fix(design),
-        calibration=request.calibration,
+        calibration=request.calibration, rectified_fix=RECTIFIED_FIX,
     )  # fmt: skip
     ctx.progress(source.count, source.count, "reading the last frame for the viewer")
     frame, volume = _last_volume(result)

@@ -64,3 +64,24 @@ def test_raw_video_refusals_name_the_option(files, tmp_path, capsys):
     assert _run(files, store, "--lenslets", "6", "6") == 2  # a 6 x 6 block for the 8 x 8 lenslet PSF
     assert "--lenslets 8 8" in capsys.readouterr().err
     assert not store.exists()
+
+
+def test_raw_frames_without_a_calibration_are_told_to_pass_it(files, tmp_path, capsys):
+    store = tmp_path / "run.ome.zarr"
+    argv = ["reconstruct", "--psf", str(files["psf"]), "--image", str(files["image"]), "--out", str(store)]
+    assert cli.main([*argv, *ARGS, "--baseline", "100", "--gain", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "(188, 192) pixels but the projector images" in err and "--calibration calib.json" in err
+    assert "crop=" not in err  # the CLI has no such option
+    assert not store.exists()
+
+
+def test_a_one_frame_2d_raw_tiff_is_a_one_frame_video(files, tmp_path, capsys):
+    single = tmp_path / "raw2d.tif"
+    tifffile.imwrite(single, tifffile.imread(files["image"])[0], photometric="minisblack")  # (Y, X)
+    store = tmp_path / "single.ome.zarr"
+    argv = ["reconstruct", "--psf", str(files["psf"]), "--image", str(single), "--out", str(store)]
+    assert cli.main([*argv, "--calibration", str(files["calib"]), *ARGS]) == 0
+    assert "1 frames (1 computed now" in capsys.readouterr().out
+    level0 = zarr.open_group(str(store), mode="r")["0"][:]
+    assert level0.shape[0] == 1 and float(np.abs(level0).max()) > 0

@@ -162,3 +162,27 @@ def test_ctrl_c_says_how_many_frames_the_store_keeps_and_to_resume(files, tmp_pa
     monkeypatch.setattr(video, "process_chunk", process)
     assert _run(files, store, "--chunk-frames", "2", "--workers", "1", "--resume") == 0
     assert "4 computed now, 2 done before" in capsys.readouterr().out
+
+
+def test_ctrl_c_of_an_overwrite_keeps_the_previous_store_and_says_so(files, tmp_path, capsys, monkeypatch):
+    from lfm_studio.engine.batch import video
+
+    store = tmp_path / "run.ome.zarr"
+    assert _run(files, store, "--chunk-frames", "2") == 0
+    before = {p: p.read_bytes() for p in sorted(store.rglob("*")) if p.is_file()}
+    process = video.process_chunk
+    chunks = []
+
+    def interrupted_at_the_second_chunk(task):
+        chunks.append(task)
+        if len(chunks) == 2:
+            raise KeyboardInterrupt
+        return process(task)
+
+    monkeypatch.setattr(video, "process_chunk", interrupted_at_the_second_chunk)
+    capsys.readouterr()
+    assert _run(files, store, "--chunk-frames", "2", "--overwrite") == 130
+    err = capsys.readouterr().err
+    assert f"interrupted; the previous store {store} is unchanged" in err and "--resume" not in err
+    assert {p: p.read_bytes() for p in sorted(store.rglob("*")) if p.is_file()} == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.ome.zarr"]

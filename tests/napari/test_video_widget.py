@@ -232,3 +232,40 @@ def test_the_resume_label_and_docs_say_failed_frames_are_computed_again(widget):
     docs = (Path(__file__).parents[2] / "docs" / "napari_plugin.md").read_text()
     resume = docs[docs.index("*Resume* (") :].split(")", 1)[0]
     assert "failed" in resume and "only the missing frames" not in docs
+
+
+def test_frames_of_another_shape_are_told_the_docks_fields(files, tmp_path):
+    small = tmp_path / "small.tif"
+    tifffile.imwrite(small, np.zeros((2, 64, 64), np.uint16), photometric="minisblack")
+    job = video_widget.VideoJob(small, files["psf"], tmp_path / "run.ome.zarr", "rl", {"iterations": 1})
+    with pytest.raises(ValueError) as refused:
+        video_widget.run_video_job(job, lambda *args: None, None)
+    text = str(refused.value)
+    assert "(64, 64) pixels" in text and "“Calibration (raw frames)” field" in text and "crop=" not in text
+    assert not (tmp_path / "run.ome.zarr").exists()
+
+
+def test_a_cancelled_replacement_keeps_the_previous_store_and_says_so(
+    widget, qtbot, notes, tmp_path, monkeypatch
+):
+    _, dock = widget
+    store = tmp_path / "run.ome.zarr"
+    dock.output.setText(str(store))
+    assert dock.start()
+    _wait(qtbot, dock)
+    before = np.asarray(zarr.open_group(str(store), mode="r")["0"][:])
+    original = video_widget.run_video_job
+
+    def cancel_after_the_first_chunk(job, progress, cancel):
+        def report(done, total, message):
+            progress(done, total, message)
+            if "chunk" in message:
+                cancel.set()
+
+        return original(job, report, cancel)
+
+    monkeypatch.setattr(video_widget, "run_video_job", cancel_after_the_first_chunk)
+    assert dock.start(overwrite=True)  # "Replace store?" answered Yes
+    _wait(qtbot, dock)
+    assert "the previous store run.ome.zarr is unchanged" in notes.infos()[-1]
+    assert np.array_equal(np.asarray(zarr.open_group(str(store), mode="r")["0"][:]), before)

@@ -239,3 +239,26 @@ def test_raw_frames_with_a_calibration_equal_the_series_rectified_first(tmp_path
 def test_a_calibration_with_frames_in_photons_is_refused(video, tmp_path):
     with pytest.raises(ValueError, match="raw frames are camera counts"):
         _request(video, tmp_path / "run.ome.zarr", counts=False, calibration=tmp_path / "calib.json")
+
+
+def test_raw_frames_with_the_nominal_design_open_are_told_to_open_the_rectified_design(tmp_path, monkeypatch):
+    """The nominal (raw-camera) design open plus a calibration: the rectified frames are not its
+    sensor; the fix names the studio's way (open rectified.json), not a command-line flag."""
+    from lfm_studio.engine.batch import projectors
+    from lfm_studio.engine.calibration import calibrate, save_calibration
+    from lfm_studio.engine.calibration.synthetic_scene import misaligned_bead_scene
+
+    scene = misaligned_bead_scene(8)
+    calib = save_calibration(
+        calibrate(scene.radiometry, scene.nominal, dark=scene.dark), tmp_path / "calib.json"
+    )
+    frames = tmp_path / "raw.tif"
+    tifffile.imwrite(frames, scene.raw[None].numpy().astype(np.float32), photometric="minisblack")
+    monkeypatch.setattr(projectors, "cached_projector", lambda spec: None)  # the refusal comes first
+    request = VideoRequest(frames, tmp_path / "raw.ome.zarr", scene.nominal, SETTINGS, calibration=calib)
+    with pytest.raises(ValueError) as refused:
+        reconstruct_video_job(Ctx(), request)
+    text = str(refused.value)
+    assert "rectified with" in text and "Fix: open the rectified design (File > Open… rectified.json" in text
+    assert "--lenslets" not in text and "lenslets=(" not in text
+    assert not (tmp_path / "raw.ome.zarr").exists()

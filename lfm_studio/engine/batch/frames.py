@@ -135,7 +135,10 @@ class FrameSource:
         if self.kind == "tiff-folder":
             files = _folder_files(Path(self.path))[start:stop]
             return np.stack([tifffile.imread(f) for f in files]).reshape(stop - start, *self.shape[1:])
-        return np.asarray(self._array()[start:stop]).reshape(stop - start, *self.shape[1:])
+        array = self._array()
+        if array.ndim == 2:  # one (Y, X) frame: the source is (1, Y, X), so start:stop is 0:1
+            return np.asarray(array[:, :]).reshape(1, *self.shape[1:])
+        return np.asarray(array[start:stop]).reshape(stop - start, *self.shape[1:])
 
     def stamp(self) -> str:
         """SHA-256 of the names, sizes and modification times (ns) of the files holding the frames:

@@ -30,15 +30,25 @@ from lfm_studio.engine.types import JSONValue
 @dataclass(frozen=True)
 class RawFrameSpec:
     """How to rectify a video's raw frames: the calibration file ``path``, the ``lenslets``
-    ``(ny, nx)`` block to rectify (None: the calibration's lit block) and the file's ``sha256``
-    (a resume with another calibration is refused; a worker refuses a file changed under it)."""
+    ``(ny, nx)`` block asked for (None: the calibration's lit block), the file's ``sha256`` (a
+    resume with another calibration is refused; a worker refuses a file changed under it) and the
+    ``block`` ``(i0, ni, j0, nj)`` the rectifier uses (None: Fourier LFM, corrected only)."""
 
     path: str
     sha256: str
     lenslets: tuple[int, int] | None = None
+    block: tuple[int, int, int, int] | None = None
 
     def describe(self) -> dict[str, JSONValue]:
-        """JSON-ready record for the run's metadata and resume check."""
+        """JSON-ready record for the run's metadata and resume check: the EFFECTIVE lenslet block
+        (an explicit ``lenslets`` equal to the calibration's block records the same as none)."""
+        block: JSONValue = None if self.block is None else [int(v) for v in self.block]
+        lenslets: JSONValue = None if self.block is None else [int(self.block[1]), int(self.block[3])]
+        return {"path": self.path, "sha256": self.sha256, "lenslets": lenslets, "block": block}
+
+    def legacy_describe(self) -> dict[str, JSONValue]:
+        """The record of stores written before the effective block was kept: the ``lenslets``
+        asked for (None for the calibration's block) and no ``block``; such a store still resumes."""
         lenslets: JSONValue = None if self.lenslets is None else [int(v) for v in self.lenslets]
         return {"path": self.path, "sha256": self.sha256, "lenslets": lenslets}
 
@@ -62,11 +72,12 @@ def raw_frame_spec(
             f"calibration {path}: no such file. Fix: give the .json written by `lfm-studio calibrate`."
         )
     block = None if lenslets is None else (int(lenslets[0]), int(lenslets[1]))
-    spec = RawFrameSpec(str(path), _digest(path), block)
+    digest = _digest(path)
     try:
         rectifier = frame_rectifier(load_calibration(path), lenslets=block)
     except ValueError as error:
         raise ValueError(f"calibration {path}: {error}") from error
+    spec = RawFrameSpec(str(path), digest, block, rectifier.block)
     _remember(spec, rectifier)
     return spec, rectifier
 

@@ -11,6 +11,9 @@ its frames. A resumed run computes the chunks without a record and, in chunks wi
 frames recorded as failed (then replaces that record atomically); a frame recorded as done is
 never computed or written again. The store itself appears atomically (built in a hidden
 folder next to it, then renamed), so a run that fails before its first chunk leaves nothing.
+An overwrite run builds its store at a hidden sibling (``.run.ome.zarr.replacing``) and puts it
+in place of the old one only when its run ends: a cancelled or failed replacement leaves the
+previous store as it was.
 """
 
 from __future__ import annotations
@@ -296,6 +299,20 @@ def _write_layout(
     zarr.open_group(str(folder / STATUS_GROUP), mode="w-", zarr_format=3)
 
 
+def replacement_path(path: str | os.PathLike) -> Path:
+    """The hidden sibling of the store ``path`` where an overwrite run builds its replacement."""
+    target = Path(path).expanduser().absolute()
+    return target.with_name(f".{target.name}.replacing")
+
+
+def _remove(path: Path) -> None:
+    """Delete ``path`` (a folder or a file) when it exists."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    elif path.exists() or path.is_symlink():
+        path.unlink()
+
+
 def create_store(
     path: str | os.PathLike,
     *,
@@ -310,28 +327,49 @@ def create_store(
     """A new empty store at ``path``, created atomically; level-0 ``scale`` ``(t s, z um, y um, x um)``
     and ``origin`` (the coordinates of voxel ``(0, 0, 0, 0)``, same units).
 
-    An existing ``path`` is refused unless ``overwrite`` (then replaced only once the new one exists).
+    An existing ``path`` is refused unless ``overwrite``. Then it is left untouched: the new store
+    is built at :func:`replacement_path` (a stale one, left by a killed run, is cleared first) and
+    the store returned lives there until :func:`replace_store` puts it in place of ``path`` (when
+    its run ends) or :func:`discard_store` drops it (the run was cancelled or failed).
     """
     target = Path(path).expanduser().absolute()
     if target.exists() and not overwrite:
         raise FileExistsError(
-            f"{target} already exists. Fix: pass resume=True (--resume) to finish it, overwrite=True "
-            "(--overwrite) to replace it, or choose another output."
+            f"{target} already exists. Fix: pass resume=True / --resume to finish it, overwrite=True / "
+            "--overwrite to replace it, or choose another output."
         )
     if not target.parent.is_dir():
         raise FileNotFoundError(f"folder {target.parent} does not exist. Fix: create it first.")
+    location = target
+    if target.exists():
+        location = replacement_path(target)
+        _remove(location)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
     try:
         shutil.rmtree(staging)  # zarr creates the folder itself (mode "w-")
         _write_layout(staging, shape, scale, origin, levels, target.stem, attributes)
-        if target.exists():
-            trash = target.with_name(f".{target.name}.old")
-            os.replace(target, trash)
-            shutil.rmtree(trash)
-        os.replace(staging, target)
+        os.replace(staging, location)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    return VideoStore(str(target), shape, levels, chunk_frames)
+    return VideoStore(str(location), shape, levels, chunk_frames)
+
+
+def replace_store(store: VideoStore, path: str | os.PathLike) -> VideoStore:
+    """Put ``store`` (built at :func:`replacement_path` of ``path``) in place of the store at
+    ``path``, which is deleted; returns the store at ``path``."""
+    target = Path(path).expanduser().absolute()
+    trash = target.with_name(f".{target.name}.old")
+    _remove(trash)
+    if target.exists() or target.is_symlink():
+        os.replace(target, trash)
+    os.replace(store.path, target)
+    _remove(trash)
+    return VideoStore(str(target), store.shape, store.levels, store.chunk_frames)
+
+
+def discard_store(store: VideoStore) -> None:
+    """Delete ``store``: an unfinished replacement whose run was cancelled or failed."""
+    shutil.rmtree(store.path, ignore_errors=True)
 
 
 def _stored_int(stored: dict[str, JSONValue], key: str) -> int:
@@ -339,6 +377,42 @@ def _stored_int(stored: dict[str, JSONValue], key: str) -> int:
     if not isinstance(value, (int, float, str)):  # what int() took before the record was typed
         raise ValueError(f"the {RUN_KEY!r} attribute {key!r} is not a number: {value!r}")
     return int(value)
+
+
+RUN_ITEMS = {
+    "frames": "the frames (frames= / --image)",
+    "projector": "the design or PSF (design_or_psf= / --psf)",
+    "options": "the method options (method=, options= / --method, --iterations, ...)",
+    "chunk_frames": "chunk_frames= / --chunk-frames",
+    "camera": "the camera conversion (camera= / --baseline, --gain, ...)",
+    "calibration": "the calibration (calibration=, lenslets= / --calibration, --lenslets)",
+}
+"""A run record's items in the user's words (Python keyword / command-line option)."""
+
+
+def _shown(value: JSONValue) -> str | None:
+    """``value`` as JSON when it is short enough for a message, else None."""
+    text = json.dumps(value)
+    return text if len(text) <= 40 else None
+
+
+def _difference(key: str, stored: JSONValue, now: JSONValue) -> str:
+    """How run item ``key`` differs between the store (``stored``) and this run (``now``): named in
+    the user's words, with each differing field's two values when they are short."""
+    label = RUN_ITEMS.get(key, key)
+    if isinstance(stored, dict) and isinstance(now, dict):
+        fields = sorted(name for name in {*stored, *now} if stored.get(name) != now.get(name))
+        pairs = [(name, stored.get(name), now.get(name)) for name in fields]
+    else:
+        pairs = [(key, stored, now)]
+    details = []
+    for name, old, new in pairs:
+        shown_old, shown_new = _shown(old), _shown(new)
+        if shown_old is None or shown_new is None:
+            details.append(f"{name} changed")
+        else:
+            details.append(f"{name} {shown_old} in the store, {shown_new} now")
+    return f"{label} differs ({', '.join(details)})"
 
 
 def open_store(path: str | os.PathLike, *, run: dict[str, JSONValue]) -> VideoStore:
@@ -354,13 +428,19 @@ def open_store(path: str | os.PathLike, *, run: dict[str, JSONValue]) -> VideoSt
     except (FileNotFoundError, KeyError, ValueError) as error:
         raise ValueError(
             f"{target} is not an lfm_studio video store ({error}). Fix: choose another output, or pass "
-            "overwrite=True (--overwrite) to replace it."
+            "overwrite=True / --overwrite to replace it."
         ) from error
-    different = sorted(key for key in run if stored_run.get(key) != json.loads(json.dumps(run[key])))
+    now = {key: json.loads(json.dumps(value)) for key, value in run.items()}
+    different = [
+        _difference(key, stored_run.get(key), now[key])
+        for key in sorted(now)
+        if stored_run.get(key) != now[key]
+    ]
     if different:
         raise ValueError(
-            f"{target} was written by a different run ({', '.join(different)} differ); resuming would mix "
-            "two reconstructions. Fix: use the same inputs and options, another output, or overwrite=True."
+            f"{target} was written by a different run: {'; '.join(different)}. Resuming would mix two "
+            "reconstructions. Fix: use the same inputs and options as that run, another output, or "
+            "overwrite=True / --overwrite to replace it."
         )
     return VideoStore(
         str(target),

@@ -27,10 +27,22 @@ from lfm_studio.engine.batch.camera import tiff_metadata
 from lfm_studio.engine.batch.client import Client, check_placement, client_for, dashboard_link
 from lfm_studio.engine.batch.frames import FrameSource, frame_digest, open_frames
 from lfm_studio.engine.batch.options import ReconstructionOptions
-from lfm_studio.engine.batch.projectors import cached_projector, planned_image_shape, projector_spec
+from lfm_studio.engine.batch.projectors import (
+    ProjectorSpec,
+    cached_projector,
+    planned_image_shape,
+    projector_spec,
+)
 from lfm_studio.engine.batch.pyramid import level_count
 from lfm_studio.engine.batch.raw_frames import RawFrameSpec, raw_frame_spec
-from lfm_studio.engine.batch.store import ChunkRecord, VideoStore, create_store, open_store
+from lfm_studio.engine.batch.store import (
+    ChunkRecord,
+    VideoStore,
+    create_store,
+    discard_store,
+    open_store,
+    replace_store,
+)
 from lfm_studio.engine.batch.tasks import ChunkTask, done_frames, process_chunk
 from lfm_studio.engine.calibration import FrameRectifier, rectified_shape_fix
 from lfm_studio.engine.calibration.raw_camera import dark_subtracted_camera
@@ -44,7 +56,10 @@ DEFAULT_CHUNK_FRAMES = 4
 UM = 1e-6
 LENSLETS_OPTION = "lenslets=({ny}, {nx}) (`--lenslets {ny} {nx}` on the command line)"
 """How a shape refusal of raw frames names the matching lenslet block (:func:`check_rectified_shape`)."""
-FRAME_SHAPE_FIX = "use the design/PSF of this camera (or crop= matching the frames)."
+FRAME_SHAPE_FIX = (
+    "use the design/PSF of this camera (or crop= matching the frames); raw frames of a real "
+    "microscope need calibration='calib.json' (from `lfm-studio calibrate`)."
+)
 """What to do about frames of another shape (the end of :func:`check_frame_shape`'s refusal)."""
 
 
@@ -142,16 +157,21 @@ def _raw_frames(
     return spec, rectifier, camera
 
 
-def check_rectified_shape(spec: RawFrameSpec, rectifier: FrameRectifier, sensor: tuple[int, ...]) -> None:
+def check_rectified_shape(
+    spec: RawFrameSpec, rectifier: FrameRectifier, sensor: tuple[int, ...], fix: str | None = None
+) -> None:
     """Refuse raw frames whose rectified ``(Y, X)`` pixels are not ``sensor``, the pixels the
-    projector images: a ``ValueError`` naming both shapes and the fix (the PSF of the rectified
-    design, or the lenslet block that matches this PSF)."""
+    projector images: a ``ValueError`` naming both shapes and ``Fix: <fix>`` (None: the PSF of the
+    rectified design, or the lenslet block that matches this PSF, :data:`LENSLETS_OPTION`)."""
     shape = tuple(rectifier.output_shape)
     if shape == tuple(sensor):
         return
+    worded = (
+        rectified_shape_fix(rectifier.calibration, sensor, LENSLETS_OPTION) if fix is None else f"Fix: {fix}"
+    )
     raise ValueError(
         f"raw frames rectified with {spec.path} are {shape} pixels but the projector images "
-        f"{tuple(sensor)} pixels. {rectified_shape_fix(rectifier.calibration, sensor, LENSLETS_OPTION)}"
+        f"{tuple(sensor)} pixels. {worded}"
     )
 
 
@@ -259,20 +279,41 @@ def _first_few(frames: list[int], most: int = 8) -> str:
     )
 
 
+def _open_for_resume(
+    target: Path, run: dict[str, JSONValue], legacy_run: dict[str, JSONValue] | None
+) -> VideoStore:
+    """The store at ``target`` to resume: its run record is ``run``, or ``legacy_run`` (the same run
+    as an older version recorded it); refused naming what differs from ``run`` otherwise."""
+    try:
+        return open_store(target, run=run)
+    except ValueError as error:
+        if legacy_run is None:
+            raise
+        try:
+            return open_store(target, run=legacy_run)
+        except ValueError:
+            raise error from None
+
+
 def _prepare_store(output: str | os.PathLike, source: FrameSource, *, resume: bool, overwrite: bool,
                    run: dict[str, JSONValue],
                    attributes: dict[str, JSONValue], shape: tuple[int, int, int, int],
                    scale: tuple[float, float, float, float], origin: tuple[float, float, float, float],
-                   levels: int, chunk_frames: int) -> VideoStore:  # fmt: skip
+                   levels: int, chunk_frames: int,
+                   legacy_run: dict[str, JSONValue] | None = None) -> tuple[VideoStore, Path | None]:  # fmt: skip
+    """The store to write and, for an overwrite of an existing store, the path it replaces when
+    the run ends (the store returned is then a hidden sibling; the old one stays until then)."""
     target = Path(output).expanduser()
     if target.exists() and resume and not overwrite:
-        store = open_store(target, run=run)
+        store = _open_for_resume(target, run, legacy_run)
         check_frames_unchanged(store, source)
-        return store
-    return create_store(
+        return store, None
+    replaces = target.absolute() if overwrite and target.exists() else None
+    store = create_store(
         target, shape=shape, scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
         attributes=attributes, overwrite=overwrite,
     )  # fmt: skip
+    return store, replaces
 
 
 def reconstruct_video(
@@ -298,6 +339,7 @@ def reconstruct_video(
     shape_fix: str = FRAME_SHAPE_FIX,
     calibration: str | os.PathLike | None = None,
     lenslets: tuple[int, int] | None = None,
+    rectified_fix: str | None = None,
     **method_options: OptionValue,
 ) -> VideoResult:
     """Reconstruct every frame ``(T, Y, X)`` of ``frames`` into the OME-Zarr store ``output``.
@@ -317,7 +359,9 @@ def reconstruct_video(
         lateral pyramid).
     resume : continue an existing store of the same run, computing only the frames not recorded
         as done (unrecorded chunks, and frames that failed before).
-    overwrite : replace an existing store instead.
+    overwrite : replace an existing store instead: the new run writes to a hidden sibling
+        (``.NAME.replacing``) that takes the old store's place when the run ends (failed frames
+        included); a cancelled, interrupted or failed run drops it and leaves the old store as it was.
     client, workers, scheduler : a Dask client to use; else ``workers`` N > 1 starts a
         LocalCluster of N one-thread processes, ``scheduler`` connects to a cluster, and
         neither runs the synchronous scheduler in this process.
@@ -334,6 +378,9 @@ def reconstruct_video(
         centre (None: the calibration's lit block), as
         :func:`~lfm_studio.engine.calibration.rectify_frame` does, before the camera conversion
         (``camera`` None: the frames' metadata, else the calibration's design camera, baseline 0).
+    rectified_fix : the fix named when raw frames rectified with ``calibration`` are not the pixels
+        the projector images (:func:`check_rectified_shape`; None: the PSF of the rectified design or
+        the matching ``lenslets``, as the CLI and Python say it; a front end says it in its own words).
 
     The result's ``computed`` and ``skipped`` list the frames reconstructed (now, before);
     a frame that failed is only in ``failed``; ``retried`` lists the earlier failures tried again.
@@ -349,7 +396,7 @@ def reconstruct_video(
 
     def check_shape(sensor: tuple[int, ...]) -> None:
         if raw is not None and rectifier is not None:
-            check_rectified_shape(raw, rectifier, sensor)
+            check_rectified_shape(raw, rectifier, sensor, rectified_fix)
         else:
             check_frame_shape(source, sensor, shape_fix)
 
@@ -381,33 +428,67 @@ def reconstruct_video(
         "chunk_frames": chunk_frames,
         "units": "photons per voxel" if camera is None else camera.volume_units,
     }
-    store = _prepare_store(
+    legacy_run = None if raw is None else {**run, "calibration": raw.legacy_describe()}
+    store, replaces = _prepare_store(
         output, source, resume=resume, overwrite=overwrite, run=run, attributes=attributes, shape=shape,
-        scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames,
+        scale=scale, origin=origin, levels=levels, chunk_frames=chunk_frames, legacy_run=legacy_run,
     )  # fmt: skip
-    store.write_frames_stamp(source.stamp())
-    before = store.records()
-    done_before = {i: done_frames(record) for i, record in before.items()}
-    chunks = store.chunks()
-    run_id = uuid.uuid4().hex
-    tasks = [
-        ChunkTask(i, start, stop, source, spec, reconstruction, store, camera, run_id, raw)
-        for i, (start, stop) in enumerate(chunks)
-        if len(done_before.get(i, ())) < stop - start
-    ]
-    state = {"frames": sum(len(done) for done in done_before.values())}
-
-    def on_record(record: ChunkRecord) -> None:
-        state["frames"] += record["stop"] - record["start"] - len(done_before.get(record["chunk"], ()))
-        if progress is not None:
-            progress(state["frames"], source.count, f"chunk {record['chunk'] + 1}/{len(chunks)} done")
-
-    with client_for(client, workers, scheduler) as active:
-        link = dashboard_link(active)
-        if progress is not None:
-            progress(state["frames"], source.count, f"dashboard {link}" if link else "starting")
-        lost = _run_chunks(tasks, active, on_record, cancel)
+    fill = _StoreFill(store, source, spec, reconstruction, camera, raw, progress, cancel)
+    if replaces is None:
+        before, lost, link = fill.run(client, workers, scheduler)
+    else:  # the old store stays until the new run ends; a cancel, interrupt or error drops the new one
+        try:
+            before, lost, link = fill.run(client, workers, scheduler)
+        except BaseException:
+            discard_store(store)
+            raise
+        store = replace_store(store, replaces)
     return _result(store, before, store.records(), count=source.count, lost=lost, link=link)
+
+
+@dataclass(frozen=True)
+class _StoreFill:
+    """Computing the frames of ``store`` not recorded as done (one run of :func:`reconstruct_video`)."""
+
+    store: VideoStore
+    source: FrameSource
+    spec: ProjectorSpec
+    reconstruction: ReconstructionOptions
+    camera: CameraCalibration | None
+    raw: RawFrameSpec | None
+    progress: ProgressCallback | None
+    cancel: CancelToken
+
+    def run(
+        self, client: Client | None, workers: int | None, scheduler: str | None
+    ) -> tuple[dict[int, ChunkRecord], list[int], str | None]:
+        """Run the chunks left to do; returns the records before, the lost chunks and the dashboard link."""
+        store, source, progress = self.store, self.source, self.progress
+        store.write_frames_stamp(source.stamp())
+        before = store.records()
+        done_before = {i: done_frames(record) for i, record in before.items()}
+        chunks = store.chunks()
+        run_id = uuid.uuid4().hex
+        tasks = [
+            ChunkTask(
+                i, start, stop, source, self.spec, self.reconstruction, store, self.camera, run_id, self.raw
+            )
+            for i, (start, stop) in enumerate(chunks)
+            if len(done_before.get(i, ())) < stop - start
+        ]
+        state = {"frames": sum(len(done) for done in done_before.values())}
+
+        def on_record(record: ChunkRecord) -> None:
+            state["frames"] += record["stop"] - record["start"] - len(done_before.get(record["chunk"], ()))
+            if progress is not None:
+                progress(state["frames"], source.count, f"chunk {record['chunk'] + 1}/{len(chunks)} done")
+
+        with client_for(client, workers, scheduler) as active:
+            link = dashboard_link(active)
+            if progress is not None:
+                progress(state["frames"], source.count, f"dashboard {link}" if link else "starting")
+            lost = _run_chunks(tasks, active, on_record, self.cancel)
+        return before, lost, link
 
 
 def _done(records: Mapping[int, ChunkRecord]) -> set[int]:

@@ -68,3 +68,22 @@ def test_unreadable_sources_are_refused_by_name(tmp_path):
     group.attrs["ome"] = {"version": "0.5", "multiscales": [{"datasets": []}]}
     with pytest.raises(ValueError, match="names no dataset path"):
         open_frames(tmp_path / "nopath.zarr")
+
+
+@pytest.mark.parametrize("kind", ["tiff", "zarr", "tiff-folder"])
+def test_one_2d_frame_reads_as_a_one_frame_video(tmp_path, kind):
+    frame = FRAMES[3]  # (Y, X): a single camera image, not a (1, Y, X) stack
+    if kind == "tiff":
+        tifffile.imwrite(tmp_path / "one.tif", frame, photometric="minisblack")
+        path = tmp_path / "one.tif"
+    elif kind == "zarr":
+        path = tmp_path / "one.zarr"
+        zarr.create_array(str(path), shape=frame.shape, chunks=(4, 10), dtype="uint16")[:] = frame
+    else:
+        path = tmp_path / "folder"
+        path.mkdir()
+        tifffile.imwrite(path / "frame_000.tif", frame)
+    source = open_frames(path)
+    assert source.shape == (1, *frame.shape) and source.count == 1
+    assert np.array_equal(source.read(0, 1), frame[None])
+    assert np.array_equal(source.to_dask().compute(), frame[None])

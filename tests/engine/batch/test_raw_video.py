@@ -11,6 +11,7 @@ volume's 0), and every misuse is refused naming the parameter.
 
 from __future__ import annotations
 
+import json
 import shutil
 
 import numpy as np
@@ -97,7 +98,9 @@ def test_the_run_records_the_calibration_and_a_resume_with_another_is_refused(ra
     other.parent.mkdir()
     for file in calibration_files(raw_video["calib"]):  # the JSON and its dark frame
         shutil.copy(file, other.parent)
-    with pytest.raises(ValueError, match="calibration"):
+    with pytest.raises(
+        ValueError, match=r"the calibration \(calibration=.*--calibration.*\) differs \(path changed\)"
+    ):
         reconstruct_video(
             raw_video["frames"], raw_video["design"], method=METHOD, iterations=ITERATIONS, output=out,
             calibration=other, resume=True,
@@ -165,3 +168,29 @@ def test_fourier_raw_frames_are_corrected_not_resampled(tmp_path):
     expected = zarr.open_group(str(reference.path), mode="r")["0"][:]
     assert result.failed == {} and float(np.abs(expected).max()) > 0
     np.testing.assert_allclose(volumes, expected, rtol=1e-4, atol=1e-4 * float(np.abs(expected).max()))
+
+
+def test_a_resume_with_the_calibrations_own_block_given_explicitly_continues(raw_video, tmp_path):
+    out = tmp_path / "raw.ome.zarr"
+    _run(raw_video, out, chunk_frames=2)
+    (out / "lfm_studio_status" / "chunk_000001.json").unlink()  # as if interrupted before frame 2
+    block = raw_video["calibration"].block
+    record = zarr.open_group(str(out), mode="r").attrs["lfm_studio"]["run"]["calibration"]
+    assert record["lenslets"] == [block[1], block[3]] and record["block"] == list(
+        block
+    )  # effective, not None
+    result = _run(raw_video, out, chunk_frames=2, lenslets=(block[1], block[3]))
+    assert result.skipped == (0, 1) and result.computed == (2,)
+
+
+def test_a_store_recorded_before_the_effective_block_was_kept_still_resumes(raw_video, tmp_path):
+    out = tmp_path / "raw.ome.zarr"
+    _run(raw_video, out, chunk_frames=2)
+    (out / "lfm_studio_status" / "chunk_000001.json").unlink()
+    document = json.loads((out / "zarr.json").read_text())
+    record = document["attributes"]["lfm_studio"]["run"]["calibration"]
+    del record["block"]
+    record["lenslets"] = None  # as the earlier version recorded a run without lenslets=
+    (out / "zarr.json").write_text(json.dumps(document))
+    result = _run(raw_video, out, chunk_frames=2)
+    assert result.skipped == (0, 1) and result.computed == (2,)

@@ -10,6 +10,7 @@ import tifffile
 import zarr
 
 from lfm_studio.engine.batch import reconstruct_video
+from lfm_studio.engine.batch import video as video_module
 from lfm_studio.engine.batch.frames import frame_digest
 from lfm_studio.engine.batch.projectors import BUILDS, cached_projector, projector_spec
 from lfm_studio.engine.batch.store import STATUS_GROUP
@@ -99,13 +100,64 @@ def test_existing_output_is_refused_or_checked(video, tmp_path):
     _run(video, out, chunk_frames=4)
     with pytest.raises(FileExistsError, match="resume"):
         _run(video, out, chunk_frames=4, resume=False)
-    with pytest.raises(ValueError, match="options differ"):
+    with pytest.raises(
+        ValueError, match=r"the method options .* differs \(iterations \d+ in the store, \d+ now\)"
+    ):
         _run(video, out, chunk_frames=4, iterations=ITERATIONS + 1)
     replaced = _run(video, out, chunk_frames=4, iterations=1, overwrite=True)
     assert replaced.computed == tuple(range(FRAMES))
     assert (
         json.loads((out / "zarr.json").read_text())["attributes"]["lfm_studio"]["options"]["iterations"] == 1
     )
+
+
+def _tree(path) -> dict[str, bytes]:
+    """Every file under ``path``: relative name -> bytes."""
+    return {p.relative_to(path).as_posix(): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+class _CrashError(Exception):
+    pass
+
+
+@pytest.mark.parametrize("stop", ["cancel", "error", "interrupt"])
+def test_a_stopped_overwrite_leaves_the_previous_store_as_it_was(video, tmp_path, monkeypatch, stop):
+    out = tmp_path / "run.ome.zarr"
+    _run(video, out)
+    before = _tree(out)
+    assert any(name.startswith(STATUS_GROUP + "/chunk_") for name in before)
+    chunks = {"n": 0}
+    real = video_module.process_chunk
+
+    def counted(task):
+        chunks["n"] += 1
+        if chunks["n"] == 2 and stop != "cancel":
+            raise _CrashError("worker crashed") if stop == "error" else KeyboardInterrupt
+        return real(task)
+
+    monkeypatch.setattr(video_module, "process_chunk", counted)
+    raised = {"cancel": CancelledError, "error": _CrashError, "interrupt": KeyboardInterrupt}[stop]
+    with pytest.raises(raised):
+        _run(video, out, iterations=1, overwrite=True, cancel=lambda: stop == "cancel" and chunks["n"] >= 1)
+    assert chunks["n"] >= 1  # the new run had started writing its own store
+    assert _tree(out) == before  # level-0 data, records and metadata byte-identical
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.ome.zarr"]  # no hidden store left
+
+
+def test_a_finished_overwrite_replaces_the_store_and_clears_a_stale_replacement(video, tmp_path):
+    out = tmp_path / "run.ome.zarr"
+    _run(video, out)
+    stale = tmp_path / ".run.ome.zarr.replacing"  # left by a killed overwrite run
+    stale.mkdir()
+    (stale / "junk").write_text("x")
+    result = _run(video, out, iterations=1, overwrite=True)
+    assert result.path == str(out) and result.computed == tuple(range(FRAMES))
+    assert (
+        json.loads((out / "zarr.json").read_text())["attributes"]["lfm_studio"]["options"]["iterations"] == 1
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.ome.zarr"]
+    assert len(list((out / STATUS_GROUP).glob("chunk_*.json"))) == 3
+    assert _run(video, out, iterations=1).skipped == tuple(range(FRAMES))  # the store resumes at its name
 
 
 def test_bad_arguments_name_the_parameter(video, tmp_path):
