@@ -6,6 +6,7 @@ stderr, without a traceback, and leaves no file behind. A traceback (exit 1) mea
 
 from __future__ import annotations
 
+from lfm_studio.cli import INTERRUPTED
 from lfm_studio.engine.io.file_checks import OutputError
 from lfm_studio.engine.memory import MemoryBudgetError
 from lfm_studio.engine.reconstruct.result_check import ReconstructionRejectedError
@@ -14,7 +15,6 @@ BAD_INPUT = 2  # also argparse's code for usage errors
 OUTPUT_REFUSED = 3
 OUT_OF_MEMORY = 4
 RESULT_REJECTED = 5
-INTERRUPTED = 130
 BROKEN_PIPE = 141  # 128 + SIGPIPE, what a shell reports for a writer whose reader left
 
 #: Exception type -> exit code, most specific first (all are ValueError subclasses but the last ones).

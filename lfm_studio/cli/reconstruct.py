@@ -201,7 +201,8 @@ def run_reconstruct(args: argparse.Namespace) -> int:
         raise ValueError(
             f"{args.image} has frames of {tuple(image.data.shape[-2:])} pixels but the PSF stack {args.psf} "
             f"images {tuple(setup.projector.image_shape)} pixels. Fix: use the PSF simulated for this camera, "
-            "or --measured to crop/resample a measured one."
+            "or --measured to crop/resample a measured one; raw frames of a real microscope (lenslet grid "
+            "off the pixel lattice) need --calibration calib.json (docs/calibration.md)."
         )
     photons, floor, calibration = _photons(args, image, raw_calibration)
     frames = photons if photons.ndim == 3 else photons[None]

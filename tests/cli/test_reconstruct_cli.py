@@ -205,7 +205,8 @@ def test_existing_output_is_kept_and_errors_are_named(files, tmp_path, capsys):
     new = tmp_path / "new.tif"
     capsys.readouterr()
     assert run(["reconstruct", "--psf", str(files["psf"]), "--image", str(small), "--out", str(new)]) == 2
-    assert "has frames of (100, 100) pixels" in capsys.readouterr().err and not new.exists()
+    err = capsys.readouterr().err
+    assert "has frames of (100, 100) pixels" in err and "--calibration calib.json" in err and not new.exists()
     assert (
         run(["reconstruct", "--psf", str(tmp_path / "none.tif"), "--image", str(small), "--out", str(new)])
         == 2
