@@ -1,4 +1,4 @@
-"""The ``lfm-studio`` command line: one module per sub-command, :mod:`.main` assembles them.
+"""The ``lfm-studio`` command line: one module per sub-command, :mod:`.commands` assembles them.
 
 ``lfm_studio.cli:main`` is the console entry point. GUI packages are imported only by the
 ``gui`` sub-command. This package module stays light (no torch): the heavy imports happen inside
@@ -17,9 +17,9 @@ INTERRUPTED = 130
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of ``lfm-studio`` and ``python -m lfm_studio`` (:func:`lfm_studio.cli.main.main`)."""
+    """Entry point of ``lfm-studio`` and ``python -m lfm_studio`` (:func:`lfm_studio.cli.commands.main`)."""
     try:
-        from lfm_studio.cli.main import main as run
+        from lfm_studio.cli.commands import main as run
     except KeyboardInterrupt:  # while torch and the engine load: nothing has started yet
         print("lfm-studio: interrupted while starting; nothing was done.", file=sys.stderr)
         return INTERRUPTED
@@ -27,8 +27,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def build_parser() -> Any:
-    """The argument parser with every sub-command (:func:`lfm_studio.cli.main.build_parser`)."""
-    from lfm_studio.cli.main import build_parser as build
+    """The argument parser with every sub-command (:func:`lfm_studio.cli.commands.build_parser`)."""
+    from lfm_studio.cli.commands import build_parser as build
 
     return build()
 

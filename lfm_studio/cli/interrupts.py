@@ -5,7 +5,7 @@ come after an output was written (``calibrate`` wrote the calibration, not yet
 ``--design-out``) or while a resumable result grows (a video store's finished frames, a
 study's finished trials). A handler wraps its work in :func:`on_interrupt` with a function
 that says what was kept and how to continue; :func:`interrupt_message` words the line
-``cli.main`` prints. Without such an account the message says that no output was written.
+``lfm-studio`` prints. Without such an account the message says that no output was written.
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ own, and with the raised thresholds each arena keeps its own freed blocks, so th
 conventional build's peak with 2 workers: 560-621 MiB, 545-563 MiB with ``MALLOC_ARENA_MAX=1``).
 The engine's allocations are few and large, so one arena's lock costs nothing measurable.
 
-Process-wide: ``lfm_studio.cli.main`` calls it at start-up for every command (``gui`` included),
+Process-wide: ``lfm_studio.cli.commands.main`` calls it at start-up for every command (``gui`` included),
 and the benchmarks do; the engine never calls it on import.
 """
 

@@ -12,7 +12,7 @@ import sys
 
 class InterruptTheLoad:
     def find_spec(self, name, path=None, target=None):
-        if name == "lfm_studio.cli.main":
+        if name == "lfm_studio.cli.commands":
             raise KeyboardInterrupt
         return None
 
