@@ -305,3 +305,10 @@ def test_a_preset_rebuilds_the_lenslet_shape_it_reads_off_the_layout():
     assert {lens.shape for lens in squares} == {"square"} and matching_preset(squares) == ("hex", 1)
     mixed = (*flfm[:8], replace_lens(flfm[8], shape="circle"))
     assert matching_preset(mixed) == ("custom", 0)  # no preset builds one circle among squares
+
+
+def test_a_refused_edit_writes_the_engines_um_as_micrometres():
+    """The editor's status line shows the engine's refusal; the studio writes µm everywhere else."""
+    session = EditSession([lens(0.0, 0.0)])
+    assert session.refuse("aperture_diameter_um -5 um must be > 0") is False
+    assert session.last_error == "aperture_diameter_um -5 µm must be > 0"

@@ -101,7 +101,7 @@ from lfm_studio.ui.table_fit import fit_columns, give_room
 from lfm_studio.ui.unit_text import shown_unit
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
-from lfm_studio.widgets.numeric_text import NumberRule
+from lfm_studio.widgets.numeric_text import NumberRule, shown_units_in
 
 JOB_NAME = "optimise"
 PREVIEW_JOB = "optimise_psf"  # the Compare tab's PSF previews of A and B
@@ -872,7 +872,7 @@ class OptimiseDock(QWidget):
                 self.message.setText(f"Cancelled: the {count} candidates evaluated so far are kept.")
         else:
             self.message.setText(
-                f"<span style='color:{INFEASIBLE.name()}'>Failed: {outcome.error}</span> ({kept})"
+                f"<span style='color:{INFEASIBLE.name()}'>Failed: {shown_units_in(str(outcome.error))}</span> ({kept})"
             )
 
     # ----- showing -----

@@ -68,7 +68,7 @@ from lfm_studio.ui.training import (
 )
 from lfm_studio.widgets.jobs import JobOutcome, JobRunner
 from lfm_studio.widgets.numeric_field import NumericField, commit_all
-from lfm_studio.widgets.numeric_text import NumberRule
+from lfm_studio.widgets.numeric_text import NumberRule, shown_units_in
 from lfm_studio.widgets.stale_mark import StaleMark
 
 TRAIN_JOB, COMPARE_JOB = "train", "compare"
@@ -458,7 +458,7 @@ class TrainDock(QWidget):
         self._refusal = None
 
     def _say(self, text: str, *, error: bool = False) -> None:
-        self.message.setText(text)
+        self.message.setText(shown_units_in(text))  # the engine writes "um"; the studio shows "µm"
         self.message.setStyleSheet("color: #b00020;" if error else "")
 
     def _update_buttons(self, *_: Any) -> None:

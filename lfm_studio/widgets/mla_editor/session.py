@@ -16,6 +16,7 @@ from lfm_studio.widgets.mla_editor.checks import summary
 from lfm_studio.widgets.mla_editor.placement import free_spot
 from lfm_studio.widgets.mla_editor.presets import PresetParams, build_preset
 from lfm_studio.widgets.mla_editor.symmetry import Symmetry
+from lfm_studio.widgets.numeric_text import shown_units_in
 
 
 @dataclass
@@ -85,8 +86,8 @@ class EditSession:
         return changed
 
     def refuse(self, message: str) -> bool:
-        """Record why an edit was refused; always False (nothing committed)."""
-        self.last_error = message
+        """Record why an edit was refused (the engine's "um" written "µm"); always False (nothing committed)."""
+        self.last_error = shown_units_in(message)
         return False
 
     def replace(self, lenslets: Iterable[object], *, reset_history: bool = False) -> None:
