@@ -96,6 +96,7 @@ from lfm_studio.ui.optimise_model import (
     run_gradient,
     run_optimisation,
 )
+from lfm_studio.ui.plots import keyed_title, show_title
 from lfm_studio.ui.state import StudioState
 from lfm_studio.ui.table_fit import fit_columns, give_room
 from lfm_studio.ui.unit_text import shown_unit
@@ -540,10 +541,11 @@ class OptimiseDock(QWidget):
         item.setLabel("bottom", "evaluation")
         for side in ("left", "bottom"):  # values as they are: no "(x0.001)" beside "µm" or "score"
             item.getAxis(side).enableAutoSIPrefix(False)
-        item.addLegend(offset=(-10, 10))
-        self.best_curve = item.plot([], [], pen=pg.mkPen(BEST, width=2), name="best so far")
+        # The key is the title's last line (ui.plots.keyed_title): a legend box inside the axes sat
+        # over the latest candidates, drawn at the right where the box was.
+        self.best_curve = item.plot([], [], pen=pg.mkPen(BEST, width=2))
         self.feasible_dots = item.plot(
-            [], [], pen=None, symbol="o", symbolSize=7, symbolBrush=pg.mkBrush(FEASIBLE), name="candidate"
+            [], [], pen=None, symbol="o", symbolSize=7, symbolBrush=pg.mkBrush(FEASIBLE)
         )
         self.plot.setMinimumHeight(120)
         column.addWidget(self.plot, 2)
@@ -955,16 +957,13 @@ class OptimiseDock(QWidget):
         # Infeasible candidates have no score: not drawn (a mark at some other value read as a score).
         infeasible = sum(not r.feasible for r in self.rows)
         note = f"<br>{infeasible} infeasible, not scored (see the table)" if infeasible else ""
-        item.setTitle(f"{name} ({self._directions[name]}) against {x_label}{note}", color="k", size="9pt")
+        title = f"{name} ({self._directions[name]}) against {x_label}{note}"
         # A gradient run's steps are one path: join them (the loss curve); candidates stay dots.
         gradient = method.startswith("gradient")
         self.feasible_dots.setPen(pg.mkPen(FEASIBLE, width=1.5) if gradient else None)
         # end to end: the training loss is not measured at the final design (no point drawn there)
         step = "step" if method == "gradient-end-to-end" else "step (final design last)"
-        dots = {"grid": "candidate", "algorithm2": "layout"}.get(method, step)
-        for sample, label in item.legend.items:
-            if sample.item is self.feasible_dots:
-                label.setText(dots)
+        dots_name = {"grid": "candidate", "algorithm2": "layout"}.get(method, step)
         best = best_so_far(self.rows, name, self._directions[name])
         xs = [r.number for r in self.rows]
         # a row whose score was not measured (end to end: the final design) does not extend the line
@@ -973,6 +972,9 @@ class OptimiseDock(QWidget):
         self.best_curve.setData([x for x, _ in line], [b for _, b in line])
         dots = [(r.number, r.values[name]) for r in self.rows if r.values is not None and name in r.values]
         self.feasible_dots.setData([x for x, _ in dots], [y for _, y in dots])
+        key = [(f'<span style="color:{BEST.name()};">━</span>', "best so far")] if line else []
+        key += [(f'<span style="color:{FEASIBLE.name()};">●</span>', dots_name)] if dots else []
+        show_title(item, keyed_title(title, key), size="9pt")
 
     def selected_rows(self) -> list[CandidateRow]:
         picked = sorted({index.row() for index in self.table.selectionModel().selectedRows()})

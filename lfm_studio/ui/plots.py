@@ -126,6 +126,15 @@ def keyed_title(title: str, entries: list[tuple[str, str]]) -> str:
     return f'{title}<br><span style="font-size:8pt;">{key}</span>'
 
 
+def show_title(item: pg.PlotItem, html: str, *, size: str) -> None:
+    """``item.setTitle(html)`` in black, the title row as tall as its lines: pyqtgraph fixes it at
+    30 px, which cut the first of three lines (a note and a key under the title)."""
+    item.setTitle(html, color="k", size=size)
+    height = item.titleLabel.item.boundingRect().height()
+    item.titleLabel.setMaximumHeight(height)
+    item.layout.setRowFixedHeight(0, height)
+
+
 def _sample(text: str) -> str:
     return f'<span style="color:{PROFILE_COLOUR};">{text}</span>'
 
@@ -182,9 +191,7 @@ class ProfilePlots(_StateView):
             (self.lateral_plot, self.LATERAL_TITLE, (self.lateral_curve, self.lateral_preview), ("", "")),
             (self.axial_plot, self.AXIAL_TITLE, (self.axial_curve, self.axial_preview), ("●", "▲")),
         ):
-            plot.getPlotItem().setTitle(
-                keyed_title(title, _key_entries(curves, markers)), color="k", size="10pt"
-            )
+            show_title(plot.getPlotItem(), keyed_title(title, _key_entries(curves, markers)), size="10pt")
 
 
 def _key_entries(

@@ -333,3 +333,20 @@ def test_resuming_a_study_stored_without_objective_options_says_they_were_not_ch
     qtbot.waitUntil(lambda: window.state.job(JOB_NAME).state == "done", timeout=TIMEOUT_MS)
     assert len(dock.rows) == 3
     assert "Note: study 'lfm_study' was stored without its objective options" in dock.message.text()
+
+
+def test_the_plot_key_is_above_the_axes_and_names_the_curves_drawn(qtbot, window):
+    """A legend box inside the axes sat at the right, over the latest candidates."""
+    import pyqtgraph as pg
+
+    dock = window.optimise
+    _run_grid(qtbot, dock)
+    qtbot.waitUntil(lambda: dock.message.text().startswith("Done"), timeout=TIMEOUT_MS)
+    item = dock.plot.getPlotItem()
+    assert not [child for child in item.scene().items() if isinstance(child, pg.LegendItem)]
+    title = item.titleLabel.text
+    assert (
+        "best so far" in title
+        and "candidate" in title
+        and title.index("against") < title.index("best so far")
+    )
