@@ -354,11 +354,35 @@ def create_store(
     return VideoStore(str(location), shape, levels, chunk_frames)
 
 
+def _old_path(target: Path) -> Path:
+    """Where :func:`replace_store` moves the old store between its two renames."""
+    return target.with_name(f".{target.name}.old")
+
+
+def finish_interrupted_replacement(path: str | os.PathLike) -> str | None:
+    """Complete a :func:`replace_store` that a crash stopped between its two renames (the store at
+    ``path`` gone, the old one at its hidden ``.old`` sibling); returns what was done, or None.
+
+    The replacement is complete when it is there (``replace_store`` runs only after its run
+    ended): it goes in place and the old store is deleted; without it the old store goes back."""
+    target = Path(path).expanduser().absolute()
+    old, new = _old_path(target), replacement_path(target)
+    if target.exists() or not old.is_dir():
+        return None
+    if new.is_dir():
+        os.replace(new, target)
+        _remove(old)
+        return f"{target}: a replacement stopped between its two renames was completed (the new store is in place)."
+    os.replace(old, target)
+    return f"{target}: a replacement stopped between its two renames was undone (the previous store is back)."
+
+
 def replace_store(store: VideoStore, path: str | os.PathLike) -> VideoStore:
     """Put ``store`` (built at :func:`replacement_path` of ``path``) in place of the store at
-    ``path``, which is deleted; returns the store at ``path``."""
+    ``path``, which is deleted; returns the store at ``path``. A crash between the two renames is
+    completed by the next run on ``path`` (:func:`finish_interrupted_replacement`)."""
     target = Path(path).expanduser().absolute()
-    trash = target.with_name(f".{target.name}.old")
+    trash = _old_path(target)
     _remove(trash)
     if target.exists() or target.is_symlink():
         os.replace(target, trash)

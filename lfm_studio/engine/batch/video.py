@@ -40,6 +40,7 @@ from lfm_studio.engine.batch.store import (
     VideoStore,
     create_store,
     discard_store,
+    finish_interrupted_replacement,
     open_store,
     replace_store,
 )
@@ -235,6 +236,10 @@ def _run_chunks(
     return sorted(lost)
 
 
+class RecoveredStoreWarning(UserWarning):
+    """A replacement that a crash stopped between its two renames was completed or undone."""
+
+
 class FramesUncheckedWarning(UserWarning):
     """A store written before frame digests were kept is resumed: a changed recording cannot be told."""
 
@@ -304,6 +309,9 @@ def _prepare_store(output: str | os.PathLike, source: FrameSource, *, resume: bo
     """The store to write and, for an overwrite of an existing store, the path it replaces when
     the run ends (the store returned is then a hidden sibling; the old one stays until then)."""
     target = Path(output).expanduser()
+    recovered = finish_interrupted_replacement(target)  # a crash between replace_store's renames
+    if recovered is not None:
+        warnings.warn(recovered, RecoveredStoreWarning, stacklevel=3)
     if target.exists() and resume and not overwrite:
         store = _open_for_resume(target, run, legacy_run)
         check_frames_unchanged(store, source)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -296,3 +297,30 @@ def test_a_store_written_before_digests_resumes_with_a_warning(video, tmp_path):
     with pytest.warns(FramesUncheckedWarning, match="cannot be detected"):
         again = _run(video, out)
     assert again.skipped == tuple(range(FRAMES)) and (out / STATUS_GROUP / FRAMES_STAMP).is_file()
+
+
+@pytest.mark.parametrize("replacement_done", [True, False])
+def test_a_crash_between_the_replacements_two_renames_is_completed_by_the_next_run(
+    video, tmp_path, replacement_done
+):
+    """replace_store moves the old store to a hidden ``.old`` sibling, then the new one in place; a
+    crash between the two left no store at the path. The next run puts the finished replacement in
+    place (or the old store back) before anything else, and says so."""
+    import shutil
+
+    from lfm_studio.engine.batch.store import replacement_path
+    from lfm_studio.engine.batch.video import RecoveredStoreWarning
+
+    out = tmp_path / "run.ome.zarr"
+    _run(video, out)
+    old = tmp_path / ".run.ome.zarr.old"
+    if replacement_done:  # the replacement (a finished run) waited at its hidden path
+        shutil.copytree(out, replacement_path(out))
+        (replacement_path(out) / STATUS_GROUP / "marker").write_text("new")
+    os.replace(out, old)  # the crash: the old store moved aside, the new one not yet in place
+    with pytest.warns(RecoveredStoreWarning, match="completed" if replacement_done else "undone"):
+        again = _run(video, out)
+    assert again.skipped == tuple(range(FRAMES)) and again.computed == ()  # resumed, nothing lost
+    assert (out / STATUS_GROUP / "marker").exists() == replacement_done
+    assert not old.exists() and not replacement_path(out).exists()
+    np.testing.assert_array_equal(_level(out), video.reference)
