@@ -14,8 +14,11 @@ for the light field microscope", Opt. Express 21, 25418 (2013) (Broxton 2013).
   Resolvable spots in it: ``N_u = D_img / max(delta, 0.94 lambda d / p)`` (the larger of
   a pixel and the lenslet's Sparrow spot ``0.47 lambda / NA_lenslet``, ``NA_lenslet =
   p / (2 d)``); f-number matched this is Levoy's ``N_u = W / R_obj`` with
-  ``R_obj = 0.47 lambda M / NA``. ``number_of_views`` counts them over the disc
-  (``pi/4 N_u^2``) or over the square lenslet when the disc fills it (``N_u^2``).
+  ``R_obj = 0.47 lambda M / NA``. ``number_of_views`` counts the spots (views: the thesis
+  forms one view from the same pixel behind every lenslet) over the part of the square
+  lenslet the pupil image covers: area of disc ``D_img`` intersect square ``p``, over
+  ``spot^2`` (``pi/4 N_u^2`` for a disc inside the lenslet, ``N_u^2`` only once the disc
+  reaches the corners, ``D_img >= p sqrt(2)``; at most ``pi/4 N_u^2`` for round lenslets).
   The effective NA of one view is ``NA / N_u``.
 - Lateral resolution: ``max(c lambda / NA, p / M)`` (``c`` of the chosen criterion:
   0.61 Rayleigh by default, 0.5 Abbe, 0.47 Sparrow): at the native focal plane the
@@ -71,6 +74,28 @@ def mla_extent(design: Design) -> float:
     return min(max(xs) - min(xs), max(ys) - min(ys)) + 2.0 * half
 
 
+def lenslet_is_square(design: Design) -> bool:
+    """Whether the lenslets are square (the regular array's shape, else the largest lenslet's)."""
+    mla = design.mla
+    if isinstance(mla, RegularMLASpec):
+        return mla.lenslet_shape == "square"
+    return max(mla.lenslets, key=lambda lens: lens.aperture_diameter).shape == "square"
+
+
+def covered_lenslet_area(pupil_image: float, pitch: float, *, square: bool = True) -> float:
+    """Area of a lenslet of side (``square``) or diameter ``pitch`` (m) covered by the centred
+    pupil image, a disc of diameter ``pupil_image`` (m), m^2: for a square, the disc minus the
+    four caps beyond the sides; for a round lenslet, the smaller disc."""
+    r, a = pupil_image / 2.0, pitch / 2.0
+    if r <= a or not square:
+        r = min(r, a)
+        return math.pi * r**2
+    if r >= a * math.sqrt(2.0):
+        return pitch**2
+    cap = r**2 * math.acos(a / r) - a * math.sqrt(r**2 - a**2)  # one side cuts this off
+    return math.pi * r**2 - 4.0 * cap
+
+
 def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") -> ClosedFormMetrics:
     """Closed-form metrics of a conventional LFM design (see the module docstring); the lateral
     diffraction limit by ``criterion`` ("rayleigh", "abbe" or "sparrow")."""
@@ -91,10 +116,9 @@ def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") ->
     if sub_image_radius is None:  # only a Fourier design (relay, unlimited field) has none
         raise ValueError("conventional_closed_forms needs the sub-image radius; the design has none.")
     pupil_image = 2.0 * sub_image_radius
-    filled = pupil_image >= p
     spot = max(camera.pixel_pitch, 2.0 * SPARROW * lam * d / p)
     n_u = min(pupil_image, p) / spot
-    views = math.floor(n_u**2 if filled else math.pi / 4.0 * n_u**2)
+    views = math.floor(covered_lenslet_area(pupil_image, p, square=lenslet_is_square(design)) / spot**2)
     if n_u < 1.0:
         notes.append(
             f"fewer than one resolvable spot behind a lenslet (N_u = {n_u:.3g}): no angular sampling."

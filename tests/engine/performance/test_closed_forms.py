@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from lfm_studio.engine.design import DesignWarning, MLASpec, evolve, load_preset
@@ -104,6 +105,45 @@ def test_conventional_prevedel_is_f_number_matched_and_levoy_n_u_holds():
     assert m.views_across == pytest.approx(150 * um * 0.5 / (0.47 * 525e-9 * 20), rel=EXACT)  # 15.2
     assert m.lateral_resolution == pytest.approx(7.5 * um, rel=EXACT)
     assert m.field_of_view == pytest.approx(88 * 150 * um / 20, rel=EXACT)  # 660 um (thesis table: 700 um)
+
+
+def test_conventional_prevedel_views_cover_the_disc_not_the_square_lenslet():
+    # f-number matched: the 150.05 um pupil image just reaches the sides of the 150 um square
+    # lenslet but not its corners, so it covers about pi/4 of it (walk-through 6: 230 views before).
+    m = closed_form_metrics(load_preset("lfm_prevedel2014"))
+    radius = 3 * mm * math.tan(math.asin(0.5 / 20))  # 75.03 um
+    spot = 0.94 * 525e-9 * 3 * mm / (150 * um)  # lenslet Sparrow spot 9.87 um > 6.5 um pixel
+    side = np.linspace(-75 * um, 75 * um, 1501)  # sample the lenslet, count the points the disc covers
+    x, y = np.meshgrid(side, side)
+    covered = np.mean(np.hypot(x, y) <= radius) * (150 * um) ** 2
+    assert m.number_of_views == pytest.approx(covered / spot**2, abs=1)  # 181, as 10x/0.3
+
+
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.design.DesignWarning")  # overlapping sub-images
+@pytest.mark.parametrize("na", [0.5, 0.6, 0.75])
+def test_conventional_views_are_the_pixels_behind_a_lenslet_that_the_pupil_image_covers(na):
+    # 10 um pixels (coarser than the 9.87 um lenslet spot): a view per pixel (thesis 1.1.1: a view is the
+    # same pixel behind every lenslet). 15 x 15 pixels per 150 um lenslet; count those whose centre lies in
+    # the pupil image: inside the sides (NA 0.5), past the sides (0.6) or past the corners (0.75: all 225).
+    design = evolve(load_preset("lfm_prevedel2014"), "camera.pixel_pitch_um", 10.0)
+    m = closed_form_metrics(evolve(design, "objective.numerical_aperture", na))
+    radius = 3 * mm * math.tan(math.asin(na / 20))
+    centres = (np.arange(15) - 7) * 10 * um
+    x, y = np.meshgrid(centres, centres)
+    pixels = int(np.count_nonzero(np.hypot(x, y) <= radius))
+    assert m.number_of_views == pytest.approx(pixels, abs=2)
+
+
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.design.DesignWarning")  # overlapping sub-images
+def test_conventional_views_behind_a_round_lenslet_stop_at_its_rim():
+    # As above at NA 0.75 (pupil image 225 um) but round 150 um lenslets: only the pixels whose centre
+    # lies within 75 um of the lenslet centre see light.
+    design = evolve(load_preset("lfm_prevedel2014"), "camera.pixel_pitch_um", 10.0)
+    design = evolve(evolve(design, "objective.numerical_aperture", 0.75), "mla.lenslet_shape", "circle")
+    centres = (np.arange(15) - 7) * 10 * um
+    x, y = np.meshgrid(centres, centres)
+    pixels = int(np.count_nonzero(np.hypot(x, y) <= 75 * um))
+    assert closed_form_metrics(design).number_of_views == pytest.approx(pixels, abs=2)
 
 
 def test_focus_depth_is_zero_for_a_camera_at_the_focal_plane_and_changes_sign_across_it():
