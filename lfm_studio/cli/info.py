@@ -50,7 +50,8 @@ def add_info_parser(subparsers: argparse._SubParsersAction) -> argparse.Argument
         default="rayleigh",
         help="lateral resolution criterion of the closed forms: "
         + "; ".join(f"{name}: {label}" for name, label in CRITERION_LABELS.items())
-        + " (default rayleigh, as in the thesis section 3.3.1)",
+        + " (default rayleigh, as in the thesis section 3.3.1); it sets the diffraction term only: "
+        "a value set by the sampling (pixels, or a conventional LFM's lenslet pitch) is labelled so",
     )
     info.set_defaults(handler=run_info)
     return info

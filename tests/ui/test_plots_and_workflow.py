@@ -8,6 +8,8 @@ from types import SimpleNamespace
 import pyqtgraph as pg
 import pytest
 
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.performance import compute_design_metrics
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
@@ -63,6 +65,19 @@ def test_plots_show_profiles_requirements_and_convergence(qtbot, computed):
         view.disconnect_state()
     state.set_metrics(None)  # disconnected: the table keeps its rows
     assert len(requirements.rows()) == len(metrics.requirements)
+
+
+def test_a_conventional_lateral_row_names_the_lenslet_sampling(qtbot):
+    # Prevedel: 7.5 µm = 150 µm pitch / 20x, not Rayleigh 0.61 x 0.525 µm / 0.5 = 0.64 µm (walk-through 6).
+    design = load_preset("lfm_prevedel2014")
+    state = StudioState(design)
+    view = RequirementsView(state)
+    qtbot.addWidget(view)
+    state.set_metrics(compute_design_metrics(design))
+    row = next(r for r in view.rows() if r[0].startswith("Lateral res."))
+    assert row[0] == "Lateral res. ≤ 3 µm\nlenslet sampling pitch/M, same for every criterion"
+    assert row[2] == f"{150 / 20:g} µm"
+    view.disconnect_state()
 
 
 def _key_names(plot) -> list[str]:

@@ -24,7 +24,8 @@ for the light field microscope", Opt. Express 21, 25418 (2013) (Broxton 2013).
   0.61 Rayleigh by default, 0.5 Abbe, 0.47 Sparrow): at the native focal plane the
   light field samples the sample once per lenslet (Levoy 2006: lateral resolution of
   focused images = lenslet pitch at the specimen). 3-D deconvolution recovers finer
-  detail away from that plane (Broxton 2013), not reflected here.
+  detail away from that plane (Broxton 2013), not reflected here. ``lateral_resolution_limit``
+  names the term that sets it; the criterion cannot change the lenslet sampling limit.
 - Axial resolution: the depth of field of a synthetically refocused image, Inoue's
   formula with the lenslet pitch as the "pixel" (Levoy 2006 eq. for ``D_tot``):
   ``lambda n / NA^2 + n p / (M NA)`` (about ``(2 + N_u) lambda n / (2 NA^2)``).
@@ -45,9 +46,13 @@ from lfm_studio.engine.systems.closed_form_record import (
     LATERAL_CRITERIA,
     ClosedFormMetrics,
     criterion_factor,
+    lateral_limit_label,
     tightest_limit,
 )
 from lfm_studio.engine.systems.kinds import CONVENTIONAL, kind_of
+
+LENSLET_SAMPLING = "lenslet sampling pitch/M"
+"""Label of the conventional LFM's native-plane lateral limit, one sample per lenslet."""
 
 SPARROW = LATERAL_CRITERIA["sparrow"]
 """Sparrow factor used by Levoy 2006: two points resolve at ``0.47 lambda / NA``."""
@@ -151,4 +156,5 @@ def conventional_closed_forms(design: Design, *, criterion: str = "rayleigh") ->
         field_of_view_limit=fov_limit,
         lateral_criterion=criterion,
         notes=tuple(notes),
+        lateral_resolution_limit=lateral_limit_label(diffraction, sampling, criterion, LENSLET_SAMPLING),
     )

@@ -17,7 +17,8 @@ side of a square) centred at radius ``r_i`` from the axis on the MLA.
   of one view by the chosen criterion (``c`` = 0.61 Rayleigh, the default as in the
   thesis section 3.3.1; 0.5 Abbe, as Guo 2019 and Scrofani 2018 report it; 0.47
   Sparrow), or two sensor pixels (Nyquist) projected to the sample, whichever is
-  coarser. The largest lenslet among the views is used.
+  coarser (``lateral_resolution_limit`` names which; the criterion cannot change the
+  pixel limit). The largest lenslet among the views is used.
 - Axial resolution, thesis eq. 3.24 with the immersion index (the engine's derivation,
   checked on the simulated PSF in ``tests/engine/systems/test_fourier_psf.py``): a
   depth step ``dz`` moves the spot of view ``i`` radially by ``d r_i M^2 dz / (n f_F^2)``
@@ -52,9 +53,13 @@ from lfm_studio.engine.design import Design, LensletSpec, RelayLensSpec
 from lfm_studio.engine.systems.closed_form_record import (
     ClosedFormMetrics,
     criterion_factor,
+    lateral_limit_label,
     tightest_limit,
 )
 from lfm_studio.engine.systems.kinds import FOURIER, kind_of
+
+PIXEL_SAMPLING = "Nyquist 2 pixels/M_T"
+"""Label of the Fourier LFM's sampling limit, two sensor pixels projected to the sample."""
 
 RAYLEIGH = 1.22
 """Rayleigh factor of a circular aperture: first Airy zero at ``1.22 lambda / (2 NA)``."""
@@ -201,4 +206,5 @@ def fourier_closed_forms(design: Design, *, criterion: str = "rayleigh") -> Clos
         field_of_view_limit=fov_limit,
         lateral_criterion=criterion,
         notes=tuple(notes),
+        lateral_resolution_limit=lateral_limit_label(diffraction, sampling, criterion, PIXEL_SAMPLING),
     )

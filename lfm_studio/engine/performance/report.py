@@ -217,7 +217,7 @@ def compute_design_metrics(
             "axial_resolution": closed.axial_resolution,
         },
         requirements,
-        criteria={"lateral_resolution": CRITERION_LABELS[criterion]},
+        criteria={"lateral_resolution": closed.lateral_resolution_limit or CRITERION_LABELS[criterion]},
     )
     measured = None
     if psf is not None:

@@ -40,6 +40,19 @@ def criterion_factor(criterion: str) -> float:
     return LATERAL_CRITERIA[criterion]
 
 
+SAME_FOR_EVERY_CRITERION = "same for every criterion"
+"""Added to the label of a sampling-limited lateral resolution: the criterion cannot change it."""
+
+
+def lateral_limit_label(diffraction: float, sampling: float, criterion: str, sampling_label: str) -> str:
+    """What sets ``max(diffraction, sampling)`` (both m): the criterion's label
+    (:data:`CRITERION_LABELS`) when the diffraction limit is the coarser, else ``sampling_label``
+    (e.g. "lenslet sampling pitch/M") and that no criterion changes it."""
+    if sampling > diffraction:
+        return f"{sampling_label}, {SAME_FOR_EVERY_CRITERION}"
+    return CRITERION_LABELS[criterion]
+
+
 UM = {"unit": "um"}
 """Field metadata: a length shown and saved in micrometres (SI metres in the object)."""
 
@@ -85,6 +98,10 @@ class ClosedFormMetrics:
         Which limit sets ``field_of_view`` (e.g. "field stop", "lenslet spacing").
     lateral_criterion : "rayleigh", "abbe" or "sparrow"
         The criterion of ``lateral_resolution_diffraction`` (:data:`LATERAL_CRITERIA`).
+    lateral_resolution_limit : str
+        Which limit sets ``lateral_resolution`` (:func:`lateral_limit_label`): the criterion's
+        label, or the sampling limit (e.g. "lenslet sampling pitch/M, same for every
+        criterion"); "" when there is no lateral resolution (or in records written before it).
     notes : tuple of str
         Assumptions and caveats that apply to this design.
     """
@@ -106,6 +123,7 @@ class ClosedFormMetrics:
     field_of_view_limit: str
     lateral_criterion: str = "rayleigh"
     notes: tuple[str, ...] = ()
+    lateral_resolution_limit: str = ""
 
 
 def tightest_limit(limits: dict[str, float | None]) -> tuple[float | None, str]:

@@ -40,6 +40,19 @@ def test_table_lists_the_metrics_by_key_name_and_the_requirements(capsys):
     assert "lateral_resolution (Abbe lambda/(2 NA)) <= 3 um" in out
 
 
+def test_a_conventional_lateral_row_names_the_lenslet_sampling_not_the_criterion(capsys):
+    # Prevedel: the 7.5 um is pitch / M = 150 um / 20, not Rayleigh 0.61 x 0.525 um / 0.5 = 0.64 um;
+    # --criterion abbe changes the diffraction term only, so the row stays the sampling limit.
+    for argv in (["lfm_prevedel2014"], ["lfm_prevedel2014", "--criterion", "abbe"]):
+        code, out, _ = run(argv, capsys)
+        row = next(line for line in out.splitlines() if line.startswith("  lateral_resolution ("))
+        assert code == 0 and row.startswith(
+            "  lateral_resolution (lenslet sampling pitch/M, same for every criterion) <= 3 um"
+        )
+        assert float(row.split("closed_form")[1].split()[0]) == pytest.approx(150 / 20)
+        assert "Rayleigh" not in row and "Abbe" not in row
+
+
 def test_json_output_parses_and_has_units_in_keys(capsys):
     code, out, _ = run(["lfm_10x_na03", "--json"], capsys)
     assert code == 0

@@ -7,7 +7,7 @@ import math
 
 import pytest
 
-from lfm_studio.engine.design import list_presets, load_preset
+from lfm_studio.engine.design import evolve, list_presets, load_preset
 from lfm_studio.engine.performance import DesignMetrics, compute_design_metrics, format_metrics_table
 
 
@@ -157,3 +157,26 @@ def test_version_1_records_load_as_abbe():
         del check["criterion"]
     back = DesignMetrics.from_dict(d)
     assert back.closed_form.lateral_criterion == "abbe" and back.requirements[0].criterion == ""
+
+
+@pytest.mark.parametrize("criterion", ["rayleigh", "abbe", "sparrow"])
+def test_a_sampling_limited_lateral_resolution_is_labelled_by_its_sampling_limit(criterion):
+    # Prevedel 20x/0.5, 150 um lenslets, 525 nm: pitch / M = 7.5 um >> 0.61 x 0.525 um / 0.5 = 0.64 um,
+    # so the value is the lenslet sampling, whatever the criterion (walk-through 6: labelled Rayleigh).
+    m = compute_design_metrics(load_preset("lfm_prevedel2014"), criterion=criterion)
+    lateral = next(c for c in m.requirements if c.quantity == "lateral_resolution")
+    assert lateral.value == pytest.approx(150e-6 / 20) and lateral.value > 0.61 * 0.525e-6 / 0.5
+    assert lateral.criterion == "lenslet sampling pitch/M, same for every criterion"
+    assert m.closed_form.lateral_resolution_limit == lateral.criterion
+    assert DesignMetrics.from_json(m.to_json()).requirements[2].criterion == lateral.criterion
+
+
+@pytest.mark.filterwarnings("ignore::lfm_studio.engine.design.DesignWarning")  # 13 um pixels undersample
+def test_a_pixel_limited_fourier_lateral_resolution_is_labelled_by_the_pixels():
+    # Guo FLFM with 13 um pixels: 2 x 13 um / (40 x 16.8 / 75) = 2.90 um > Rayleigh 0.61 x 0.68 um / 0.16 = 2.59 um.
+    design = evolve(load_preset("flfm_guo2019"), "camera.pixel_pitch_um", 13.0)
+    lateral = compute_design_metrics(design).requirements[2]
+    assert (
+        lateral.value == pytest.approx(2 * 13e-6 / (40 * 16.8 / 75)) and lateral.value > 0.61 * 0.68e-6 / 0.16
+    )
+    assert lateral.criterion == "Nyquist 2 pixels/M_T, same for every criterion"
