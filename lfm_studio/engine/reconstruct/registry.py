@@ -200,7 +200,7 @@ BACKGROUND = Option(
     "background",
     float,
     0.0,
-    "expected background per pixel: Richardson-Lucy models it, one-step methods subtract it and clip at 0",
+    "expected background per pixel: Richardson-Lucy models it, one-step methods subtract it (no clipping)",
     units="photons per pixel",
     minimum=0.0,
 )
