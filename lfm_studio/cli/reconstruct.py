@@ -125,6 +125,11 @@ def _prepare_stack(args: argparse.Namespace, stack, image):
     return stack
 
 
+def _either(names: list[str]) -> str:
+    """``["a", "b", "c"]`` as ``"a, b or c"`` (a refusal's choices)."""
+    return names[0] if len(names) == 1 else f"{', '.join(names[:-1])} or {names[-1]}"
+
+
 def _reconstruct_frame(
     method, options: dict, projector, frame: torch.Tensor, floor: float, report
 ) -> torch.Tensor:
@@ -190,7 +195,7 @@ def run_reconstruct(args: argparse.Namespace) -> int:
 
         check_checkpoint_for_stack(str(options["model"]), stack, setup)
     if not method.supports(setup.projector):
-        others = " or ".join(m.name for m in registry.methods() if m.projectors == "any")
+        others = _either(registry.supporting(setup.projector))
         raise ValueError(
             f"--method {args.method} needs a laterally shift-invariant (Fourier LFM) PSF stack; {args.psf} is a "
             f"conventional-LFM pattern stack. Fix: use --method {others}."

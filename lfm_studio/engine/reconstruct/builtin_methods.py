@@ -1,8 +1,8 @@
 """The built-in reconstruction methods, registered in :mod:`.registry`: rl, rl-accelerated, wiener, tikhonov.
 
 Richardson-Lucy takes any projector and models the background; Wiener takes a shift-invariant
-(Fourier LFM) projector and Tikhonov also a conventional-LFM lenslet-lattice one; both subtract
-the background and clip at 0. "rl-accelerated"
+(Fourier LFM) projector and Tikhonov also a conventional-LFM lenslet-lattice one; both are
+linear and invert the frame minus the background, not clipped (:func:`_signal`). "rl-accelerated"
 is :func:`.accelerated_rl_options` (geometric extrapolation with a likelihood safeguard); its
 extrapolation step is not differentiable (a ``gradcheck`` through it fails), plain RL's is.
 Total-variation regularisation (:mod:`.total_variation`) is the RL option ``tv_weight``.
@@ -107,9 +107,14 @@ def _rl_run(accelerated: bool) -> MethodRun:
 
 
 def _signal(frame: torch.Tensor, options: Mapping[str, OptionValue]) -> torch.Tensor:
-    """The frame minus the background, clipped at 0 (what the one-step methods invert)."""
-    signal: torch.Tensor = (frame - _number(options, "background")).clamp_min(0.0)
-    return signal
+    """The frame minus the background, photons per pixel, NOT clipped at 0 (what the linear methods invert).
+
+    The read noise left after removing the camera's noise floor (the ``background`` the front ends
+    pass) is zero-mean; clipping it at 0 would keep only its positive half, about 0.4 sigma per
+    pixel, which a linear inverse turns into large sheets of light of both signs (a noisy
+    conventional-LFM image's Tikhonov volume then held 2.9x to 4.2x the truth's photons).
+    """
+    return frame - _number(options, "background")
 
 
 def _wiener_run(

@@ -200,7 +200,7 @@ BACKGROUND = Option(
     "background",
     float,
     0.0,
-    "expected background per pixel: Richardson-Lucy models it, one-step methods subtract it and clip at 0",
+    "expected background per pixel: Richardson-Lucy models it, one-step methods subtract it (no clipping)",
     units="photons per pixel",
     minimum=0.0,
 )
@@ -320,7 +320,7 @@ class Method:
     def check_projector(self, projector: Projector) -> None:
         """A ``ValueError`` naming the method and a fix when it cannot take ``projector``."""
         if not self.supports(projector):
-            choices = ", ".join(m.name for m in methods() if m.supports(projector))  # what takes this one
+            choices = ", ".join(supporting(projector))  # what takes this one
             needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
             if self.projectors == "periodic":
                 needs += " or a conventional-LFM lenslet-lattice projector"
@@ -400,6 +400,12 @@ def methods() -> tuple[Method, ...]:
     """Every registered method, in registration order."""
     _load_providers()
     return tuple(_REGISTRY.values())
+
+
+def supporting(projector: Projector) -> list[str]:
+    """The names of the registered methods that take ``projector`` (:meth:`Method.supports`), in
+    registration order: what a refusal of another method offers instead."""
+    return [m.name for m in methods() if m.supports(projector)]
 
 
 def names() -> list[str]:
