@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import pyqtgraph as pg
 import pytest
 
+from lfm_studio.engine.design import load_preset
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.plots import ConvergencePlot, ProfilePlots, RequirementsView
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
@@ -135,6 +136,21 @@ def test_workflow_panel_both_ways(qtbot, computed):
         ReconstructionResult(computed[1].stack.data, (1, 1, 1), 5, psnr=31.25, ssim=0.875)
     )
     assert "PSNR 31.25 dB" in panel.quality.text() and "SSIM 0.875" in panel.quality.text()
+    panel.disconnect_state()
+
+
+def test_the_workflow_panel_offers_a_conventional_design_only_the_methods_that_take_it(qtbot):
+    """Wiener needs a shift-invariant (Fourier LFM) projector: on a conventional design it is disabled,
+    and a Wiener chosen on a Fourier design is replaced in the settings when the design changes."""
+    state = StudioState(small_fourier_design())
+    panel = WorkflowPanel(state, reconstruction_available=True)
+    qtbot.addWidget(panel)
+    box = panel.method_options.method
+    panel.method_options.set_method("wiener")
+    assert state.workflow.method == "wiener"
+    state.set_design(load_preset("lfm_10x_na03"))
+    assert not box.model().item(box.findData("wiener")).isEnabled()
+    assert state.workflow.method != "wiener" and box.currentData() == state.workflow.method
     panel.disconnect_state()
 
 
