@@ -287,6 +287,21 @@ def editor_lenslets(design: Any) -> tuple:
     )
 
 
+def regular_grid_summary(design: Any, shown: int) -> str | None:
+    """What the MLA editor says of a regular lenslet grid it shows ``shown`` lenslets of (its size,
+    pitch and lenslet focal length, and where to change them); None for an explicit lenslet list."""
+    mla = design.mla
+    if isinstance(mla, MLASpec):
+        return None
+    rows, per_row = mla.shape
+    return (
+        f"Regular {mla.lattice} lenslet grid: {rows} rows x {per_row} lenslets ({len(mla.lenslets)} in all), "
+        f"pitch {mla.pitch_um:g} µm, lenslet focal length {mla.focal_length_mm:g} mm; the central {shown} are "
+        "drawn. Change the grid in the design file, or free the MLA pitch and lenslet focal length in the "
+        "Optimise dock."
+    )
+
+
 class MLAEditorBinding(QObject):
     """Keeps an MLA editor (the :class:`~lfm_studio.widgets.mla_editor.MLAEditor` contract) and the state in step.
 
@@ -311,11 +326,6 @@ class MLAEditorBinding(QObject):
         editor = self.editor
         editable = isinstance(design.mla, MLASpec)
         editor.setEnabled(editable)
-        editor.setToolTip(
-            ""
-            if editable
-            else "A regular lenslet grid (conventional LFM): edit its pitch in the design file."
-        )
         editor.set_pupil_radius(editor_pupil_radius_um(design))  # None also clears the previous circle
         width, height = design.camera.sensor_size
         radius = design.sub_image_radius
@@ -323,6 +333,9 @@ class MLAEditorBinding(QObject):
         lenslets = editor_lenslets(design)
         if tuple(editor.lenslets()) != lenslets:
             editor.set_lenslets(lenslets)
+        summary = regular_grid_summary(design, len(lenslets))
+        editor.setToolTip(summary or "")
+        editor.set_summary(summary)
 
     def _on_committed(self, lenslets: Any) -> None:
         outcome = try_changes(self.state.design, {"mla.lenslets": tuple(lenslets)})

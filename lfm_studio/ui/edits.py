@@ -46,8 +46,23 @@ def read_path(spec: Any, path: str) -> Any:
     """The value at dotted ``path`` in ``spec`` (tuple items by index), e.g. ``"camera.pixel_count.0"``."""
     node = spec
     for part in path.split("."):
-        node = node[int(part)] if isinstance(node, tuple) else getattr(node, part)
+        node = _child(node, part)
     return node
+
+
+def read_path_or_none(spec: Any, path: str) -> Any:
+    """:func:`read_path`, or None where a part of ``path`` is absent (a conventional design's ``relay``)."""
+    node = spec
+    for part in path.split("."):
+        if node is None:
+            return None
+        node = _child(node, part)
+    return node
+
+
+def _child(node: Any, part: str) -> Any:
+    """Item ``part`` of a tuple (by index), else attribute ``part``."""
+    return node[int(part)] if isinstance(node, tuple) else getattr(node, part)
 
 
 def _plain(value: Any) -> Any:

@@ -26,7 +26,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.design import ACCURACY_PRESETS, AccuracySpec, Design, describe_preset
 from lfm_studio.engine.systems.kinds import kind_of
-from lfm_studio.ui.edits import read_path, try_changes
+from lfm_studio.ui.edits import read_path, read_path_or_none, try_changes
 from lfm_studio.ui.parameter_fields import FIELDS, ErrorLabel, FieldSpec, QuantityInput
 from lfm_studio.ui.state import StudioState
 
@@ -127,7 +127,11 @@ class ParameterPanel(QScrollArea):
         for path, field in self.inputs.items():
             applies = kind in field.spec.kinds
             field.setEnabled(applies)
-            if applies and path not in pending:
+            if not applies:
+                # greyed: this design's own value ("none" / 0 where it has none), not the last design's
+                field.discard_edits()
+                field.set_value(read_path_or_none(design, path))
+            elif path not in pending:
                 field.set_value(read_path(design, path))
         preset = design.accuracy.preset if design.accuracy.matches_preset() else "custom"
         if self.accuracy.findText(preset) < 0:

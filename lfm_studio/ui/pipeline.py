@@ -27,7 +27,7 @@ from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.engine.systems.lenslet_cache import LensletCache
 from lfm_studio.ui.edits import try_changes
 from lfm_studio.ui.results import ImageResult, PSFProfiles, PSFResult, ReconstructionResult, WorkflowSettings
-from lfm_studio.widgets.viewer.display_data import image_display, psf_display, volume_display
+from lfm_studio.widgets.viewer.display_data import image_display, psf_display, rectified_note, volume_display
 
 PREVIEW_DEPTHS = 5  # depths of the quick preview (spread over the design's range)
 PREVIEW_BINNING_FROM = 1024  # sensors with at least this many pixels per side are binned 2x for the preview
@@ -242,7 +242,7 @@ def simulate_image(
     counts = counts.detach().cpu()
     return ImageResult(
         counts, expected.detach().cpu(), volume.detach().cpu(), tuple(setup.voxel_size),
-        stack.pixel_size, setup, info, display=image_display(counts, stack.pixel_size, "light field"),
+        stack.pixel_size, setup, info, display=image_display(counts, stack.pixel_size, "light field", note=rectified_note(stack)),
         truth_display=volume_display(volume.detach().cpu(), tuple(setup.voxel_size), "phantom"),
     )  # fmt: skip
 

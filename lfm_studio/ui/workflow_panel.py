@@ -32,6 +32,7 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from lfm_studio.engine.systems.kinds import kind_of
 from lfm_studio.ui.parameter_fields import ErrorLabel
 from lfm_studio.ui.results import ReconstructionResult, WorkflowSettings
 from lfm_studio.ui.stale_marks import stage_mark
@@ -171,8 +172,11 @@ class WorkflowPanel(QWidget):
         state.job_changed.connect(self._on_job)
         state.image_changed.connect(self._on_image)
         self._on_image(state.image)
+        state.design_changed.connect(self._on_design)
+        self._on_design(state.design)
 
     def disconnect_state(self) -> None:
+        self.state.design_changed.disconnect(self._on_design)
         self.state.workflow_changed.disconnect(self._show_settings)
         self.state.reconstruction_changed.disconnect(self._on_reconstruction)
         self.state.stale_changed.disconnect(self._on_reconstruction_state)
@@ -214,6 +218,11 @@ class WorkflowPanel(QWidget):
         for w in widgets:
             w.blockSignals(False)
         self._show_input_errors()
+
+    def _on_design(self, design: object) -> None:
+        """Offer only the methods that reconstruct this design's kind (a chosen one that does not is
+        replaced, and the settings follow)."""
+        self.method_options.restrict_to_kind(kind_of(design))
 
     def _on_image(self, image: object) -> None:
         note = getattr(image, "info", {}).get("note") if image is not None else None

@@ -25,6 +25,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.reconstruct import registry
+from lfm_studio.engine.systems.kinds import SystemKind
 from lfm_studio.widgets.numeric_field import NumericField
 from lfm_studio.widgets.numeric_text import NumberRule
 
@@ -114,6 +115,23 @@ class MethodOptions(QWidget):
         self.method.setCurrentIndex(index)  # runs _on_method unless signals are blocked
         if self._current != name:
             self._on_method()
+
+    def restrict_to_kind(self, kind: SystemKind) -> None:
+        """Offer only the methods that reconstruct a design of ``kind``: the others stay listed but
+        disabled, their tooltip saying why. A chosen method that no longer fits is replaced by the
+        default method (or the first that fits), which emits ``methodChanged`` and ``edited``."""
+        for index in range(self.method.count()):
+            method = registry.get(self.method.itemData(index))
+            fits = method.supports_kind(kind)
+            self.method.model().item(index).setEnabled(fits)
+            tip = (
+                method.description if fits else f"Not for a {kind.title} design: it needs a {method.needs()}."
+            )
+            self.method.setItemData(index, tip, Qt.ItemDataRole.ToolTipRole)
+        if not registry.get(self.method_name()).supports_kind(kind):
+            fitting = [m.name for m in registry.methods() if m.supports_kind(kind)]
+            default = registry.default_method()
+            self.set_method(default if default in fitting else fitting[0])
 
     def field(self, name: str) -> QWidget:
         """The field of option ``name`` (one of :meth:`option_names`)."""

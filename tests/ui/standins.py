@@ -11,7 +11,8 @@ from qtpy.QtWidgets import QLabel, QWidget
 
 
 class FakeMLAEditor(QLabel):
-    """The MLAEditor contract: set_lenslets / lenslets / set_pupil_radius / set_sensor and two signals."""
+    """The MLAEditor contract: set_lenslets / lenslets / set_pupil_radius / set_sensor / set_summary and
+    two signals."""
 
     lensletsCommitted = Signal(object)  # noqa: N815 (the MLAEditor contract)
     lensletsPreview = Signal(object)  # noqa: N815
@@ -37,6 +38,9 @@ class FakeMLAEditor(QLabel):
 
     def set_sensor(self, size_um, sub_image_radius_um, magnification=None):
         self.sensor = (size_um, sub_image_radius_um, magnification)
+
+    def set_summary(self, text):
+        self.summary = text
 
     def commit(self, lenslets):
         """What a user edit does: the new list, then the commit signal."""

@@ -10,6 +10,7 @@ from types import SimpleNamespace
 
 import pytest
 
+from lfm_studio.engine.design import load_preset
 from lfm_studio.engine.progress import checkpoint
 from lfm_studio.ui import pipeline
 from lfm_studio.ui.controllers import MLAEditorBinding, StudioController, ViewerBinding
@@ -93,6 +94,26 @@ def test_the_real_editor_drops_the_pupil_circle_and_check_for_a_conventional_des
     state.set_design(small_conventional_design())
     assert "pupil" not in editor.canvas.getPlotItem().titleLabel.text
     assert "pupil" not in editor.status_text()
+    binding.disconnect_state()
+
+
+def test_the_editor_describes_a_regular_grid_instead_of_checking_its_patch(qtbot, design):
+    """A 106 x 106 conventional grid: the editor draws a central patch, so its status gives the grid's
+    size, pitch and lenslet focal length and where to change them, and claims no check of the patch."""
+    state = StudioState(design)
+    editor = MLAEditor()
+    qtbot.addWidget(editor)
+    binding = MLAEditorBinding(state, editor)
+    state.set_design(load_preset("lfm_10x_na03"))
+    status = editor.status_text()
+    for part in ("106 rows x 106 lenslets (11236 in all)", "pitch 125 µm", "focal length 1.875 mm",
+                 "design file", "Optimise dock"):  # fmt: skip
+        assert part in status, part
+    assert "OK" not in status and "100 lenslets" not in status
+    assert "overlap" not in editor.sensor_view.getPlotItem().titleLabel.text
+    assert editor.toolTip() == status
+    state.set_design(design)  # an explicit layout: its checks again
+    assert "OK:" in editor.status_text() and editor.toolTip() == ""
     binding.disconnect_state()
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import pytest
 
 from lfm_studio.engine.reconstruct import registry
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER
 from lfm_studio.widgets.method_options import OFF, MethodOptions
 
 
@@ -68,3 +69,23 @@ def test_the_learned_method_takes_a_checkpoint_path_typed_or_browsed(form, monke
     form.edited.connect(lambda: edits.append(1))
     field._browse()
     assert form.values() == {"model": picked} and edits
+
+
+def test_methods_that_do_not_take_a_kinds_projector_are_disabled_with_the_reason(form):
+    """A conventional design: Wiener (shift-invariant projectors only) is disabled, its tooltip says
+    why in words (no class name); Tikhonov and Richardson-Lucy stay; a chosen Wiener is replaced."""
+    form.set_method("wiener")
+    form.restrict_to_kind(CONVENTIONAL)
+    item = form.method.model().item(form.method.findData("wiener"))
+    assert not item.isEnabled()
+    assert item.toolTip().startswith(
+        "Not for a Conventional LFM design: it needs a laterally shift-invariant"
+    )
+    assert "Projector" not in item.toolTip()
+    enabled = {
+        form.method.itemData(i) for i in range(form.method.count()) if form.method.model().item(i).isEnabled()
+    }
+    assert {"rl", "rl-accelerated", "tikhonov"} <= enabled and "wiener" not in enabled
+    assert form.method_name() == registry.default_method()
+    form.restrict_to_kind(FOURIER)
+    assert form.method.model().item(form.method.findData("wiener")).isEnabled()

@@ -118,6 +118,16 @@ def test_set_lenslets_updates_table_and_canvas_without_signals(editor, qtbot):
     assert not editor.can_undo()  # ...unless the history is reset
 
 
+def test_another_layout_sets_the_size_row_and_the_size_of_added_lenslets(editor):
+    """The lenslet Ø / f row follows the layout put in force, not the previous design's lenslets."""
+    editor.set_lenslets((lens(0, 0, d=600.0, f=16.8), lens(700, 0, d=600.0, f=16.8)))
+    assert (editor.edits.diameter.value(), editor.edits.focal.value()) == (600.0, 16.8)
+    added = editor.add_lenslet(-700.0, 0.0)
+    assert [
+        (editor.lenslets()[i].aperture_diameter_um, editor.lenslets()[i].focal_length_mm) for i in added
+    ] == [(600.0, 16.8)]
+
+
 # ----- table -> state -----
 
 

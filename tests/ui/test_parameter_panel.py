@@ -124,6 +124,25 @@ def test_a_conventional_design_disables_the_fourier_lens(qtbot):
     panel.disconnect_state()
 
 
+def test_greyed_fields_show_the_new_design_not_the_previous_one(qtbot):
+    """Fourier -> conventional: the greyed relay fields show the conventional design's (absent) relay,
+    as on a fresh launch, not the Fourier design's 75 mm and 2.66 mm."""
+    conventional = load_preset("lfm_10x_na03")
+    fresh = ParameterPanel(StudioState(conventional))
+    qtbot.addWidget(fresh)
+    state = StudioState(load_preset("flfm_guo2019"))
+    panel = ParameterPanel(state)
+    qtbot.addWidget(panel)
+    state.set_design(conventional)
+    for path in ("relay.focal_length_mm", "relay.field_stop_diameter_mm"):
+        shown = [box.text() for box in panel.inputs[path].boxes]
+        assert shown == [box.text() for box in fresh.inputs[path].boxes], path
+    assert panel.inputs["relay.field_stop_diameter_mm"].boxes[0].text() == "none"
+    assert "75" not in panel.inputs["relay.focal_length_mm"].boxes[0].text()
+    for p in (fresh, panel):
+        p.disconnect_state()
+
+
 def test_text_that_is_no_number_is_refused_in_place_and_waits_to_be_corrected(panel, design):
     state = panel.state
     field, label = panel.inputs["objective.magnification"], panel.error_labels["objective.magnification"]

@@ -153,6 +153,21 @@ def test_workflow_panel_both_ways(qtbot, computed):
     panel.disconnect_state()
 
 
+def test_the_workflow_panel_offers_a_conventional_design_only_the_methods_that_take_it(qtbot):
+    """Wiener needs a shift-invariant (Fourier LFM) projector: on a conventional design it is disabled,
+    and a Wiener chosen on a Fourier design is replaced in the settings when the design changes."""
+    state = StudioState(small_fourier_design())
+    panel = WorkflowPanel(state, reconstruction_available=True)
+    qtbot.addWidget(panel)
+    box = panel.method_options.method
+    panel.method_options.set_method("wiener")
+    assert state.workflow.method == "wiener"
+    state.set_design(load_preset("lfm_10x_na03"))
+    assert not box.model().item(box.findData("wiener")).isEnabled()
+    assert state.workflow.method != "wiener" and box.currentData() == state.workflow.method
+    panel.disconnect_state()
+
+
 def test_reconstruct_is_disabled_without_the_engine_module(qtbot, computed):
     panel = WorkflowPanel(StudioState(computed[0]), reconstruction_available=False)
     qtbot.addWidget(panel)

@@ -9,10 +9,18 @@ import pytest
 import torch
 from qtpy.QtGui import QGuiApplication
 
-from lfm_studio.engine.psf_stack import PSFStack
+from lfm_studio.engine.design import load_preset
+from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
 from lfm_studio.widgets.psf_viewer import PSFViewer
 from lfm_studio.widgets.viewer import napari_embed
-from lfm_studio.widgets.viewer.display_data import brightest_slice, psf_display, volume_display
+from lfm_studio.widgets.viewer.display_data import (
+    brightest_slice,
+    describe,
+    image_display,
+    psf_display,
+    rectified_note,
+    volume_display,
+)
 from lfm_studio.widgets.viewer.napari_scene import position_text
 from tests.ui.test_psf_viewer import _rgb, hide_overlays, settle, spot_stack
 
@@ -180,3 +188,33 @@ def test_a_bead_reconstruction_is_drawn_against_its_bright_voxels_not_its_single
     assert low == pytest.approx(volume.min()) and high < 0.01 * volume.max()
     blur_level = ((peaks.min() * 1e-3 - low) / (high - low)) ** shown.gamma
     assert blur_level > 0.3  # a bead's blur is drawn visibly, not only its peak voxel
+
+
+def _pattern_stack(design) -> PSFStack:
+    """A one-depth conventional pattern stack of ``design`` (19 pixels per 125 um lenslet: 6.579 um)."""
+    q = 19
+    return PSFStack(
+        data=torch.ones(1, 1, 1, 3 * q, 3 * q),
+        depths=(0.0,),
+        pixel_size=125e-6 / q,
+        magnification=10.0,
+        wavelength=525e-9,
+        design=design,
+        patterns=ConventionalPatterns(
+            pixels_per_lenslet=q, voxels_per_lenslet=1, reach=(0,), lenslets=(8, 8)
+        ),
+    )
+
+
+def test_a_conventional_stack_and_its_light_field_say_the_sensor_was_resampled():
+    """The 10x design's camera has 6.5 um pixels; its PSF and image use 6.579 um (19 per lenslet): the
+    info lines say so, and a stack whose pixels are the camera's says nothing."""
+    design = load_preset("lfm_10x_na03")
+    stack = _pattern_stack(design)
+    note = "resampled from the camera's 6.5 µm pixels to 19 whole pixels per lenslet"
+    assert note in describe(psf_display(stack))
+    light_field = image_display(torch.ones(8, 8), stack.pixel_size, note=rectified_note(stack))
+    assert describe(light_field) == f"light field: 8×8 camera pixels of 6.57895 µm ({note})"
+    as_camera = design.updated(camera={**design.camera.model_dump(), "pixel_pitch_um": 125 / 19})
+    assert "resampled" not in describe(psf_display(_pattern_stack(as_camera)))
+    assert rectified_note(_pattern_stack(as_camera)) is None

@@ -28,7 +28,7 @@ import math
 import numbers
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import torch
 
@@ -37,6 +37,9 @@ from lfm_studio.engine.operators.protocol import FourierProjector, Projector
 from lfm_studio.engine.progress import CancelToken, ProgressCallback
 from lfm_studio.engine.reconstruct.guards import is_integer_data, warn_if_raw_counts
 from lfm_studio.engine.types import OptionValue
+
+if TYPE_CHECKING:
+    from lfm_studio.engine.systems.kinds_base import SystemKind
 
 PROJECTOR_KINDS = ("any", "shift-invariant", "periodic")
 DEVICES = ("cpu", "cuda")
@@ -293,6 +296,18 @@ class Method:
             return True
         return self.projectors == "any" or isinstance(projector, FourierProjector)
 
+    def supports_kind(self, kind: SystemKind) -> bool:
+        """Whether this method takes the projector a design of ``kind`` is reconstructed with (a
+        shift-invariant one for a kind with ``shift_invariant``, else a lenslet-lattice one)."""
+        return self.projectors != "shift-invariant" or kind.shift_invariant
+
+    def needs(self) -> str:
+        """The projectors this method takes, in words (no class names)."""
+        needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
+        if self.projectors == "periodic":
+            needs += " or a conventional-LFM lenslet-lattice projector"
+        return needs
+
     def steps(self, options: Mapping[str, OptionValue]) -> int:
         """Progress units of one run: the iterations of an iterative method, else 1."""
         iterations = options["iterations"] if self.iterative else 1
@@ -321,13 +336,17 @@ class Method:
         """A ``ValueError`` naming the method and a fix when it cannot take ``projector``."""
         if not self.supports(projector):
             choices = ", ".join(supporting(projector))  # what takes this one
-            needs = "laterally shift-invariant (Fourier LFM) projector with cached OTFs"
-            if self.projectors == "periodic":
-                needs += " or a conventional-LFM lenslet-lattice projector"
             raise ValueError(
-                f"method {self.name!r} ({self.label}) needs a {needs}; got a {type(projector).__name__}. "
+                f"method {self.name!r} ({self.label}) needs a {self.needs()}; got {_projector_words(projector)}. "
                 f"Fix: choose {choices}."
             )
+
+
+def _projector_words(projector: Projector) -> str:
+    """What ``projector`` is, in a user's words (a message names no internal class)."""
+    if isinstance(projector, LensletLatticeProjector):
+        return "a conventional-LFM projector (periodic in the lenslet lattice, not shift-invariant)"
+    return "a projector without cached OTFs (not laterally shift-invariant)"
 
 
 _REGISTRY: dict[str, Method] = {}

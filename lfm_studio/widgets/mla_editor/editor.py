@@ -159,6 +159,15 @@ class MLAEditor(QWidget):
         if refit:
             self.sensor_view.fit()
 
+    def set_summary(self, text: str | None) -> None:
+        """Show ``text`` in the status line instead of the checks of the lenslets shown: for a layout
+        edited elsewhere of which the editor shows only a patch (a regular grid). The sensor view then
+        claims no overlap status either. None: the checks again."""
+        if text == self._views.summary:
+            return
+        self._views.set_summary(text, None if text is None else "a central patch of the array is drawn")
+        self._refresh()
+
     def undo(self) -> bool:
         """Revert the last committed edit (emits ``lensletsCommitted``); True if there was one."""
         self.canvas.cancel_drag()

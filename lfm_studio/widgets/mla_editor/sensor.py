@@ -68,6 +68,7 @@ class SensorView(pg.PlotWidget):
         self._centers = pg.ScatterPlotItem(size=5, pen=None)
         self.getViewBox().addItem(self._centers)
         self._layer: pg.ItemGroup | None = None
+        self.patch_note: str | None = None  # replaces the overlap status: a patch of a larger array is drawn
         self._keys: list[object] = []
         self._overlap_items: dict[tuple, QGraphicsPathItem] = {}  # (centre a, centre b, radius) -> region
         self._discs: list[QGraphicsEllipseItem] = []
@@ -164,6 +165,9 @@ class SensorView(pg.PlotWidget):
             parts.append(f"sensor {fmt(sensor_size_um[0] / 1000)} x {fmt(sensor_size_um[1] / 1000)} mm")
         if layout is not None and layout.radius_um > 0:
             parts.append(f"sub-images {fmt(2 * layout.radius_um)} µm across")
+        if self.patch_note is not None:  # its overlaps say nothing about the array's
+            status = self.patch_note
+        elif layout is not None and layout.radius_um > 0:
             bad = len(layout.overlaps)
             drawn = f" ({MAX_OVERLAPS_DRAWN} drawn)" if bad > MAX_OVERLAPS_DRAWN else ""
             status = f"<span style='color:#ff6b6b'>{bad} overlap(s){drawn}</span>" if bad else "no overlap"

@@ -49,9 +49,8 @@ class EditSession:
         self.snap_pitch_um: float | None = None
         self.drag: Drag | None = None
         self.last_error = ""
-        first = self.history.current[-1] if self.history.current else None
-        self.new_diameter_um = first.aperture_diameter_um if first else 150.0
-        self.new_focal_length_mm = first.focal_length_mm if first else 3.0
+        self.new_diameter_um, self.new_focal_length_mm = 150.0, 3.0
+        self._size_new_from_layout()
 
     @property
     def lenslets(self) -> model.Lenslets:
@@ -72,7 +71,14 @@ class EditSession:
         n = len(self.shown)
         self.selected = sorted({int(i) for i in indices if 0 <= int(i) < n})
         if self.selected:
-            lens = self.shown[self.selected[0]]
+            self._size_new_from_layout()
+
+    def _size_new_from_layout(self) -> None:
+        """New lenslets take the size of the first selected lenslet, else of the layout's last one
+        (no lenslets: the size stays)."""
+        shown = self.shown
+        lens = shown[self.selected[0]] if self.selected else (shown[-1] if shown else None)
+        if lens is not None:
             self.new_diameter_um, self.new_focal_length_mm = lens.aperture_diameter_um, lens.focal_length_mm
 
     def commit(self, lenslets: model.Lenslets, label: str, selection: Sequence[int] | None = None) -> bool:
@@ -100,6 +106,7 @@ class EditSession:
             self.history.push(new, "external change")
         self.selected = [i for i in self.selected if i < len(new)]
         self.last_error = ""
+        self._size_new_from_layout()  # another design's lenslets: its size, not the previous design's
 
     def undo(self) -> bool:
         """Step back; True if something was undone."""

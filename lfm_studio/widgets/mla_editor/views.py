@@ -24,7 +24,12 @@ from lfm_studio.widgets.mla_editor.style import focal_colors
 from lfm_studio.widgets.mla_editor.table import LensletTable, LensletTableModel
 
 LIVE_CHECK_LIMIT = 2000  # larger arrays are checked when a drag ends, not at every preview frame
-STATUS_COLORS = {"error": "#e53935", "warning": "#ef6c00", "ok": "#43a047"}  # legible on light and dark
+STATUS_COLORS = {
+    "error": "#e53935",
+    "warning": "#ef6c00",
+    "ok": "#43a047",
+    "info": "#607d8b",
+}  # legible on light and dark
 
 
 class EditorViews:
@@ -68,6 +73,7 @@ class EditorViews:
         self.pixel_pitch_um: float | None = None
         self.issues: dict[int, list[str]] = {}
         self.status_plain = ""
+        self.summary: str | None = None  # a layout edited elsewhere: shown instead of the checks
         self._colors: dict = {}
         self._plane_issues: dict[int, list[str]] = {}
         self._sensor_layout: SensorLayout | None = None
@@ -112,7 +118,16 @@ class EditorViews:
         self.edits.set_states(
             undo=h.undo_label() or None, redo=h.redo_label() or None, has_selection=bool(s.selected)
         )
-        text, level = status_line(
+        text, level = self._status(s)
+        self.status_plain = text
+        safe = text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+        self.status.setText(f"<span style='color:{STATUS_COLORS[level]}'>{safe}</span>")
+
+    def _status(self, s: EditSession) -> tuple[str, str]:
+        """The status line and its level: the summary of a layout edited elsewhere, else the checks."""
+        if self.summary is not None and not s.last_error:
+            return self.summary, "info"
+        return status_line(
             s.shown,
             selected=len(s.selected),
             issues=self.issues,
@@ -120,9 +135,12 @@ class EditorViews:
             pupil_known=self.pupil_radius_um is not None,
             sensor_known=bool(self.sub_image_radius_um),
         )
-        self.status_plain = text
-        safe = text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
-        self.status.setText(f"<span style='color:{STATUS_COLORS[level]}'>{safe}</span>")
+
+    def set_summary(self, text: str | None, patch_note: str | None) -> None:
+        """Describe a layout edited elsewhere: ``text`` replaces the status line's checks of the
+        lenslets shown, ``patch_note`` the sensor view's overlap status (None: the checks again)."""
+        self.summary = text
+        self.sensor_view.patch_note = patch_note
 
     def _layout_of(self, shown: tuple[LensletSpec, ...], *, checks: bool) -> SensorLayout | None:
         if self.sub_image_radius_um is None:

@@ -84,6 +84,22 @@ class DisplayData:
         return self.data.ndim - 3 if self.has_depth else None
 
 
+def rectified_note(stack: PSFStack) -> str | None:
+    """How a conventional stack's sensor differs from the design's camera: its pixels are resampled to
+    a whole number per lenslet (e.g. 6.5 µm -> 6.579 µm, 19 per lenslet); None when they are the camera's."""
+    if stack.patterns is None:
+        return None
+    design = stack.design
+    camera = design.get("camera") if isinstance(design, dict) else getattr(design, "camera", None)
+    pitch = (
+        camera.get("pixel_pitch_um") if isinstance(camera, dict) else getattr(camera, "pixel_pitch_um", None)
+    )
+    per_lenslet = stack.patterns.pixels_per_lenslet
+    if pitch is None or math.isclose(pitch, stack.pixel_size * 1e6, rel_tol=1e-9):
+        return None
+    return f"resampled from the camera's {pitch:g} µm pixels to {per_lenslet} whole pixels per lenslet"
+
+
 def psf_display(
     stack: PSFStack, name: str = "PSF", *, max_voxels_3d: int = DEFAULT_MAX_VOXELS_3D
 ) -> DisplayData:
@@ -115,6 +131,7 @@ def psf_display(
         "depths_um": [float(z) for z in depths],
         "uniform_depths": uniform,
         "source_shape": tuple(stack.data.shape),
+        "note": rectified_note(stack),
     }
     shown = DisplayData(
         name=name,
@@ -139,8 +156,10 @@ def image_display(
     name: str = "light field",
     *,
     max_voxels_3d: int = DEFAULT_MAX_VOXELS_3D,
+    note: str | None = None,
 ) -> DisplayData:
-    """A camera image ``(..., Y, X)`` with square pixels of ``pixel_size_m`` metres."""
+    """A camera image ``(..., Y, X)`` with square pixels of ``pixel_size_m`` metres (``note``: how
+    they came about, e.g. :func:`rectified_note`, appended to the info line)."""
     pixel_size_m = _require_size("pixel_size_m", pixel_size_m)
     data = _numpy(image)
     if data.ndim < 2:
@@ -148,7 +167,10 @@ def image_display(
     px = pixel_size_m * 1e6
     ny, nx = data.shape[-2:]
     lead = data.ndim - 2
-    meta = {"kind": "image", "space": SENSOR, "units": "um", "pixel_size_um": px, "lateral": "sensor pixels"}
+    meta = {
+        "kind": "image", "space": SENSOR, "units": "um", "pixel_size_um": px, "lateral": "sensor pixels",
+        "note": note,
+    }  # fmt: skip
     shown = DisplayData(
         name=name,
         data=data,
@@ -277,15 +299,16 @@ def _finish(shown: DisplayData, max_voxels_3d: int) -> DisplayData:
 def describe(shown: DisplayData, *, stretched: bool = True) -> str:
     """One line for the info label: what the layer is, its sampling in um (and the depth stretch)."""
     meta, shape = shown.metadata, "×".join(str(n) for n in shown.data.shape)
+    note = f" ({meta['note']})" if meta.get("note") else ""
     if meta["kind"] == "psf":
         depths = meta["depths_um"]
         return (
             f"{shown.name}: {shape} ({meta['model']}), {len(depths)} depths {depths[0]:+g} to {depths[-1]:+g} µm; "
-            f"sensor pixels {meta['pixel_size_um']:g} µm (sample side {meta['sample_pixel_size_um']:.3g} µm)"
+            f"sensor pixels {meta['pixel_size_um']:g} µm{note} (sample side {meta['sample_pixel_size_um']:.3g} µm)"
             + (f"; depth drawn ×{shown.z_stretch:g}" if stretched and shown.z_stretch != 1 else "")
         )
     if meta["kind"] == "image":
-        return f"{shown.name}: {shape} camera pixels of {meta['pixel_size_um']:g} µm"
+        return f"{shown.name}: {shape} camera pixels of {meta['pixel_size_um']:g} µm{note}"
     dz, dy, dx = meta["voxel_size_um"]
     return f"{shown.name}: {shape} voxels of {dz:g}×{dy:g}×{dx:g} µm (z×y×x, sample side)"
 

@@ -11,6 +11,7 @@ import torch
 
 from lfm_studio.engine.operators import ShiftInvariantProjector
 from lfm_studio.engine.reconstruct import reconstruct_frame, registry
+from lfm_studio.engine.systems.kinds import CONVENTIONAL
 from tests import toy_method
 
 
@@ -130,6 +131,10 @@ def test_the_refusal_lists_every_method_that_takes_the_projector(conventional):
     with pytest.raises(ValueError, match="needs a laterally shift-invariant") as refused:
         reconstruct_frame(projector, torch.ones(projector.image_shape, dtype=torch.float64), method="wiener")
     assert str(refused.value).endswith(f"Fix: choose {', '.join(takers)}.")
+    assert "Projector" not in str(refused.value)  # no internal class name: the user's words
+    assert "got a conventional-LFM projector" in str(refused.value)
+    kind_takers = [m.name for m in registry.methods() if m.supports_kind(CONVENTIONAL)]
+    assert kind_takers == takers  # what the studio offers for a conventional design
     volume = reconstruct_frame(
         projector, projector.forward(torch.ones(projector.volume_shape)), method="tikhonov"
     )
