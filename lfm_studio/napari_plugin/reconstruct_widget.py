@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import napari
+import numpy as np
 from napari.layers import Image, Layer
 from qtpy.QtWidgets import (
     QFileDialog,
@@ -43,6 +44,7 @@ from qtpy.QtWidgets import (
 
 from lfm_studio.engine.calibration import CalibrationFileError, load_calibration
 from lfm_studio.engine.errors import error_text
+from lfm_studio.engine.systems.kinds import CONVENTIONAL, FOURIER, SystemKind
 from lfm_studio.napari_plugin import reconstruction
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.calibration_reader import calibration_source
@@ -67,6 +69,12 @@ def is_camera_image(layer: Any) -> bool:
         and layer.ndim == 2
         and kind_of(layer.metadata) in (None, "light_field")
     )
+
+
+def psf_layer_kind(layer: Any) -> SystemKind:
+    """The kind whose projector a PSF layer feeds: 5-D ``(S, S, Z, H, H)`` lenslet patterns are a
+    lenslet-lattice stack, 3-D ``(Z, Y, X)`` per-depth PSFs shift-invariant (:func:`psf_layer_data`)."""
+    return CONVENTIONAL if np.ndim(layer.data) == 5 else FOURIER
 
 
 def is_psf_stack(layer: Any) -> bool:
@@ -127,6 +135,8 @@ class ReconstructWidget(QWidget):
         layout.addWidget(self.controls)
         layout.addStretch(1)
         self.controls.runClicked.connect(self.start)
+        self.psf_picker.currentIndexChanged.connect(self._offer_methods_for_psf)
+        self._offer_methods_for_psf()
         self._task: BackgroundTask | None = None
         self._request: reconstruction.Request | None = None
         napari_viewer.layers.events.inserted.connect(self._on_layer_inserted)
@@ -234,6 +244,13 @@ class ReconstructWidget(QWidget):
         path, _ = QFileDialog.getOpenFileName(self, "Calibration file", "", "Calibration (*.json)")
         if path:
             self.set_calibration(path)
+
+    def _offer_methods_for_psf(self, *_: Any) -> None:
+        """Offer the methods that take the chosen PSF layer's kind (a 5-D conventional pattern stack
+        disables Wiener, with the reason in its tooltip; the studio does the same per design)."""
+        layer = self.psf_picker.layer()
+        if layer is not None:
+            self.options.restrict_to_kind(psf_layer_kind(layer))
 
     def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
         """A calibration overlay opened by the reader fills the calibration field."""

@@ -117,11 +117,12 @@ def prepare(
             "'lfm-studio reconstruct'."
         )
     kind = stack_kind(stack)
-    if registry.get(settings.method).projectors == "shift-invariant" and not kind.shift_invariant:
-        choices = " or ".join(m.label for m in registry.methods() if m.projectors == "any")
+    method = registry.get(settings.method)
+    if not method.supports_kind(kind):
+        choices = " or ".join(m.label for m in registry.methods() if m.supports_kind(kind))
         raise ValueError(
-            f"{settings.label} needs a laterally shift-invariant (Fourier LFM) PSF stack; "
-            f"{psf_name!r} is a {kind.title} pattern stack. Fix: choose {choices}."
+            f"{settings.label} needs a {method.needs()}; {psf_name!r} is a {kind.title} pattern stack. "
+            f"Fix: choose {choices}."
         )
     if calibration is not None:  # a raw frame: its rectified shape is checked against the PSF in run
         name = calibration_name or "calibration"

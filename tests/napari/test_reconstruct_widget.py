@@ -7,6 +7,8 @@ import inspect
 
 import numpy as np
 import pytest
+from napari.layers import Layer
+from qtpy.QtCore import Qt
 from scipy import ndimage
 
 from tests.napari.conftest import PLUGIN, add_layers
@@ -175,3 +177,32 @@ def test_a_registered_method_is_offered_with_its_options_and_runs(
     assert meta["method"] == "backprojection" and meta["scale"] == 2.0
     truth = viewer.layers["beads ground truth"].data
     assert float(ncc(np.asarray(truth), np.asarray(layer.data))) > 0.1  # a constant volume scores 0
+
+
+def test_a_conventional_pattern_stack_disables_wiener_with_the_reason(widget_on_sample):
+    """A 5-D pattern stack cannot be reconstructed by Wiener (shift-invariant OTFs only): the method
+    box greys it out with the reason, as the studio does, instead of failing after Reconstruct."""
+    import torch
+
+    from lfm_studio.engine.psf_stack import ConventionalPatterns, PSFStack
+    from lfm_studio.engine.units import nm, um
+    from lfm_studio.napari_plugin.layer_data import psf_layer_data
+
+    viewer, widget = widget_on_sample
+    box = widget.options.method
+    wiener = box.findData("wiener")
+    widget.set_method("wiener")
+    assert box.model().item(wiener).isEnabled()  # the sample's PSF is shift-invariant
+    layout = ConventionalPatterns(
+        pixels_per_lenslet=3, voxels_per_lenslet=3, reach=(0, 0, 0), lenslets=(2, 2)
+    )
+    stack = PSFStack(
+        torch.ones(3, 3, 3, 9, 9), (-1 * um, 0.0, 1 * um), 6.5 * um, 10.0, 525 * nm, patterns=layout
+    )
+    patterns = viewer.add_layer(Layer.create(*psf_layer_data(stack, name="patterns")))
+    widget.psf_picker.set_layer(patterns)
+    assert not box.model().item(wiener).isEnabled()
+    assert "needs a laterally shift-invariant" in box.itemData(wiener, Qt.ItemDataRole.ToolTipRole)
+    assert widget.options.method_name() != "wiener"  # the chosen Wiener was replaced by one that fits
+    widget.psf_picker.set_layer(viewer.layers["beads PSF stack"])
+    assert box.model().item(wiener).isEnabled()
