@@ -96,13 +96,12 @@ def test_a_recording_becomes_a_lazy_layer_equal_to_the_engine_run(widget, files,
     assert any(f"{FRAMES} of {FRAMES} frames" in i for i in notes.infos())
 
 
-def test_cancel_keeps_the_finished_chunk_and_resume_finishes_the_run(
-    widget, qtbot, notes, tmp_path, monkeypatch
-):
-    viewer, dock = widget
+def _cancel_after_the_first_chunk(monkeypatch):
+    """Make the dock's next runs set their cancel token once a chunk is recorded (the engine then
+    stops before the next chunk: no timing involved); returns the real ``run_video_job``."""
     original = video_widget.run_video_job
 
-    def cancel_after_the_first_chunk(job, progress, cancel):
+    def cancelling(job, progress, cancel):
         def report(done, total, message):
             progress(done, total, message)
             if "chunk" in message:
@@ -110,7 +109,15 @@ def test_cancel_keeps_the_finished_chunk_and_resume_finishes_the_run(
 
         return original(job, report, cancel)
 
-    monkeypatch.setattr(video_widget, "run_video_job", cancel_after_the_first_chunk)
+    monkeypatch.setattr(video_widget, "run_video_job", cancelling)
+    return original
+
+
+def test_cancel_keeps_the_finished_chunk_and_resume_finishes_the_run(
+    widget, qtbot, notes, tmp_path, monkeypatch
+):
+    viewer, dock = widget
+    original = _cancel_after_the_first_chunk(monkeypatch)
     store = tmp_path / "run.ome.zarr"
     dock.output.setText(str(store))
     layers = len(viewer.layers)
@@ -254,17 +261,7 @@ def test_a_cancelled_replacement_keeps_the_previous_store_and_says_so(
     assert dock.start()
     _wait(qtbot, dock)
     before = np.asarray(zarr.open_group(str(store), mode="r")["0"][:])
-    original = video_widget.run_video_job
-
-    def cancel_after_the_first_chunk(job, progress, cancel):
-        def report(done, total, message):
-            progress(done, total, message)
-            if "chunk" in message:
-                cancel.set()
-
-        return original(job, report, cancel)
-
-    monkeypatch.setattr(video_widget, "run_video_job", cancel_after_the_first_chunk)
+    _cancel_after_the_first_chunk(monkeypatch)
     assert dock.start(overwrite=True)  # "Replace store?" answered Yes
     _wait(qtbot, dock)
     assert "the previous store run.ome.zarr is unchanged" in notes.infos()[-1]
