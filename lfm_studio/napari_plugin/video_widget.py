@@ -41,6 +41,7 @@ from qtpy.QtWidgets import (
 )
 
 from lfm_studio.engine.errors import error_text
+from lfm_studio.engine.io.file_checks import zarr_store_path
 from lfm_studio.napari_plugin.background import BackgroundTask, Outcome
 from lfm_studio.napari_plugin.calibration_reader import calibration_source
 from lfm_studio.napari_plugin.notify import report_error, report_info, report_warning
@@ -113,12 +114,6 @@ def _what_was_kept(job: VideoJob | None) -> str:
     if job is not None and job.overwrite:
         return f"the previous store {job.output.name} is unchanged (the replacement was discarded)."
     return "the store keeps the finished chunks (tick Resume to finish)."
-
-
-def _store_path(text: str) -> Path:
-    """``text`` as a store path: ``.ome.zarr`` added when it names no ``.zarr``."""
-    path = Path(text).expanduser()
-    return path if path.name.lower().endswith(".zarr") else path.with_name(path.name + ".ome.zarr")
 
 
 def _path_row(edit: QLineEdit, *buttons: tuple[str, Any]) -> QHBoxLayout:
@@ -197,7 +192,7 @@ class VideoWidget(QWidget):
         text = self.output.text().strip()
         if not text:
             raise ValueError("Output store: empty. Fix: name the OME-Zarr store to write, e.g. run.ome.zarr.")
-        output = _store_path(text)
+        output = zarr_store_path(text)
         if output.exists() and not output.is_dir():
             raise ValueError(f"Output store: {output} is a file, not a Zarr store. Fix: choose another name.")
         if self.resume.isChecked() and not output.exists():
@@ -306,7 +301,7 @@ class VideoWidget(QWidget):
             options=QFileDialog.Option.DontConfirmOverwrite,
         )  # asked in start()
         if path:
-            self.output.setText(str(_store_path(path)))
+            self.output.setText(str(zarr_store_path(path)))
 
     def _on_layer_inserted(self, event: Any = None, *, layer: Any = None) -> None:
         """A PSF stack opened from a file fills the PSF field; a calibration overlay the calibration."""
@@ -376,9 +371,11 @@ def _failures_status(result: Any, most: int = 8) -> str:
     """The status line of a run with failed frames or lost chunks (counts and frame numbers only)."""
     parts = []
     if result.failed:
-        frames = sorted(result.failed)
-        listed = ", ".join(str(t) for t in frames[:most]) + (" ..." if len(frames) > most else "")
-        parts.append(f"{len(frames)} of {result.frame_count} frames failed ({listed})")
+        from lfm_studio.engine.batch.store import listed_frames  # the scale extra ran this result
+
+        parts.append(
+            f"{len(result.failed)} of {result.frame_count} frames failed ({listed_frames(result.failed, most)})"
+        )
     if result.unfinished:
         parts.append(f"{len(result.unfinished)} chunk(s) lost")
     return f"done with problems: {'; '.join(parts)}. {RESUME_FIX}"

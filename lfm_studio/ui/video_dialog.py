@@ -34,6 +34,7 @@ from qtpy.QtWidgets import (
     QWidget,
 )
 
+from lfm_studio.engine.io.file_checks import zarr_store_path
 from lfm_studio.ui.failure_notices import show_failure
 from lfm_studio.ui.path_form import PathFormDialog, path_of, start_folder
 from lfm_studio.ui.results import JobStatus, WorkflowSettings
@@ -49,12 +50,6 @@ ZARR_FILTER = "OME-Zarr store (*.ome.zarr *.zarr)"
 CALIBRATION_FILTER = "Calibration (*.json)"
 TITLE = "Reconstruct light-field video"
 _Buttons = QMessageBox.StandardButton
-
-
-def _store_path(text: str) -> Path:
-    """``text`` as a store path: ``.ome.zarr`` added when it names no ``.zarr``."""
-    path = Path(text).expanduser()
-    return path if path.name.lower().endswith(".zarr") else path.with_name(path.name + ".ome.zarr")
 
 
 class VideoDialog(PathFormDialog):
@@ -128,14 +123,14 @@ class VideoDialog(PathFormDialog):
             self, "Output store", self.folder, ZARR_FILTER, options=QFileDialog.Option.DontConfirmOverwrite
         )  # the studio asks before replacing a store
         if path:
-            self.chosen(self.output_edit, str(_store_path(path)))
+            self.chosen(self.output_edit, str(zarr_store_path(path)))
 
     def frames(self) -> Path | None:
         return path_of(self.frames_edit)
 
     def output(self) -> Path | None:
         text = self.output_edit.text().strip()
-        return _store_path(text) if text else None
+        return zarr_store_path(text) if text else None
 
     def problem(self) -> str | None:
         """What is missing or wrong (named with its field and the fix), or None."""

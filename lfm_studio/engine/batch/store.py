@@ -22,7 +22,7 @@ import json
 import os
 import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal, NotRequired, TypeAlias, TypedDict, TypeGuard
@@ -234,13 +234,16 @@ class FrameReport:
         zeros"), or None when every frame holds a reconstruction."""
         parts = []
         if self.failed:
-            parts.append(f"frame(s) {_listed(self.failed)} failed")
+            parts.append(f"frame(s) {listed_frames(self.failed)} failed")
         if self.missing:
-            parts.append(f"frame(s) {_listed(self.missing)} not computed yet (resume the run to finish them)")
+            parts.append(
+                f"frame(s) {listed_frames(self.missing)} not computed yet (resume the run to finish them)"
+            )
         return None if not parts else "; ".join(parts) + ": their volumes are zeros, not data."
 
 
-def _listed(frames: Mapping[int, object] | tuple[int, ...], most: int = 8) -> str:
+def listed_frames(frames: Iterable[int], most: int = 8) -> str:
+    """``frames`` in order, the first ``most`` named: ``"3, 7, 9 and 12 more"``."""
     ordered = sorted(frames)
     text = ", ".join(str(t) for t in ordered[:most])
     return text + (f" and {len(ordered) - most} more" if len(ordered) > most else "")

@@ -41,6 +41,7 @@ from lfm_studio.engine.batch.store import (
     create_store,
     discard_store,
     finish_interrupted_replacement,
+    listed_frames,
     open_store,
     replace_store,
 )
@@ -262,26 +263,21 @@ def check_frames_unchanged(store: VideoStore, source: FrameSource) -> None:
             stacklevel=3,
         )
         return
-    changed = [
-        int(key)
-        for record in store.records().values()
-        for key, info in record["frames"].items()
-        if info["status"] == "done"
-        and info.get("digest", "") != frame_digest(source.read(int(key), int(key) + 1)[0])
-    ]
+    changed = []
+    for record in store.records().values():  # one read per chunk, not per frame
+        frames = source.read(record["start"], record["stop"])
+        changed += [
+            int(key)
+            for key, info in record["frames"].items()
+            if info["status"] == "done"
+            and info.get("digest", "") != frame_digest(frames[int(key) - record["start"]])
+        ]
     if changed:
         raise ValueError(
-            f"frames {source.path} changed since {store.path} was written: frame(s) {_first_few(changed)} "
+            f"frames {source.path} changed since {store.path} was written: frame(s) {listed_frames(changed)} "
             "differ from those reconstructed. Resuming would mix two recordings in one store. Fix: "
             "overwrite the store (start again), or write to another store."
         )
-
-
-def _first_few(frames: list[int], most: int = 8) -> str:
-    ordered = sorted(frames)
-    return ", ".join(map(str, ordered[:most])) + (
-        f" and {len(ordered) - most} more" if len(ordered) > most else ""
-    )
 
 
 def _open_for_resume(

@@ -80,6 +80,13 @@ def names_zarr_store(path: str | os.PathLike) -> bool:
     return os.fspath(path).rstrip("/").lower().endswith(ZARR_SUFFIX)
 
 
+def zarr_store_path(text: str | os.PathLike) -> Path:
+    """``text`` as an OME-Zarr store path: ``.ome.zarr`` added when it names no ``.zarr`` (what the
+    studio's and the napari plugin's output fields make of a typed name)."""
+    path = Path(text).expanduser()
+    return path if names_zarr_store(path) else path.with_name(path.name + ".ome.zarr")
+
+
 def check_tiff_name(path: str | os.PathLike, *, flag: str | None = None) -> Path:
     """Refuse a TIFF output whose name does not end in ``.tif`` / ``.tiff`` (other tools go by the
     suffix: ``v.png`` holding a TIFF opens nowhere); return the path. ``flag``: how the user
